@@ -1,0 +1,222 @@
+//! Frustum culling of the built-in city: Cullet's SoA SIMD path against Bevy's `Frustum::intersects_obb` on the
+//! same objects and cameras, thread scaling, and the memory bandwidth bound of reading the SoA arrays.
+//!
+//! `cargo bench -p cullet-benches --bench frustum`
+
+use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum};
+use bevy_shape::ViewFrustum;
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use cullet::bounds::WorldBounds;
+use cullet::city::{CityParams, CityScene};
+use cullet::frustum::{SimdBackend, cull_frustum_with};
+use cullet::{BoundsStore, Frustum, VisibleSet};
+use rayon::prelude::*;
+use std::hint::black_box;
+use std::time::Duration;
+
+const SIZES: [usize; 3] = [10_000, 100_000, 1_000_000];
+
+/// One city: Cullet's store, and the same objects as Bevy keeps them (local AABB plus world transform).
+struct Fixture {
+    store: BoundsStore,
+    bevy_objects: Vec<(Aabb, bevy_math::Affine3A)>,
+    cullet_frusta: Vec<Frustum>,
+    bevy_frusta: Vec<BevyFrustum>,
+}
+
+fn fixture(objects: usize) -> Fixture {
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let mut store = BoundsStore::default();
+    let mut bevy_objects = Vec::with_capacity(objects);
+    for (i, object) in city.objects.iter().enumerate() {
+        let local = city.mesh_bounds[object.mesh as usize];
+        let entity = bevy_ecs_entity(i);
+        store.push(
+            entity,
+            &WorldBounds::from_local(entity, &local, &object.transform).unwrap(),
+        );
+        let aabb = Aabb {
+            center: bevy_math::Vec3A::from_array(local.center.to_array()),
+            half_extents: bevy_math::Vec3A::from_array(local.half_extent.to_array()),
+        };
+        let m = object.transform.to_cols_array();
+        bevy_objects.push((aabb, bevy_math::Affine3A::from_cols_array(&m)));
+    }
+    let cameras = city.benchmark_cameras();
+    let cullet_frusta = cameras.iter().map(|(_, c)| c.frustum().unwrap()).collect();
+    let bevy_frusta = cameras
+        .iter()
+        .map(|(_, c)| {
+            let m = bevy_math::Mat4::from_cols_array(&c.clip_from_world().to_cols_array());
+            BevyFrustum(ViewFrustum::from_clip_from_world(&m))
+        })
+        .collect();
+    Fixture {
+        store,
+        bevy_objects,
+        cullet_frusta,
+        bevy_frusta,
+    }
+}
+
+fn bevy_ecs_entity(i: usize) -> bevy_ecs::entity::Entity {
+    bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap()
+}
+
+/// Sum with 8 independent accumulators, so the compiler vectorizes it and the loop is bound by memory.
+fn wide_sum(values: &[f32]) -> f32 {
+    let lanes = values.chunks_exact(8).fold([0f32; 8], |mut acc, chunk| {
+        for (a, v) in acc.iter_mut().zip(chunk) {
+            *a += v;
+        }
+        acc
+    });
+    lanes.iter().sum()
+}
+
+/// Bevy's test over all objects, parallel the same way as Cullet's (64 objects a word, 4096 a task).
+fn cull_bevy(
+    objects: &[(Aabb, bevy_math::Affine3A)],
+    frustum: &BevyFrustum,
+    visible: &mut VisibleSet,
+) -> usize {
+    visible.reset(objects.len());
+    visible
+        .words_mut()
+        .par_chunks_mut(64)
+        .zip(objects.par_chunks(64 * 64))
+        .map(|(words, objects)| {
+            let mut count = 0;
+            for (word, objects) in words.iter_mut().zip(objects.chunks(64)) {
+                *word = 0;
+                for (lane, (aabb, transform)) in objects.iter().enumerate() {
+                    *word |= (frustum.intersects_obb(aabb, transform, true, true) as u64) << lane;
+                }
+                count += word.count_ones() as usize;
+            }
+            count
+        })
+        .sum()
+}
+
+fn frustum(c: &mut Criterion) {
+    let mut group = c.benchmark_group("frustum");
+    group
+        .sample_size(30)
+        .measurement_time(Duration::from_secs(4))
+        .warm_up_time(Duration::from_secs(1));
+    let mut visible = VisibleSet::default();
+    for &n in &SIZES {
+        let fixture = fixture(n);
+        let cameras = fixture.cullet_frusta.len() as u64;
+        group.throughput(Throughput::Elements(n as u64 * cameras));
+        group.bench_function(BenchmarkId::new("cullet", n), |b| {
+            b.iter(|| {
+                for frustum in &fixture.cullet_frusta {
+                    black_box(cull_frustum_with(
+                        &fixture.store,
+                        frustum,
+                        SimdBackend::Auto,
+                        &mut visible,
+                    ));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new("cullet-scalar", n), |b| {
+            b.iter(|| {
+                for frustum in &fixture.cullet_frusta {
+                    black_box(cull_frustum_with(
+                        &fixture.store,
+                        frustum,
+                        SimdBackend::Scalar,
+                        &mut visible,
+                    ));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new("bevy", n), |b| {
+            b.iter(|| {
+                for frustum in &fixture.bevy_frusta {
+                    black_box(cull_bevy(&fixture.bevy_objects, frustum, &mut visible));
+                }
+            })
+        });
+    }
+    group.finish();
+}
+
+fn threads(c: &mut Criterion) {
+    let fixture = fixture(1_000_000);
+    let mut group = c.benchmark_group("frustum");
+    group
+        .sample_size(30)
+        .measurement_time(Duration::from_secs(4))
+        .warm_up_time(Duration::from_secs(1));
+    group.throughput(Throughput::Elements(
+        1_000_000 * fixture.cullet_frusta.len() as u64,
+    ));
+    let max_threads = std::thread::available_parallelism()
+        .map_or(2, |n| n.get())
+        .max(2);
+    let mut visible = VisibleSet::default();
+    for threads in 1..=max_threads {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        group.bench_function(BenchmarkId::new("threads", threads), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    for frustum in &fixture.cullet_frusta {
+                        black_box(cull_frustum_with(
+                            &fixture.store,
+                            frustum,
+                            SimdBackend::Auto,
+                            &mut visible,
+                        ));
+                    }
+                })
+            })
+        });
+    }
+    group.finish();
+
+    // The bandwidth bound: the time to merely read the seven SoA arrays of 1e6 objects, in parallel.
+    let mut group = c.benchmark_group("bandwidth");
+    group
+        .sample_size(30)
+        .measurement_time(Duration::from_secs(4))
+        .warm_up_time(Duration::from_secs(1));
+    let store = &fixture.store;
+    let arrays = [
+        &store.center_x,
+        &store.center_y,
+        &store.center_z,
+        &store.extent_x,
+        &store.extent_y,
+        &store.extent_z,
+        &store.radius,
+    ];
+    group.throughput(Throughput::Bytes(
+        (arrays.len() * store.padded_len() * 4) as u64,
+    ));
+    group.bench_function("read_soa/1000000", |b| {
+        b.iter(|| {
+            let sum: f32 = (0..store.padded_len() / 4096)
+                .into_par_iter()
+                .map(|block| {
+                    let range = block * 4096..(block + 1) * 4096;
+                    arrays
+                        .iter()
+                        .map(|a| wide_sum(&a[range.clone()]))
+                        .sum::<f32>()
+                })
+                .sum();
+            black_box(sum)
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, frustum, threads);
+criterion_main!(benches);

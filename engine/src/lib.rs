@@ -1,0 +1,28 @@
+//! # Cullet
+//!
+//! A data-oriented visibility-culling engine. Each frame, objects flow one way through the stages, each a
+//! module of its own:
+//!
+//! 1. [`bounds`]: world-space bounding boxes as linear SoA arrays in a `bevy_ecs` resource, updated only where
+//!    transforms changed;
+//! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset.
+//!
+//! [`pipeline`] wires the stages into a `bevy_ecs` schedule; [`city`] generates the built-in test scene;
+//! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw.
+//!
+//! Culling is conservative by default: no stage removes an object that could be visible.
+
+pub mod bounds;
+pub mod camera;
+pub mod city;
+pub mod frustum;
+pub mod mesh;
+pub mod pipeline;
+pub mod visible;
+
+pub use bounds::{
+    BoundsError, BoundsStore, LocalBounds, MeshRef, ObjectTransform, Occluder, Static, WorldBounds,
+};
+pub use camera::{Camera, CameraPath};
+pub use frustum::{DepthConvention, Frustum, SimdBackend};
+pub use visible::VisibleSet;

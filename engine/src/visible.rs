@@ -1,0 +1,122 @@
+//! The visibility bitset that flows between stages: bit `i` set means the object in store slot `i` may be
+//! visible. Each stage reads the previous stage's set and clears bits in place, so no stage copies a list.
+
+/// One bit per store slot, 64 slots a word; bits past [`VisibleSet::len`] are always clear.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct VisibleSet {
+    words: Vec<u64>,
+    len: usize,
+}
+
+impl VisibleSet {
+    /// A set of `len` slots, all clear.
+    pub fn new(len: usize) -> Self {
+        Self {
+            words: vec![0; len.div_ceil(64)],
+            len,
+        }
+    }
+
+    /// A set of `len` slots, all set.
+    pub fn all(len: usize) -> Self {
+        let mut set = Self {
+            words: vec![u64::MAX; len.div_ceil(64)],
+            len,
+        };
+        set.clear_tail();
+        set
+    }
+
+    /// Resizes to `len` slots and clears every bit, reusing the allocation.
+    pub fn reset(&mut self, len: usize) {
+        self.words.clear();
+        self.words.resize(len.div_ceil(64), 0);
+        self.len = len;
+    }
+
+    /// Number of slots (set or not).
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the set has no slots.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Whether slot `index` is set.
+    pub fn contains(&self, index: usize) -> bool {
+        index < self.len && self.words[index / 64] & (1 << (index % 64)) != 0
+    }
+
+    /// Sets or clears slot `index`.
+    pub fn set(&mut self, index: usize, visible: bool) {
+        let bit = 1u64 << (index % 64);
+        if visible {
+            self.words[index / 64] |= bit;
+        } else {
+            self.words[index / 64] &= !bit;
+        }
+    }
+
+    /// Number of set slots.
+    pub fn count(&self) -> usize {
+        self.words.iter().map(|w| w.count_ones() as usize).sum()
+    }
+
+    /// The raw words, 64 slots each, slot `i` at bit `i % 64` of word `i / 64`.
+    pub fn words(&self) -> &[u64] {
+        &self.words
+    }
+
+    /// The raw words, for stages that write the set in parallel. Callers must keep bits past `len` clear
+    /// (see [`VisibleSet::clear_tail`]).
+    pub fn words_mut(&mut self) -> &mut [u64] {
+        &mut self.words
+    }
+
+    /// Clears the bits past `len` in the last word.
+    pub fn clear_tail(&mut self) {
+        if !self.len.is_multiple_of(64)
+            && let Some(last) = self.words.last_mut()
+        {
+            *last &= (1u64 << (self.len % 64)) - 1;
+        }
+    }
+
+    /// The set slots in increasing order.
+    pub fn iter(&self) -> impl Iterator<Item = usize> + '_ {
+        self.words
+            .iter()
+            .enumerate()
+            .flat_map(|(word_index, &word)| {
+                let mut bits = word;
+                std::iter::from_fn(move || {
+                    (bits != 0).then(|| {
+                        let bit = bits.trailing_zeros() as usize;
+                        bits &= bits - 1;
+                        word_index * 64 + bit
+                    })
+                })
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn iter_and_count_agree_with_contains() {
+        let mut set = VisibleSet::new(130);
+        for i in [0, 5, 63, 64, 129] {
+            set.set(i, true);
+        }
+        assert_eq!(set.iter().collect::<Vec<_>>(), vec![0, 5, 63, 64, 129]);
+        assert_eq!(set.count(), 5);
+        assert!(set.contains(129) && !set.contains(128) && !set.contains(500));
+        let all = VisibleSet::all(130);
+        assert_eq!(all.count(), 130);
+        assert_eq!(all.iter().last(), Some(129));
+    }
+}

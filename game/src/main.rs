@@ -1,0 +1,189 @@
+//! `cullet-game`: flies a camera through a scene and culls it every frame, printing per-frame and summary
+//! statistics of each stage.
+
+use bevy_ecs::prelude::*;
+use clap::Parser;
+use cullet::city::{CityParams, CityScene, Velocity};
+use cullet::pipeline::{self, CullStats};
+use cullet::{BoundsStore, Camera, ObjectTransform};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+/// Fly through a scene and cull it every frame.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Args {
+    /// Scene to load: `city` or `city:N` for the built-in procedural city of N objects.
+    #[arg(long, default_value = "city:100000")]
+    scene: String,
+    /// Number of frames along the camera path.
+    #[arg(long, default_value_t = 300)]
+    frames: u32,
+    /// Viewport size, `WIDTHxHEIGHT` (sets the aspect ratio of the camera).
+    #[arg(long, default_value = "1920x1080")]
+    resolution: String,
+    /// Print only the summary, not one line per frame.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// Seconds since the start of the run and since the last frame.
+#[derive(Resource, Default)]
+struct FrameTime {
+    delta: f32,
+}
+
+/// Moves objects with a [`Velocity`]; only their transforms change, so only their bounds are recomputed.
+fn move_objects(time: Res<FrameTime>, mut movers: Query<(&Velocity, &mut ObjectTransform)>) {
+    for (velocity, mut transform) in &mut movers {
+        transform.0.translation += glam::Vec3A::from(velocity.0 * time.delta);
+    }
+}
+
+fn parse_scene(scene: &str) -> Result<usize, String> {
+    match scene.split_once(':') {
+        None if scene == "city" => Ok(100_000),
+        Some(("city", count)) => count
+            .parse()
+            .map_err(|_| format!("bad object count in --scene {scene}")),
+        _ => Err(format!(
+            "unknown scene '{scene}': this build knows only the built-in `city[:N]`"
+        )),
+    }
+}
+
+fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
+    let parsed = resolution
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)));
+    match parsed {
+        Some((w, h)) if w > 0 && h > 0 => Ok((w, h)),
+        _ => Err(format!(
+            "bad --resolution '{resolution}', expected WIDTHxHEIGHT"
+        )),
+    }
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
+        )
+        .init();
+    let args = Args::parse();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("cullet-game: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<(), String> {
+    let objects = parse_scene(&args.scene)?;
+    let (width, height) = parse_resolution(&args.resolution)?;
+    let aspect = width as f32 / height as f32;
+
+    let start = Instant::now();
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let mut world = World::new();
+    pipeline::init_world(&mut world);
+    city.spawn(&mut world);
+    let path = city.flythrough();
+    world.insert_resource(path.camera_at(0.0, aspect));
+    world.init_resource::<FrameTime>();
+    let mut schedule = Schedule::default();
+    pipeline::add_systems(&mut schedule);
+    schedule.add_systems(move_objects.before(pipeline::CullStage::Bounds));
+    println!(
+        "city of {} objects generated and spawned in {:.0} ms; {} frames along a {:.0} s path",
+        city.objects.len(),
+        start.elapsed().as_secs_f64() * 1e3,
+        args.frames,
+        path.duration()
+    );
+
+    let mut per_frame = Vec::with_capacity(args.frames as usize);
+    let frame_delta = path.duration() / args.frames.saturating_sub(1).max(1) as f32;
+    for frame in 0..args.frames {
+        let t = frame as f32 * frame_delta;
+        world.insert_resource(path.camera_at(t, aspect));
+        world.resource_mut::<FrameTime>().delta = if frame == 0 { 0.0 } else { frame_delta };
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let stats = *world.resource::<CullStats>();
+        if let Some(error) = stats.frustum_error {
+            return Err(format!("frame {frame}: {error}"));
+        }
+        if !args.quiet {
+            let camera = world.resource::<Camera>();
+            println!(
+                "frame {frame:4}  camera ({:8.1} {:6.1} {:8.1})  objects {:8}  bounds updated {:6} in {:7.1} us  \
+                 after frustum {:8} ({:5.1}%) in {:7.1} us",
+                camera.position.x,
+                camera.position.y,
+                camera.position.z,
+                stats.objects,
+                stats.bounds_recomputed,
+                micros(stats.bounds_time),
+                stats.after_frustum,
+                100.0 * stats.after_frustum as f64 / stats.objects.max(1) as f64,
+                micros(stats.frustum_time),
+            );
+        }
+        per_frame.push(stats);
+    }
+    let errors = world.resource_mut::<BoundsStore>().take_errors();
+    for error in &errors {
+        eprintln!("rejected: {error}");
+    }
+    print_summary(&per_frame);
+    Ok(())
+}
+
+fn micros(duration: Duration) -> f64 {
+    duration.as_secs_f64() * 1e6
+}
+
+fn print_summary(frames: &[CullStats]) {
+    if frames.is_empty() {
+        return;
+    }
+    let n = frames.len() as f64;
+    let summarize = |times: Vec<f64>| {
+        let mut sorted = times;
+        sorted.sort_by(f64::total_cmp);
+        let mean = sorted.iter().sum::<f64>() / n;
+        (mean, sorted[sorted.len() / 2], sorted[sorted.len() - 1])
+    };
+    let objects = frames[0].objects as f64;
+    let kept = frames.iter().map(|f| f.after_frustum as f64).sum::<f64>() / n;
+    println!(
+        "\nsummary over {} frames, {} objects",
+        frames.len(),
+        frames[0].objects
+    );
+    println!(
+        "{:<10} {:>12} {:>12} {:>12} {:>12} {:>10}",
+        "stage", "mean us", "median us", "max us", "kept", "culled"
+    );
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.bounds_time)).collect());
+    let updated = frames
+        .iter()
+        .map(|f| f.bounds_recomputed as f64)
+        .sum::<f64>()
+        / n;
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {:>12} {:>10}",
+        "bounds",
+        format!("{updated:.0} upd"),
+        ""
+    );
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.frustum_time)).collect());
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {kept:>12.0} {:>9.1}%",
+        "frustum",
+        100.0 * (1.0 - kept / objects.max(1.0))
+    );
+}

@@ -1,0 +1,249 @@
+//! The ECS bounds store: incremental updates through change detection, O(1) swap-remove, validation, and world
+//! boxes that always contain the exactly transformed box.
+
+use bevy_ecs::prelude::*;
+use cullet::bounds::{BoundsRejected, BoundsSlot, LocalBounds, ObjectTransform, WorldBounds};
+use cullet::pipeline::{self, CullStats, FrustumVisible};
+use cullet::{BoundsError, BoundsStore, Camera};
+use glam::{Affine3A, DVec3, Quat, Vec3};
+use proptest::prelude::*;
+
+fn world_with_schedule() -> (World, Schedule) {
+    let mut world = World::new();
+    pipeline::init_world(&mut world);
+    world.insert_resource(Camera::looking_at(Vec3::new(0.0, 0.0, 50.0), Vec3::ZERO));
+    let mut schedule = Schedule::default();
+    pipeline::add_systems(&mut schedule);
+    (world, schedule)
+}
+
+fn frame(world: &mut World, schedule: &mut Schedule) -> CullStats {
+    schedule.run(world);
+    world.clear_trackers();
+    *world.resource::<CullStats>()
+}
+
+fn spawn_box(world: &mut World, position: Vec3) -> Entity {
+    world
+        .spawn((
+            LocalBounds {
+                center: Vec3::ZERO,
+                half_extent: Vec3::splat(0.5),
+            },
+            ObjectTransform(Affine3A::from_translation(position)),
+        ))
+        .id()
+}
+
+/// Every stored slot points at an entity whose `BoundsSlot` points back, with bounds matching its components.
+fn assert_store_consistent(world: &mut World) {
+    let store = world.resource::<BoundsStore>().clone();
+    let mut query = world.query::<(Entity, &LocalBounds, &ObjectTransform, &BoundsSlot)>();
+    let mut seen = 0;
+    for (entity, local, transform, slot) in query.iter(world) {
+        assert_eq!(store.entities()[slot.0 as usize], entity);
+        assert_eq!(
+            store.get(slot.0 as usize),
+            WorldBounds::from_local(entity, local, &transform.0).unwrap()
+        );
+        seen += 1;
+    }
+    assert_eq!(seen, store.len());
+    // Padding past the last object stays zero so SIMD blocks read nothing stale.
+    assert!(store.center_x[store.len()..].iter().all(|&x| x == 0.0));
+    assert_eq!(store.padded_len() % 64, 0);
+}
+
+#[test]
+fn only_changed_entities_are_recomputed() {
+    let (mut world, mut schedule) = world_with_schedule();
+    let entities: Vec<Entity> = (0..100)
+        .map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0)))
+        .collect();
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 100);
+    assert_eq!(
+        frame(&mut world, &mut schedule).bounds_recomputed,
+        0,
+        "a quiet frame recomputes nothing"
+    );
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
+
+    world
+        .get_mut::<ObjectTransform>(entities[7])
+        .unwrap()
+        .0
+        .translation
+        .y = 3.0;
+    world
+        .get_mut::<ObjectTransform>(entities[42])
+        .unwrap()
+        .0
+        .translation
+        .y = -3.0;
+    let stats = frame(&mut world, &mut schedule);
+    assert_eq!(stats.bounds_recomputed, 2);
+    let slot = world.get::<BoundsSlot>(entities[7]).unwrap().0 as usize;
+    assert_eq!(
+        world.resource::<BoundsStore>().get(slot).center,
+        Vec3::new(7.0, 3.0, 0.0)
+    );
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
+    assert_store_consistent(&mut world);
+}
+
+#[test]
+fn removal_swaps_the_last_object_into_the_hole() {
+    let (mut world, mut schedule) = world_with_schedule();
+    let entities: Vec<Entity> = (0..130)
+        .map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0)))
+        .collect();
+    frame(&mut world, &mut schedule);
+    assert_eq!(world.resource::<BoundsStore>().padded_len(), 192);
+
+    let removed_slot = world.get::<BoundsSlot>(entities[3]).unwrap().0;
+    let last = *world.resource::<BoundsStore>().entities().last().unwrap();
+    world.despawn(entities[3]);
+    // Immediately, without running the schedule: the last object now sits in the freed slot.
+    assert_eq!(world.resource::<BoundsStore>().len(), 129);
+    assert_eq!(world.get::<BoundsSlot>(last).unwrap().0, removed_slot);
+    assert_store_consistent(&mut world);
+
+    // Removing a component (not despawning) removes the object too, and a quiet frame after stays quiet.
+    world.entity_mut(entities[10]).remove::<LocalBounds>();
+    for &entity in &entities[60..130] {
+        world.despawn(entity);
+    }
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
+    assert_eq!(world.resource::<BoundsStore>().len(), 58);
+    assert_eq!(
+        world.resource::<BoundsStore>().padded_len(),
+        64,
+        "the arrays shrink by whole words"
+    );
+    assert!(world.get::<BoundsSlot>(entities[10]).is_none());
+    assert_store_consistent(&mut world);
+
+    // Re-adding the component brings the object back.
+    world.entity_mut(entities[10]).insert(LocalBounds {
+        center: Vec3::ZERO,
+        half_extent: Vec3::ONE,
+    });
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 1);
+    assert_eq!(world.resource::<BoundsStore>().len(), 59);
+    assert_store_consistent(&mut world);
+}
+
+#[test]
+fn invalid_bounds_are_rejected_with_the_entity_named() {
+    let (mut world, mut schedule) = world_with_schedule();
+    let good = spawn_box(&mut world, Vec3::ZERO);
+    let nan = world
+        .spawn((
+            LocalBounds {
+                center: Vec3::new(f32::NAN, 0.0, 0.0),
+                half_extent: Vec3::ONE,
+            },
+            ObjectTransform(Affine3A::IDENTITY),
+        ))
+        .id();
+    let negative = world
+        .spawn((
+            LocalBounds {
+                center: Vec3::ZERO,
+                half_extent: Vec3::new(1.0, -1.0, 1.0),
+            },
+            ObjectTransform(Affine3A::IDENTITY),
+        ))
+        .id();
+    let infinite = world
+        .spawn((
+            LocalBounds {
+                center: Vec3::ZERO,
+                half_extent: Vec3::ONE,
+            },
+            ObjectTransform(Affine3A::from_translation(Vec3::new(
+                0.0,
+                f32::INFINITY,
+                0.0,
+            ))),
+        ))
+        .id();
+    let overflow = world
+        .spawn((
+            LocalBounds {
+                center: Vec3::ZERO,
+                half_extent: Vec3::splat(1e30),
+            },
+            ObjectTransform(Affine3A::from_scale(Vec3::splat(1e30))),
+        ))
+        .id();
+    frame(&mut world, &mut schedule);
+
+    let store = world.resource::<BoundsStore>();
+    assert_eq!(store.entities(), &[good]);
+    let errors = world.resource_mut::<BoundsStore>().take_errors();
+    assert_eq!(errors.len(), 4);
+    assert!(matches!(errors[0], BoundsError::NonFiniteLocal { entity, .. } if entity == nan));
+    assert!(matches!(errors[1], BoundsError::NegativeExtent { entity, .. } if entity == negative));
+    assert!(matches!(errors[2], BoundsError::NonFiniteTransform { entity } if entity == infinite));
+    assert!(matches!(errors[3], BoundsError::WorldOverflow { entity } if entity == overflow));
+    assert!(
+        errors[0].to_string().contains(&nan.to_string()),
+        "the message names the entity"
+    );
+    assert!(world.get::<BoundsRejected>(nan).is_some());
+
+    // A stored object that turns invalid leaves the store (reported), and the rest is untouched.
+    world
+        .get_mut::<ObjectTransform>(good)
+        .unwrap()
+        .0
+        .translation
+        .x = f32::NAN;
+    frame(&mut world, &mut schedule);
+    assert!(world.resource::<BoundsStore>().is_empty());
+    assert!(world.get::<BoundsRejected>(good).is_some());
+    // Fixing it brings it back.
+    world
+        .get_mut::<ObjectTransform>(good)
+        .unwrap()
+        .0
+        .translation
+        .x = 0.0;
+    frame(&mut world, &mut schedule);
+    assert_eq!(world.resource::<BoundsStore>().entities(), &[good]);
+    assert!(world.get::<BoundsRejected>(good).is_none());
+    assert!(world.resource::<FrustumVisible>().0.contains(0));
+}
+
+proptest! {
+    /// The stored f32 box contains the box transformed exactly (in f64), corner for corner, at any scale.
+    #[test]
+    fn world_bounds_contain_the_exact_box(
+        center in prop::array::uniform3(-1e3f32..1e3),
+        extent in prop::array::uniform3(0f32..1e3),
+        translation in prop::array::uniform3(-1e8f32..1e8),
+        scale in prop::array::uniform3(1e-3f32..1e3),
+        axis in prop::array::uniform3(-1f32..1.0),
+        angle in 0f32..7.0,
+    ) {
+        let local = LocalBounds { center: Vec3::from(center), half_extent: Vec3::from(extent) };
+        let rotation = Quat::from_axis_angle(Vec3::from(axis).normalize_or(Vec3::Y), angle);
+        let transform = Affine3A::from_scale_rotation_translation(Vec3::from(scale), rotation, Vec3::from(translation));
+        let bounds = WorldBounds::from_local(Entity::PLACEHOLDER, &local, &transform).unwrap();
+        let matrix = transform.matrix3.as_dmat3();
+        let t = DVec3::from(Vec3::from(transform.translation));
+        // In f64: the stored (centre, extent) pair is what culling reads, not a rounded f32 min and max.
+        let (min, max) = (
+            bounds.center.as_dvec3() - bounds.half_extent.as_dvec3(),
+            bounds.center.as_dvec3() + bounds.half_extent.as_dvec3(),
+        );
+        for corner in 0..8 {
+            let sign = Vec3::new((corner & 1) as f32 * 2.0 - 1.0, (corner & 2) as f32 - 1.0, (corner & 4) as f32 / 2.0 - 1.0);
+            let exact = matrix * (local.center.as_dvec3() + local.half_extent.as_dvec3() * sign.as_dvec3()) + t;
+            prop_assert!(exact.cmpge(min).all() && exact.cmple(max).all(),
+                "corner {exact} outside [{min}, {max}]");
+        }
+        prop_assert!(bounds.radius as f64 >= bounds.half_extent.as_dvec3().length());
+    }
+}
