@@ -19,6 +19,8 @@ const SIZES: [usize; 3] = [10_000, 100_000, 1_000_000];
 /// One city: Cullet's store, and the same objects as Bevy keeps them (local AABB plus world transform).
 struct Fixture {
     store: BoundsStore,
+    /// The same objects in a scattered order: no group of 64 is spatially coherent, so every object is tested.
+    shuffled: BoundsStore,
     bevy_objects: Vec<(Aabb, bevy_math::Affine3A)>,
     cullet_frusta: Vec<Frustum>,
     bevy_frusta: Vec<BevyFrustum>,
@@ -31,16 +33,18 @@ fn fixture(objects: usize) -> Fixture {
     for (i, object) in city.objects.iter().enumerate() {
         let local = city.mesh_bounds[object.mesh as usize];
         let entity = bevy_ecs_entity(i);
-        store.push(
-            entity,
-            &WorldBounds::from_local(entity, &local, &object.transform).unwrap(),
-        );
+        store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
         let aabb = Aabb {
             center: bevy_math::Vec3A::from_array(local.center.to_array()),
             half_extents: bevy_math::Vec3A::from_array(local.half_extent.to_array()),
         };
         let m = object.transform.to_cols_array();
         bevy_objects.push((aabb, bevy_math::Affine3A::from_cols_array(&m)));
+    }
+    let mut shuffled = BoundsStore::default();
+    for i in 0..store.len() {
+        let slot = (i * 7919) % store.len(); // 7919 is prime and never divides a tested size
+        shuffled.insert(bevy_ecs_entity(i), &store.get(slot));
     }
     let cameras = city.benchmark_cameras();
     let cullet_frusta = cameras.iter().map(|(_, c)| c.frustum().unwrap()).collect();
@@ -51,12 +55,7 @@ fn fixture(objects: usize) -> Fixture {
             BevyFrustum(ViewFrustum::from_clip_from_world(&m))
         })
         .collect();
-    Fixture {
-        store,
-        bevy_objects,
-        cullet_frusta,
-        bevy_frusta,
-    }
+    Fixture { store, shuffled, bevy_objects, cullet_frusta, bevy_frusta }
 }
 
 fn bevy_ecs_entity(i: usize) -> bevy_ecs::entity::Entity {
@@ -75,11 +74,7 @@ fn wide_sum(values: &[f32]) -> f32 {
 }
 
 /// Bevy's test over all objects, parallel the same way as Cullet's (64 objects a word, 4096 a task).
-fn cull_bevy(
-    objects: &[(Aabb, bevy_math::Affine3A)],
-    frustum: &BevyFrustum,
-    visible: &mut VisibleSet,
-) -> usize {
+fn cull_bevy(objects: &[(Aabb, bevy_math::Affine3A)], frustum: &BevyFrustum, visible: &mut VisibleSet) -> usize {
     visible.reset(objects.len());
     visible
         .words_mut()
@@ -101,10 +96,7 @@ fn cull_bevy(
 
 fn frustum(c: &mut Criterion) {
     let mut group = c.benchmark_group("frustum");
-    group
-        .sample_size(30)
-        .measurement_time(Duration::from_secs(4))
-        .warm_up_time(Duration::from_secs(1));
+    group.sample_size(30).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_secs(1));
     let mut visible = VisibleSet::default();
     for &n in &SIZES {
         let fixture = fixture(n);
@@ -113,24 +105,21 @@ fn frustum(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("cullet", n), |b| {
             b.iter(|| {
                 for frustum in &fixture.cullet_frusta {
-                    black_box(cull_frustum_with(
-                        &fixture.store,
-                        frustum,
-                        SimdBackend::Auto,
-                        &mut visible,
-                    ));
+                    black_box(cull_frustum_with(&fixture.store, frustum, SimdBackend::Auto, &mut visible));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new("cullet-shuffled", n), |b| {
+            b.iter(|| {
+                for frustum in &fixture.cullet_frusta {
+                    black_box(cull_frustum_with(&fixture.shuffled, frustum, SimdBackend::Auto, &mut visible));
                 }
             })
         });
         group.bench_function(BenchmarkId::new("cullet-scalar", n), |b| {
             b.iter(|| {
                 for frustum in &fixture.cullet_frusta {
-                    black_box(cull_frustum_with(
-                        &fixture.store,
-                        frustum,
-                        SimdBackend::Scalar,
-                        &mut visible,
-                    ));
+                    black_box(cull_frustum_with(&fixture.store, frustum, SimdBackend::Scalar, &mut visible));
                 }
             })
         });
@@ -148,32 +137,17 @@ fn frustum(c: &mut Criterion) {
 fn threads(c: &mut Criterion) {
     let fixture = fixture(1_000_000);
     let mut group = c.benchmark_group("frustum");
-    group
-        .sample_size(30)
-        .measurement_time(Duration::from_secs(4))
-        .warm_up_time(Duration::from_secs(1));
-    group.throughput(Throughput::Elements(
-        1_000_000 * fixture.cullet_frusta.len() as u64,
-    ));
-    let max_threads = std::thread::available_parallelism()
-        .map_or(2, |n| n.get())
-        .max(2);
+    group.sample_size(30).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_secs(1));
+    group.throughput(Throughput::Elements(1_000_000 * fixture.cullet_frusta.len() as u64));
+    let max_threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
     let mut visible = VisibleSet::default();
     for threads in 1..=max_threads {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         group.bench_function(BenchmarkId::new("threads", threads), |b| {
             pool.install(|| {
                 b.iter(|| {
                     for frustum in &fixture.cullet_frusta {
-                        black_box(cull_frustum_with(
-                            &fixture.store,
-                            frustum,
-                            SimdBackend::Auto,
-                            &mut visible,
-                        ));
+                        black_box(cull_frustum_with(&fixture.store, frustum, SimdBackend::Auto, &mut visible));
                     }
                 })
             })
@@ -183,10 +157,7 @@ fn threads(c: &mut Criterion) {
 
     // The bandwidth bound: the time to merely read the seven SoA arrays of 1e6 objects, in parallel.
     let mut group = c.benchmark_group("bandwidth");
-    group
-        .sample_size(30)
-        .measurement_time(Duration::from_secs(4))
-        .warm_up_time(Duration::from_secs(1));
+    group.sample_size(30).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_secs(1));
     let store = &fixture.store;
     let arrays = [
         &store.center_x,
@@ -197,19 +168,14 @@ fn threads(c: &mut Criterion) {
         &store.extent_z,
         &store.radius,
     ];
-    group.throughput(Throughput::Bytes(
-        (arrays.len() * store.padded_len() * 4) as u64,
-    ));
+    group.throughput(Throughput::Bytes((arrays.len() * store.padded_len() * 4) as u64));
     group.bench_function("read_soa/1000000", |b| {
         b.iter(|| {
             let sum: f32 = (0..store.padded_len() / 4096)
                 .into_par_iter()
                 .map(|block| {
                     let range = block * 4096..(block + 1) * 4096;
-                    arrays
-                        .iter()
-                        .map(|a| wide_sum(&a[range.clone()]))
-                        .sum::<f32>()
+                    arrays.iter().map(|a| wide_sum(&a[range.clone()])).sum::<f32>()
                 })
                 .sum();
             black_box(sum)

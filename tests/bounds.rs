@@ -2,7 +2,7 @@
 //! boxes that always contain the exactly transformed box.
 
 use bevy_ecs::prelude::*;
-use cullet::bounds::{BoundsRejected, BoundsSlot, LocalBounds, ObjectTransform, WorldBounds};
+use cullet::bounds::{BoundsRejected, LocalBounds, ObjectTransform, Static, WorldBounds};
 use cullet::pipeline::{self, CullStats, FrustumVisible};
 use cullet::{BoundsError, BoundsStore, Camera};
 use glam::{Affine3A, DVec3, Quat, Vec3};
@@ -26,26 +26,23 @@ fn frame(world: &mut World, schedule: &mut Schedule) -> CullStats {
 fn spawn_box(world: &mut World, position: Vec3) -> Entity {
     world
         .spawn((
-            LocalBounds {
-                center: Vec3::ZERO,
-                half_extent: Vec3::splat(0.5),
-            },
+            LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(0.5) },
             ObjectTransform(Affine3A::from_translation(position)),
         ))
         .id()
 }
 
-/// Every stored slot points at an entity whose `BoundsSlot` points back, with bounds matching its components.
+/// Every stored slot points at an entity whose slot points back, with bounds matching its components, and every
+/// group box contains its members.
 fn assert_store_consistent(world: &mut World) {
     let store = world.resource::<BoundsStore>().clone();
-    let mut query = world.query::<(Entity, &LocalBounds, &ObjectTransform, &BoundsSlot)>();
+    let mut query = world.query::<(Entity, &LocalBounds, &ObjectTransform)>();
     let mut seen = 0;
-    for (entity, local, transform, slot) in query.iter(world) {
-        assert_eq!(store.entities()[slot.0 as usize], entity);
-        assert_eq!(
-            store.get(slot.0 as usize),
-            WorldBounds::from_local(entity, local, &transform.0).unwrap()
-        );
+    for (entity, local, transform) in query.iter(world) {
+        let Some(slot) = store.slot_of(entity) else { continue };
+        assert_eq!(store.entities()[slot], entity);
+        assert_eq!(store.get(slot), WorldBounds::from_local(entity, local, &transform.0).unwrap());
+        assert!(store.groups()[slot / 64].contains(&store.get(slot)));
         seen += 1;
     }
     assert_eq!(seen, store.len());
@@ -57,36 +54,18 @@ fn assert_store_consistent(world: &mut World) {
 #[test]
 fn only_changed_entities_are_recomputed() {
     let (mut world, mut schedule) = world_with_schedule();
-    let entities: Vec<Entity> = (0..100)
-        .map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0)))
-        .collect();
+    let entities: Vec<Entity> = (0..100).map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0))).collect();
+    assert_eq!(world.resource::<BoundsStore>().len(), 100, "spawning stores objects at once");
     assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 100);
-    assert_eq!(
-        frame(&mut world, &mut schedule).bounds_recomputed,
-        0,
-        "a quiet frame recomputes nothing"
-    );
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0, "a quiet frame recomputes nothing");
     assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
 
-    world
-        .get_mut::<ObjectTransform>(entities[7])
-        .unwrap()
-        .0
-        .translation
-        .y = 3.0;
-    world
-        .get_mut::<ObjectTransform>(entities[42])
-        .unwrap()
-        .0
-        .translation
-        .y = -3.0;
+    world.get_mut::<ObjectTransform>(entities[7]).unwrap().0.translation.y = 3.0;
+    world.get_mut::<ObjectTransform>(entities[42]).unwrap().0.translation.y = -3.0;
     let stats = frame(&mut world, &mut schedule);
     assert_eq!(stats.bounds_recomputed, 2);
-    let slot = world.get::<BoundsSlot>(entities[7]).unwrap().0 as usize;
-    assert_eq!(
-        world.resource::<BoundsStore>().get(slot).center,
-        Vec3::new(7.0, 3.0, 0.0)
-    );
+    let slot = world.resource::<BoundsStore>().slot_of(entities[7]).unwrap();
+    assert_eq!(world.resource::<BoundsStore>().get(slot).center, Vec3::new(7.0, 3.0, 0.0));
     assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
     assert_store_consistent(&mut world);
 }
@@ -94,18 +73,17 @@ fn only_changed_entities_are_recomputed() {
 #[test]
 fn removal_swaps_the_last_object_into_the_hole() {
     let (mut world, mut schedule) = world_with_schedule();
-    let entities: Vec<Entity> = (0..130)
-        .map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0)))
-        .collect();
+    let entities: Vec<Entity> = (0..130).map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0))).collect();
     frame(&mut world, &mut schedule);
     assert_eq!(world.resource::<BoundsStore>().padded_len(), 192);
 
-    let removed_slot = world.get::<BoundsSlot>(entities[3]).unwrap().0;
+    let removed_slot = world.resource::<BoundsStore>().slot_of(entities[3]).unwrap();
     let last = *world.resource::<BoundsStore>().entities().last().unwrap();
     world.despawn(entities[3]);
     // Immediately, without running the schedule: the last object now sits in the freed slot.
     assert_eq!(world.resource::<BoundsStore>().len(), 129);
-    assert_eq!(world.get::<BoundsSlot>(last).unwrap().0, removed_slot);
+    assert_eq!(world.resource::<BoundsStore>().slot_of(last), Some(removed_slot));
+    assert_eq!(world.resource::<BoundsStore>().slot_of(entities[3]), None);
     assert_store_consistent(&mut world);
 
     // Removing a component (not despawning) removes the object too, and a quiet frame after stays quiet.
@@ -115,21 +93,37 @@ fn removal_swaps_the_last_object_into_the_hole() {
     }
     assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
     assert_eq!(world.resource::<BoundsStore>().len(), 58);
-    assert_eq!(
-        world.resource::<BoundsStore>().padded_len(),
-        64,
-        "the arrays shrink by whole words"
-    );
-    assert!(world.get::<BoundsSlot>(entities[10]).is_none());
+    assert_eq!(world.resource::<BoundsStore>().padded_len(), 64, "the arrays shrink by whole words");
+    assert_eq!(world.resource::<BoundsStore>().slot_of(entities[10]), None);
     assert_store_consistent(&mut world);
 
     // Re-adding the component brings the object back.
-    world.entity_mut(entities[10]).insert(LocalBounds {
-        center: Vec3::ZERO,
-        half_extent: Vec3::ONE,
-    });
-    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 1);
+    world.entity_mut(entities[10]).insert(LocalBounds { center: Vec3::ZERO, half_extent: Vec3::ONE });
     assert_eq!(world.resource::<BoundsStore>().len(), 59);
+    frame(&mut world, &mut schedule);
+    assert_store_consistent(&mut world);
+}
+
+#[test]
+fn static_objects_are_never_scanned_but_reinsertion_moves_them() {
+    let (mut world, mut schedule) = world_with_schedule();
+    let statics: Vec<Entity> = (0..50)
+        .map(|i| {
+            let entity = spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0));
+            world.entity_mut(entity).insert(Static);
+            entity
+        })
+        .collect();
+    let dynamic = spawn_box(&mut world, Vec3::ZERO);
+    assert_eq!(world.resource::<BoundsStore>().len(), 51);
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 1, "only the dynamic object is scanned");
+    world.get_mut::<ObjectTransform>(dynamic).unwrap().0.translation.z = -5.0;
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 1);
+    // Static objects move only by inserting a new transform, and are stored again immediately.
+    world.entity_mut(statics[4]).insert(ObjectTransform(Affine3A::from_translation(Vec3::new(0.0, 9.0, 0.0))));
+    let slot = world.resource::<BoundsStore>().slot_of(statics[4]).unwrap();
+    assert_eq!(world.resource::<BoundsStore>().get(slot).center, Vec3::new(0.0, 9.0, 0.0));
+    assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
     assert_store_consistent(&mut world);
 }
 
@@ -139,41 +133,25 @@ fn invalid_bounds_are_rejected_with_the_entity_named() {
     let good = spawn_box(&mut world, Vec3::ZERO);
     let nan = world
         .spawn((
-            LocalBounds {
-                center: Vec3::new(f32::NAN, 0.0, 0.0),
-                half_extent: Vec3::ONE,
-            },
+            LocalBounds { center: Vec3::new(f32::NAN, 0.0, 0.0), half_extent: Vec3::ONE },
             ObjectTransform(Affine3A::IDENTITY),
         ))
         .id();
     let negative = world
         .spawn((
-            LocalBounds {
-                center: Vec3::ZERO,
-                half_extent: Vec3::new(1.0, -1.0, 1.0),
-            },
+            LocalBounds { center: Vec3::ZERO, half_extent: Vec3::new(1.0, -1.0, 1.0) },
             ObjectTransform(Affine3A::IDENTITY),
         ))
         .id();
     let infinite = world
         .spawn((
-            LocalBounds {
-                center: Vec3::ZERO,
-                half_extent: Vec3::ONE,
-            },
-            ObjectTransform(Affine3A::from_translation(Vec3::new(
-                0.0,
-                f32::INFINITY,
-                0.0,
-            ))),
+            LocalBounds { center: Vec3::ZERO, half_extent: Vec3::ONE },
+            ObjectTransform(Affine3A::from_translation(Vec3::new(0.0, f32::INFINITY, 0.0))),
         ))
         .id();
     let overflow = world
         .spawn((
-            LocalBounds {
-                center: Vec3::ZERO,
-                half_extent: Vec3::splat(1e30),
-            },
+            LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(1e30) },
             ObjectTransform(Affine3A::from_scale(Vec3::splat(1e30))),
         ))
         .id();
@@ -187,29 +165,16 @@ fn invalid_bounds_are_rejected_with_the_entity_named() {
     assert!(matches!(errors[1], BoundsError::NegativeExtent { entity, .. } if entity == negative));
     assert!(matches!(errors[2], BoundsError::NonFiniteTransform { entity } if entity == infinite));
     assert!(matches!(errors[3], BoundsError::WorldOverflow { entity } if entity == overflow));
-    assert!(
-        errors[0].to_string().contains(&nan.to_string()),
-        "the message names the entity"
-    );
+    assert!(errors[0].to_string().contains(&nan.to_string()), "the message names the entity");
     assert!(world.get::<BoundsRejected>(nan).is_some());
 
     // A stored object that turns invalid leaves the store (reported), and the rest is untouched.
-    world
-        .get_mut::<ObjectTransform>(good)
-        .unwrap()
-        .0
-        .translation
-        .x = f32::NAN;
+    world.get_mut::<ObjectTransform>(good).unwrap().0.translation.x = f32::NAN;
     frame(&mut world, &mut schedule);
     assert!(world.resource::<BoundsStore>().is_empty());
     assert!(world.get::<BoundsRejected>(good).is_some());
     // Fixing it brings it back.
-    world
-        .get_mut::<ObjectTransform>(good)
-        .unwrap()
-        .0
-        .translation
-        .x = 0.0;
+    world.get_mut::<ObjectTransform>(good).unwrap().0.translation.x = 0.0;
     frame(&mut world, &mut schedule);
     assert_eq!(world.resource::<BoundsStore>().entities(), &[good]);
     assert!(world.get::<BoundsRejected>(good).is_none());

@@ -1,9 +1,13 @@
 //! Stage 1, bounds: the components a user attaches to an entity, and the world-space bounds of every culled
 //! object kept as linear structure-of-arrays (SoA) in the [`BoundsStore`] resource.
 //!
-//! The store is updated incrementally by [`sync_bounds`] through `bevy_ecs` change detection: only entities
-//! whose [`LocalBounds`] or [`ObjectTransform`] changed are recomputed, and removal (by the
-//! [`on_bounds_removed`] observer) is an O(1) swap-remove with the moved entity's [`BoundsSlot`] fixed up.
+//! The store is updated incrementally:
+//! - inserting [`LocalBounds`] or [`ObjectTransform`] (spawning, or replacing either) stores the object at once,
+//!   through the [`on_bounds_inserted`] observer;
+//! - [`sync_bounds`] recomputes, through `bevy_ecs` change detection, only non-[`Static`] entities whose
+//!   components were mutated since its last run; static objects are never scanned nor recomputed;
+//! - removing either component or despawning is an O(1) swap-remove, the moved object's slot fixed up
+//!   ([`on_bounds_removed`]).
 //!
 //! # Large worlds
 //! Bounds are stored in absolute world coordinates as `f32`. Two rules keep culling correct and precise far
@@ -18,6 +22,7 @@
 //! 5 units (`4 * f32::EPSILON` of the distance): culling stays conservative and loses only that much
 //! efficiency. Beyond that, keep transforms small by rebasing the world origin near the camera.
 
+use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Vec3, Vec3A};
 use std::sync::Arc;
@@ -26,8 +31,11 @@ use thiserror::Error;
 
 /// Objects per SIMD block; every SoA array is padded to a multiple of [`SOA_PADDING`] (a visibility word).
 pub const SIMD_LANES: usize = 8;
-/// Every SoA array's length is a multiple of this: one 64-bit word of a visibility bitset.
+/// Every SoA array's length is a multiple of this: one 64-bit word of a visibility bitset, and one group of
+/// the culling hierarchy ([`GroupBounds`]).
 pub const SOA_PADDING: usize = 64;
+/// Groups per supergroup, the top level of the culling hierarchy (4096 objects, one rayon task).
+pub const GROUPS_PER_SUPERGROUP: usize = 64;
 
 /// Relative rounding slack added to world bounds: 8 half-ulps (`8 * 2^-24`), twice the error bound of the
 /// four rounded operations per axis that transform a box.
@@ -47,18 +55,13 @@ pub struct LocalBounds {
 impl LocalBounds {
     /// The box spanning `min..=max`.
     pub fn from_min_max(min: Vec3, max: Vec3) -> Self {
-        Self {
-            center: (min + max) * 0.5,
-            half_extent: (max - min) * 0.5,
-        }
+        Self { center: (min + max) * 0.5, half_extent: (max - min) * 0.5 }
     }
 
     /// The smallest box around `points`, or `None` for no points.
     pub fn from_points(points: &[Vec3]) -> Option<Self> {
         let first = *points.first()?;
-        let (min, max) = points
-            .iter()
-            .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p)));
+        let (min, max) = points.iter().fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p)));
         Some(Self::from_min_max(min, max))
     }
 }
@@ -75,7 +78,8 @@ pub struct ObjectTransform(pub Affine3A);
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct MeshRef(pub u32);
 
-/// Marks an object that never moves. Later stages use it to skip per-frame work (uploads, re-testing).
+/// Marks an object that never moves: [`sync_bounds`] never scans it, and later stages skip per-frame work for
+/// it. To move a static object anyway, insert a new [`ObjectTransform`] (an insert, not a mutation).
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct Static;
 
@@ -88,10 +92,6 @@ pub struct Occluder {
     pub triangles: Arc<[Vec3]>,
 }
 
-/// Where the entity's bounds live in the [`BoundsStore`] arrays. Managed by the engine; do not insert it.
-#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct BoundsSlot(pub u32);
-
 /// Inserted on an entity whose bounds were rejected, with the reason. The entity is not in the store, so no
 /// stage culls or draws it; the error was also logged and kept in [`BoundsStore::errors`].
 #[derive(Component, Clone, Debug, PartialEq)]
@@ -101,9 +101,7 @@ pub struct BoundsRejected(pub BoundsError);
 #[derive(Error, Clone, Copy, Debug, PartialEq)]
 pub enum BoundsError {
     /// The local box has a NaN or infinite coordinate.
-    #[error(
-        "entity {entity}: local bounds are not finite (center {center}, half extent {half_extent})"
-    )]
+    #[error("entity {entity}: local bounds are not finite (center {center}, half extent {half_extent})")]
     NonFiniteLocal {
         /// The offending entity.
         entity: Entity,
@@ -148,23 +146,12 @@ pub struct WorldBounds {
 impl WorldBounds {
     /// Transforms a local box to a world AABB that is guaranteed to contain the exactly transformed box: the
     /// `f32` result is inflated by a bound on its own rounding error. Validates everything on the way in.
-    pub fn from_local(
-        entity: Entity,
-        local: &LocalBounds,
-        transform: &Affine3A,
-    ) -> Result<Self, BoundsError> {
+    pub fn from_local(entity: Entity, local: &LocalBounds, transform: &Affine3A) -> Result<Self, BoundsError> {
         if !local.center.is_finite() || !local.half_extent.is_finite() {
-            return Err(BoundsError::NonFiniteLocal {
-                entity,
-                center: local.center,
-                half_extent: local.half_extent,
-            });
+            return Err(BoundsError::NonFiniteLocal { entity, center: local.center, half_extent: local.half_extent });
         }
         if local.half_extent.cmplt(Vec3::ZERO).any() {
-            return Err(BoundsError::NegativeExtent {
-                entity,
-                half_extent: local.half_extent,
-            });
+            return Err(BoundsError::NegativeExtent { entity, half_extent: local.half_extent });
         }
         if !transform.is_finite() {
             return Err(BoundsError::NonFiniteTransform { entity });
@@ -179,27 +166,52 @@ impl WorldBounds {
         let half_extent = extent + magnitude * BOUNDS_SLACK;
         // Scaled so that squaring cannot overflow for boxes near the top of the f32 range.
         let largest = half_extent.max_element();
-        let radius = if largest > 0.0 {
-            largest * (half_extent / largest).length() * (1.0 + BOUNDS_SLACK)
-        } else {
-            0.0
-        };
+        let radius =
+            if largest > 0.0 { largest * (half_extent / largest).length() * (1.0 + BOUNDS_SLACK) } else { 0.0 };
         if !center.is_finite() || !half_extent.is_finite() || !radius.is_finite() {
             return Err(BoundsError::WorldOverflow { entity });
         }
-        Ok(Self {
-            center: center.into(),
-            half_extent: half_extent.into(),
-            radius,
-        })
+        Ok(Self { center: center.into(), half_extent: half_extent.into(), radius })
     }
 
     /// The smallest and largest corner of the box.
     pub fn min_max(&self) -> (Vec3, Vec3) {
-        (
-            self.center - self.half_extent,
-            self.center + self.half_extent,
-        )
+        (self.center - self.half_extent, self.center + self.half_extent)
+    }
+}
+
+/// A box around a group of [`SOA_PADDING`] consecutive store slots, rounded outward so that it contains every
+/// member's box exactly. The frustum stage tests it first: a group entirely outside or inside the frustum needs
+/// no per-object test, and planes the group is inside are skipped for its members (plane masking).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GroupBounds {
+    /// Smallest corner.
+    pub min: Vec3,
+    /// Largest corner.
+    pub max: Vec3,
+}
+
+impl GroupBounds {
+    /// The empty box: growing it by a box gives that box.
+    pub const EMPTY: Self = Self { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
+
+    /// Extends the box to contain `bounds`, rounding outward by a bound on the error of `center ± extent`.
+    pub fn grow(&mut self, bounds: &WorldBounds) {
+        let slack = (bounds.center.abs() + bounds.half_extent) * f32::EPSILON;
+        self.min = self.min.min(bounds.center - bounds.half_extent - slack);
+        self.max = self.max.max(bounds.center + bounds.half_extent + slack);
+    }
+
+    /// The box around both boxes.
+    pub fn union(&self, other: &GroupBounds) -> Self {
+        Self { min: self.min.min(other.min), max: self.max.max(other.max) }
+    }
+
+    /// Whether the box already contains `bounds` (compared as [`GroupBounds::grow`] would extend it).
+    pub fn contains(&self, bounds: &WorldBounds) -> bool {
+        let slack = (bounds.center.abs() + bounds.half_extent) * f32::EPSILON;
+        (bounds.center - bounds.half_extent - slack).cmpge(self.min).all()
+            && (bounds.center + bounds.half_extent + slack).cmple(self.max).all()
     }
 }
 
@@ -224,7 +236,15 @@ pub struct BoundsStore {
     pub extent_z: Vec<f32>,
     /// Radius of the bounding sphere around the centre.
     pub radius: Vec<f32>,
+    /// Per group of [`SOA_PADDING`] slots, a box containing every object of the group (see [`GroupBounds`]).
+    groups: Vec<GroupBounds>,
+    /// Per run of [`GROUPS_PER_SUPERGROUP`] groups, a box containing them all: the level above the groups.
+    supergroups: Vec<GroupBounds>,
+    /// Groups whose box may be looser than needed since an object moved or left; tightened by
+    /// [`BoundsStore::tighten_groups`].
+    loose_groups: Vec<u32>,
     entities: Vec<Entity>,
+    slots: EntityHashMap<u32>,
     /// Objects whose bounds were recomputed (inserted or updated) by the last [`sync_bounds`] run.
     pub recomputed_last_sync: usize,
     /// Wall time of the last [`sync_bounds`] run.
@@ -254,25 +274,81 @@ impl BoundsStore {
         &self.entities
     }
 
+    /// The slot of `entity`, if it is stored.
+    pub fn slot_of(&self, entity: Entity) -> Option<usize> {
+        self.slots.get(&entity).map(|&slot| slot as usize)
+    }
+
     /// The bounds stored in `slot`.
     pub fn get(&self, slot: usize) -> WorldBounds {
         WorldBounds {
-            center: Vec3::new(
-                self.center_x[slot],
-                self.center_y[slot],
-                self.center_z[slot],
-            ),
-            half_extent: Vec3::new(
-                self.extent_x[slot],
-                self.extent_y[slot],
-                self.extent_z[slot],
-            ),
+            center: Vec3::new(self.center_x[slot], self.center_y[slot], self.center_z[slot]),
+            half_extent: Vec3::new(self.extent_x[slot], self.extent_y[slot], self.extent_z[slot]),
             radius: self.radius[slot],
         }
     }
 
-    /// Overwrites the bounds in `slot`.
+    /// The box around each group of [`SOA_PADDING`] consecutive slots.
+    pub fn groups(&self) -> &[GroupBounds] {
+        &self.groups
+    }
+
+    /// The box around each run of [`GROUPS_PER_SUPERGROUP`] consecutive groups.
+    pub fn supergroups(&self) -> &[GroupBounds] {
+        &self.supergroups
+    }
+
+    /// Recomputes the boxes of groups that were loosened by moves and removals. Group boxes are always
+    /// conservative; this only makes them tight again. [`sync_bounds`] calls it every frame.
+    pub fn tighten_groups(&mut self) {
+        let mut loose = std::mem::take(&mut self.loose_groups);
+        loose.sort_unstable();
+        loose.dedup();
+        for &group in &loose {
+            let group = group as usize;
+            if group >= self.groups.len() {
+                continue;
+            }
+            let end = ((group + 1) * SOA_PADDING).min(self.len());
+            let mut bounds = GroupBounds::EMPTY;
+            for slot in group * SOA_PADDING..end {
+                bounds.grow(&self.get(slot));
+            }
+            self.groups[group] = bounds;
+        }
+        loose.dedup_by_key(|group| *group as usize / GROUPS_PER_SUPERGROUP);
+        for &group in &loose {
+            let supergroup = group as usize / GROUPS_PER_SUPERGROUP;
+            if supergroup < self.supergroups.len() {
+                let first = supergroup * GROUPS_PER_SUPERGROUP;
+                let last = (first + GROUPS_PER_SUPERGROUP).min(self.groups.len());
+                self.supergroups[supergroup] =
+                    self.groups[first..last].iter().fold(GroupBounds::EMPTY, |acc, g| acc.union(g));
+            }
+        }
+        loose.clear();
+        self.loose_groups = loose;
+    }
+
+    /// Overwrites the bounds in `slot`. Its group box grows at once, so it stays conservative; it is marked
+    /// loose, since the object may have left part of it.
     pub fn set(&mut self, slot: usize, bounds: &WorldBounds) {
+        self.loose_groups.push((slot / SOA_PADDING) as u32);
+        if self.loose_groups.len() > self.groups.len() {
+            self.loose_groups.sort_unstable();
+            self.loose_groups.dedup();
+        }
+        self.write(slot, bounds);
+    }
+
+    fn write(&mut self, slot: usize, bounds: &WorldBounds) {
+        let group = &mut self.groups[slot / SOA_PADDING];
+        if !group.contains(bounds) {
+            group.grow(bounds);
+            let group = *group;
+            let supergroup = &mut self.supergroups[slot / SOA_PADDING / GROUPS_PER_SUPERGROUP];
+            *supergroup = supergroup.union(&group);
+        }
         self.center_x[slot] = bounds.center.x;
         self.center_y[slot] = bounds.center.y;
         self.center_z[slot] = bounds.center.z;
@@ -282,37 +358,73 @@ impl BoundsStore {
         self.radius[slot] = bounds.radius;
     }
 
-    /// Appends an object and returns its slot. Amortized O(1).
-    pub fn push(&mut self, entity: Entity, bounds: &WorldBounds) -> u32 {
+    /// Stores `entity`'s bounds: overwrites its slot if it has one, else appends it. Amortized O(1).
+    pub fn insert(&mut self, entity: Entity, bounds: &WorldBounds) -> usize {
+        if let Some(slot) = self.slot_of(entity) {
+            self.set(slot, bounds);
+            return slot;
+        }
         let slot = self.entities.len();
         self.entities.push(entity);
+        self.slots.insert(entity, slot as u32);
         if slot == self.padded_len() {
             let padded = slot + SOA_PADDING;
             for array in self.arrays_mut() {
                 array.resize(padded, 0.0);
             }
+            self.groups.push(GroupBounds::EMPTY);
+            if self.groups.len() > self.supergroups.len() * GROUPS_PER_SUPERGROUP {
+                self.supergroups.push(GroupBounds::EMPTY);
+            }
         }
-        self.set(slot, bounds);
-        slot as u32
+        self.write(slot, bounds);
+        slot
     }
 
-    /// Removes the object in `slot` by moving the last object into it. Returns the entity that moved into
-    /// `slot`, whose [`BoundsSlot`] the caller must update, or `None` if `slot` was the last one. O(1).
-    pub fn swap_remove(&mut self, slot: usize) -> Option<Entity> {
+    /// Removes `entity` by moving the last object into its slot. Returns whether it was stored. O(1).
+    pub fn remove(&mut self, entity: Entity) -> bool {
+        let Some(slot) = self.slots.remove(&entity) else { return false };
+        let slot = slot as usize;
         let last = self.entities.len() - 1;
         self.entities.swap_remove(slot);
+        if slot != last {
+            self.slots.insert(self.entities[slot], slot as u32);
+        }
         for array in self.arrays_mut() {
             array[slot] = array[last];
             array[last] = 0.0;
         }
+        if slot != last {
+            let moved = self.get(slot);
+            self.write(slot, &moved);
+        }
+        self.loose_groups.extend([(slot / SOA_PADDING) as u32, (last / SOA_PADDING) as u32]);
         // Shrink only when a whole padding word is free, so the arrays stay a multiple of SOA_PADDING.
         let padded = last.div_ceil(SOA_PADDING) * SOA_PADDING;
         if padded + SOA_PADDING <= self.padded_len() {
             for array in self.arrays_mut() {
                 array.truncate(padded);
             }
+            self.groups.truncate(padded / SOA_PADDING);
+            self.supergroups.truncate(self.groups.len().div_ceil(GROUPS_PER_SUPERGROUP));
         }
-        (slot != last).then(|| self.entities[slot])
+        true
+    }
+
+    /// Validates and stores one object, or drops any bounds it had. Returns its slot, or the error.
+    pub fn update(
+        &mut self,
+        entity: Entity,
+        local: &LocalBounds,
+        transform: &ObjectTransform,
+    ) -> Result<usize, BoundsError> {
+        match WorldBounds::from_local(entity, local, &transform.0) {
+            Ok(bounds) => Ok(self.insert(entity, &bounds)),
+            Err(error) => {
+                self.remove(entity);
+                Err(error)
+            }
+        }
     }
 
     /// Drains the rejections recorded since the last call.
@@ -333,8 +445,33 @@ impl BoundsStore {
     }
 }
 
-/// Inserts new objects and recomputes the bounds of those whose [`LocalBounds`] or [`ObjectTransform`]
-/// changed since the last run. A frame in which nothing changed touches no bounds.
+/// Reports the outcome of [`BoundsStore::update`]: a new error is logged, kept in [`BoundsStore::errors`] and
+/// marked with [`BoundsRejected`]; success clears an old mark. The same error twice is reported once.
+fn report(
+    store: &mut BoundsStore,
+    commands: &mut Commands,
+    entity: Entity,
+    outcome: Result<usize, BoundsError>,
+    previous: Option<&BoundsRejected>,
+) {
+    match (outcome, previous) {
+        (Ok(_), Some(_)) => {
+            commands.entity(entity).try_remove::<BoundsRejected>();
+        }
+        (Ok(_), None) => {}
+        // Compared by kind: a NaN payload never equals itself.
+        (Err(error), Some(BoundsRejected(old))) if std::mem::discriminant(old) == std::mem::discriminant(&error) => {}
+        (Err(error), _) => {
+            tracing::warn!("{error}");
+            store.errors.push(error);
+            commands.entity(entity).try_insert(BoundsRejected(error));
+        }
+    }
+}
+
+/// Recomputes the bounds of non-[`Static`] objects whose [`LocalBounds`] or [`ObjectTransform`] were mutated
+/// since the last run. A frame in which nothing moved touches no bounds, and static objects are not even
+/// scanned. (New objects were stored already by [`on_bounds_inserted`]; their first run counts them again.)
 ///
 /// Invalid input is never stored: the entity gets [`BoundsRejected`], the error is logged and kept in
 /// [`BoundsStore::errors`], and an entity that was stored before is removed from the store.
@@ -342,78 +479,40 @@ impl BoundsStore {
 pub fn sync_bounds(
     mut commands: Commands,
     mut store: ResMut<BoundsStore>,
-    mut queries: ParamSet<(
-        Query<
-            (Entity, &LocalBounds, &ObjectTransform, Option<&BoundsSlot>),
-            Or<(Changed<LocalBounds>, Changed<ObjectTransform>)>,
-        >,
-        Query<&mut BoundsSlot>,
-    )>,
+    changed: Query<
+        (Entity, &LocalBounds, &ObjectTransform, Option<&BoundsRejected>),
+        (Without<Static>, Or<(Changed<LocalBounds>, Changed<ObjectTransform>)>),
+    >,
 ) {
     let start = Instant::now();
     let mut recomputed = 0;
-    let mut removed_slots = Vec::new();
-    for (entity, local, transform, slot) in &queries.p0() {
+    for (entity, local, transform, previous) in &changed {
         recomputed += 1;
-        match (WorldBounds::from_local(entity, local, &transform.0), slot) {
-            (Ok(bounds), Some(slot)) => store.set(slot.0 as usize, &bounds),
-            (Ok(bounds), None) => {
-                let slot = store.push(entity, &bounds);
-                commands
-                    .entity(entity)
-                    .insert(BoundsSlot(slot))
-                    .remove::<BoundsRejected>();
-            }
-            (Err(error), slot) => {
-                tracing::warn!("{error}");
-                store.errors.push(error);
-                commands
-                    .entity(entity)
-                    .insert(BoundsRejected(error))
-                    .remove::<BoundsSlot>();
-                if let Some(slot) = slot {
-                    removed_slots.push(slot.0);
-                }
-            }
-        }
+        let outcome = store.update(entity, local, transform);
+        report(&mut store, &mut commands, entity, outcome, previous);
     }
-    // Remove from the highest slot down, so no pending slot is moved by an earlier removal.
-    removed_slots.sort_unstable_by(|a, b| b.cmp(a));
-    let mut slots = queries.p1();
-    for slot in removed_slots {
-        if let Some(moved) = store.swap_remove(slot as usize)
-            && let Ok(mut moved_slot) = slots.get_mut(moved)
-        {
-            moved_slot.0 = slot;
-        }
-    }
+    store.tighten_groups();
     store.recomputed_last_sync = recomputed;
     store.last_sync_time = start.elapsed();
 }
 
-/// Observer: when an entity loses its [`LocalBounds`] or [`ObjectTransform`] (or is despawned), its slot is
-/// swap-removed from the store at once and the entity that moved into the slot is re-pointed. O(1).
-pub fn on_bounds_removed(
-    event: On<Remove<(LocalBounds, ObjectTransform)>>,
+/// Observer: stores an object as soon as it has both [`LocalBounds`] and [`ObjectTransform`], and re-stores it
+/// whenever either is inserted again.
+pub fn on_bounds_inserted(
+    event: On<Insert<(LocalBounds, ObjectTransform)>>,
     mut commands: Commands,
     mut store: ResMut<BoundsStore>,
-    mut slots: Query<&mut BoundsSlot>,
+    objects: Query<(&LocalBounds, &ObjectTransform, Option<&BoundsRejected>)>,
 ) {
     let entity = event.entity;
-    let Ok(mut slot) = slots.get_mut(entity) else {
-        return;
-    };
-    if slot.0 == u32::MAX {
-        return; // Already removed by the other component's trigger.
+    if let Ok((local, transform, previous)) = objects.get(entity) {
+        let outcome = store.update(entity, local, transform);
+        report(&mut store, &mut commands, entity, outcome, previous);
     }
-    let freed = slot.0;
-    slot.0 = u32::MAX;
-    if let Some(moved) = store.swap_remove(freed as usize)
-        && let Ok(mut moved_slot) = slots.get_mut(moved)
-    {
-        moved_slot.0 = freed;
-    }
-    if let Ok(mut entity_commands) = commands.get_entity(entity) {
-        entity_commands.try_remove::<BoundsSlot>();
-    }
+}
+
+/// Observer: when an entity loses its [`LocalBounds`] or [`ObjectTransform`] (or is despawned), it is
+/// swap-removed from the store at once. O(1).
+pub fn on_bounds_removed(event: On<Remove<(LocalBounds, ObjectTransform)>>, mut store: ResMut<BoundsStore>) {
+    store.remove(event.entity);
 }

@@ -60,16 +60,12 @@ impl Camera {
     pub fn clip_from_view_f64(&self) -> DMat4 {
         let (fov, aspect, near) = (self.fov_y as f64, self.aspect as f64, self.near as f64);
         match (self.depth, self.far.map(f64::from)) {
-            (DepthConvention::Reversed, None) => {
-                directx::perspective_infinite_reverse(fov, aspect, near)
-            }
+            (DepthConvention::Reversed, None) => directx::perspective_infinite_reverse(fov, aspect, near),
             // Swapping near and far of the standard matrix maps near to 1 and far to 0.
             (DepthConvention::Reversed, Some(far)) => directx::perspective(fov, aspect, far, near),
             (DepthConvention::Standard, None) => directx::perspective_infinite(fov, aspect, near),
             (DepthConvention::Standard, Some(far)) => directx::perspective(fov, aspect, near, far),
-            (DepthConvention::NegativeOneToOne, Some(far)) => {
-                opengl::perspective(fov, aspect, near, far)
-            }
+            (DepthConvention::NegativeOneToOne, Some(far)) => opengl::perspective(fov, aspect, near, far),
             (DepthConvention::NegativeOneToOne, None) => {
                 // The limit of the OpenGL matrix as far goes to infinity: z_clip = -z - 2 near, w = -z.
                 let f = 1.0 / (0.5 * fov).tan();
@@ -110,11 +106,7 @@ impl Camera {
     /// The camera-relative culling frustum, its planes extracted from the f64 matrices.
     pub fn frustum(&self) -> Result<Frustum, FrustumError> {
         let view = view::look_to_mat4(DVec3::ZERO, self.forward.as_dvec3(), self.up.as_dvec3());
-        Frustum::from_clip_from_relative_f64(
-            self.position,
-            self.clip_from_view_f64() * view,
-            self.depth,
-        )
+        Frustum::from_clip_from_relative_f64(self.position, self.clip_from_view_f64() * view, self.depth)
     }
 }
 
@@ -204,11 +196,7 @@ mod tests {
             near: 0.1,
             far: None,
             keys: (0..4)
-                .map(|i| CameraKey {
-                    t: i as f32,
-                    position: Vec3::splat(i as f32 * 2.0),
-                    look_at: Vec3::ZERO,
-                })
+                .map(|i| CameraKey { t: i as f32, position: Vec3::splat(i as f32 * 2.0), look_at: Vec3::ZERO })
                 .collect(),
         };
         for key in &path.keys {

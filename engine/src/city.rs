@@ -64,11 +64,7 @@ pub struct CityParams {
 impl CityParams {
     /// `objects` objects from the default seed, 2% of cars driving.
     pub fn with_objects(objects: usize) -> Self {
-        Self {
-            seed: 0xC11E7,
-            objects,
-            moving_fraction: 0.02,
-        }
+        Self { seed: 0xC11E7, objects, moving_fraction: 0.02 }
     }
 }
 
@@ -109,14 +105,9 @@ impl CityScene {
     /// Generates exactly `params.objects` objects, deterministically from `params.seed`.
     pub fn generate(params: CityParams) -> Self {
         let meshes = mesh_library();
-        let mesh_bounds = meshes
-            .iter()
-            .map(|m| m.local_bounds().expect("library meshes are not empty"))
-            .collect();
-        let occluder: Arc<[Vec3]> = Mesh::unit_cube(1)
-            .scaled(Vec3::splat(1.0 - 2.0 * OCCLUDER_INSET), Vec3::ZERO)
-            .triangle_soup()
-            .into();
+        let mesh_bounds = meshes.iter().map(|m| m.local_bounds().expect("library meshes are not empty")).collect();
+        let occluder: Arc<[Vec3]> =
+            Mesh::unit_cube(1).scaled(Vec3::splat(1.0 - 2.0 * OCCLUDER_INSET), Vec3::ZERO).triangle_soup().into();
         // About 50 objects a block; lay the blocks out on a square grid around the origin.
         let blocks = params.objects.div_ceil(50).max(1);
         let blocks_per_side = (blocks as f64).sqrt().ceil() as u32;
@@ -125,13 +116,7 @@ impl CityScene {
         'grid: for (bx, bz) in grid_from_centre(blocks_per_side) {
             let origin = Vec3::new(bx as f32 * BLOCK_PITCH, 0.0, bz as f32 * BLOCK_PITCH);
             let mut block = Vec::new();
-            generate_block(
-                &mut rng,
-                origin,
-                &occluder,
-                params.moving_fraction,
-                &mut block,
-            );
+            generate_block(&mut rng, origin, &occluder, params.moving_fraction, &mut block);
             for object in block {
                 if objects.len() == params.objects {
                     break 'grid;
@@ -139,12 +124,7 @@ impl CityScene {
                 objects.push(object);
             }
         }
-        Self {
-            meshes,
-            mesh_bounds,
-            objects,
-            blocks_per_side,
-        }
+        Self { meshes, mesh_bounds, objects, blocks_per_side }
     }
 
     /// Half the side length of the city's square footprint.
@@ -168,9 +148,7 @@ impl CityScene {
                     None => entity.insert(Static),
                 };
                 if let Some(triangles) = &object.occluder {
-                    entity.insert(Occluder {
-                        triangles: triangles.clone(),
-                    });
+                    entity.insert(Occluder { triangles: triangles.clone() });
                 }
                 entity.id()
             })
@@ -184,54 +162,19 @@ impl CityScene {
         let street = BLOCK_PITCH * 0.5;
         let reach = (self.half_size() - BLOCK_PITCH).max(BLOCK_PITCH);
         let keys = [
-            (
-                0.0,
-                Vec3::new(-reach, 1.8, street),
-                Vec3::new(0.0, 2.0, street),
-            ),
-            (
-                4.0,
-                Vec3::new(-reach * 0.4, 2.5, street),
-                Vec3::new(reach, 2.0, street),
-            ),
-            (
-                7.0,
-                Vec3::new(-street, 12.0, street),
-                Vec3::new(street, 8.0, reach),
-            ),
-            (
-                10.0,
-                Vec3::new(street, 90.0, -street),
-                Vec3::new(reach, 0.0, reach),
-            ),
-            (
-                13.0,
-                Vec3::new(reach * 0.5, 140.0, reach * 0.2),
-                Vec3::new(0.0, 0.0, 0.0),
-            ),
-            (
-                16.0,
-                Vec3::new(street, 30.0, reach * 0.5),
-                Vec3::new(street, 2.0, -reach),
-            ),
-            (
-                20.0,
-                Vec3::new(street, 1.8, -reach * 0.3),
-                Vec3::new(street, 1.8, -reach),
-            ),
+            (0.0, Vec3::new(-reach, 1.8, street), Vec3::new(0.0, 2.0, street)),
+            (4.0, Vec3::new(-reach * 0.4, 2.5, street), Vec3::new(reach, 2.0, street)),
+            (7.0, Vec3::new(-street, 12.0, street), Vec3::new(street, 8.0, reach)),
+            (10.0, Vec3::new(street, 90.0, -street), Vec3::new(reach, 0.0, reach)),
+            (13.0, Vec3::new(reach * 0.5, 140.0, reach * 0.2), Vec3::new(0.0, 0.0, 0.0)),
+            (16.0, Vec3::new(street, 30.0, reach * 0.5), Vec3::new(street, 2.0, -reach)),
+            (20.0, Vec3::new(street, 1.8, -reach * 0.3), Vec3::new(street, 1.8, -reach)),
         ];
         CameraPath {
             fov_y_deg: 60.0,
             near: 0.1,
             far: None,
-            keys: keys
-                .into_iter()
-                .map(|(t, position, look_at)| CameraKey {
-                    t,
-                    position,
-                    look_at,
-                })
-                .collect(),
+            keys: keys.into_iter().map(|(t, position, look_at)| CameraKey { t, position, look_at }).collect(),
         }
     }
 
@@ -241,24 +184,9 @@ impl CityScene {
         let street = BLOCK_PITCH * 0.5;
         let reach = self.half_size();
         vec![
-            (
-                "street",
-                Camera::looking_at(
-                    Vec3::new(street, 1.8, street),
-                    Vec3::new(reach, 2.0, street),
-                ),
-            ),
-            (
-                "roofs",
-                Camera::looking_at(
-                    Vec3::new(street, 80.0, street),
-                    Vec3::new(reach, 0.0, reach),
-                ),
-            ),
-            (
-                "overview",
-                Camera::looking_at(Vec3::new(0.0, reach, -reach), Vec3::ZERO),
-            ),
+            ("street", Camera::looking_at(Vec3::new(street, 1.8, street), Vec3::new(reach, 2.0, street))),
+            ("roofs", Camera::looking_at(Vec3::new(street, 80.0, street), Vec3::new(reach, 0.0, reach))),
+            ("overview", Camera::looking_at(Vec3::new(0.0, reach, -reach), Vec3::ZERO)),
         ]
     }
 }
@@ -267,15 +195,19 @@ impl CityScene {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct Velocity(pub Vec3);
 
-/// Block coordinates in rings of growing distance from the centre, so any object count gives a compact city.
+/// Block coordinates in square rings of growing distance from the centre, each ring walked around its
+/// perimeter: any object count gives a compact city, and consecutive blocks are neighbours, so consecutive
+/// store slots stay close in space.
 fn grid_from_centre(side: u32) -> impl Iterator<Item = (i32, i32)> {
     let half = side as i32 / 2;
     let low = -half;
     let high = low + side as i32 - 1;
-    let mut cells: Vec<(i32, i32)> = (low..=high)
-        .flat_map(|x| (low..=high).map(move |z| (x, z)))
-        .collect();
-    cells.sort_by_key(|&(x, z)| (x.abs().max(z.abs()), x, z));
+    let mut cells: Vec<(i32, i32)> = (low..=high).flat_map(|x| (low..=high).map(move |z| (x, z))).collect();
+    let angle = |x: i32, z: i32| (z as f64).atan2(x as f64);
+    cells.sort_by(|&(ax, az), &(bx, bz)| {
+        let ring = |x: i32, z: i32| x.abs().max(z.abs());
+        ring(ax, az).cmp(&ring(bx, bz)).then(angle(ax, az).total_cmp(&angle(bx, bz)))
+    });
     cells.into_iter()
 }
 
@@ -286,13 +218,7 @@ fn generate_block(
     moving_fraction: f32,
     out: &mut Vec<SceneObject>,
 ) {
-    let place = |kind, mesh, transform| SceneObject {
-        kind,
-        mesh,
-        transform,
-        occluder: None,
-        velocity: None,
-    };
+    let place = |kind, mesh, transform| SceneObject { kind, mesh, transform, occluder: None, velocity: None };
     out.push(place(
         ObjectKind::Ground,
         meshes::GROUND,
@@ -310,11 +236,8 @@ fn generate_block(
         for j in 0..lots {
             let width = lot * rng.random_range(0.6..0.9);
             let depth = lot * rng.random_range(0.6..0.9);
-            let height = if rng.random_bool(0.08) {
-                rng.random_range(90.0..160.0)
-            } else {
-                rng.random_range(8.0..50.0)
-            };
+            let height =
+                if rng.random_bool(0.08) { rng.random_range(90.0..160.0) } else { rng.random_range(8.0..50.0) };
             let centre = origin
                 + Vec3::new(
                     -BLOCK_SIZE * 0.5 + 6.0 + lot * (i as f32 + 0.5),
@@ -326,11 +249,7 @@ fn generate_block(
                 ..place(
                     ObjectKind::Building,
                     meshes::BUILDING,
-                    Affine3A::from_scale_rotation_translation(
-                        Vec3::new(width, height, depth),
-                        Quat::IDENTITY,
-                        centre,
-                    ),
+                    Affine3A::from_scale_rotation_translation(Vec3::new(width, height, depth), Quat::IDENTITY, centre),
                 )
             });
         }
@@ -343,11 +262,7 @@ fn generate_block(
         for k in 0..5 {
             let along = -BLOCK_SIZE * 0.5 + 6.0 + k as f32 * 13.0;
             let position = origin + rotation * Vec3::new(along, 0.0, kerb);
-            out.push(place(
-                ObjectKind::Lamp,
-                meshes::LAMP,
-                Affine3A::from_translation(position),
-            ));
+            out.push(place(ObjectKind::Lamp, meshes::LAMP, Affine3A::from_translation(position)));
         }
     }
 
@@ -359,11 +274,7 @@ fn generate_block(
         let (position, yaw, direction) = if along_x {
             (origin + Vec3::new(offset, 0.0, lane), 0.0, Vec3::X)
         } else {
-            (
-                origin + Vec3::new(lane, 0.0, offset),
-                std::f32::consts::FRAC_PI_2,
-                Vec3::NEG_Z,
-            )
+            (origin + Vec3::new(lane, 0.0, offset), std::f32::consts::FRAC_PI_2, Vec3::NEG_Z)
         };
         let moving = rng.random_bool(moving_fraction as f64);
         let speed = if rng.random_bool(0.5) { 8.0 } else { -8.0 };
@@ -381,8 +292,7 @@ fn generate_block(
     for _ in 0..rng.random_range(8..=14) {
         let along = rng.random_range(-BLOCK_SIZE * 0.5 + 1.0..BLOCK_SIZE * 0.5 - 1.0);
         let across = BLOCK_SIZE * 0.5 - rng.random_range(2.0..5.0);
-        let rotation =
-            Quat::from_rotation_y(rng.random_range(0..4) as f32 * std::f32::consts::FRAC_PI_2);
+        let rotation = Quat::from_rotation_y(rng.random_range(0..4) as f32 * std::f32::consts::FRAC_PI_2);
         let position = origin + rotation * Vec3::new(along, 0.0, across);
         out.push(place(
             ObjectKind::Crate,
@@ -405,24 +315,10 @@ mod tests {
         let a = CityScene::generate(CityParams::with_objects(5_000));
         let b = CityScene::generate(CityParams::with_objects(5_000));
         assert_eq!(a.objects.len(), 5_000);
-        assert!(
-            a.objects
-                .iter()
-                .zip(&b.objects)
-                .all(|(x, y)| x.transform == y.transform && x.mesh == y.mesh)
-        );
-        let buildings = a
-            .objects
-            .iter()
-            .filter(|o| o.kind == ObjectKind::Building)
-            .count();
+        assert!(a.objects.iter().zip(&b.objects).all(|(x, y)| x.transform == y.transform && x.mesh == y.mesh));
+        let buildings = a.objects.iter().filter(|o| o.kind == ObjectKind::Building).count();
         assert!(buildings > 300, "{buildings} buildings");
-        assert!(
-            a.objects
-                .iter()
-                .filter(|o| o.kind == ObjectKind::Building)
-                .all(|o| o.occluder.is_some())
-        );
+        assert!(a.objects.iter().filter(|o| o.kind == ObjectKind::Building).all(|o| o.occluder.is_some()));
         assert!(a.objects.iter().any(|o| o.velocity.is_some()));
     }
 
@@ -430,11 +326,7 @@ mod tests {
     fn occluders_lie_inside_their_buildings() {
         let city = CityScene::generate(CityParams::with_objects(200));
         let building = &city.mesh_bounds[meshes::BUILDING as usize];
-        let object = city
-            .objects
-            .iter()
-            .find(|o| o.kind == ObjectKind::Building)
-            .unwrap();
+        let object = city.objects.iter().find(|o| o.kind == ObjectKind::Building).unwrap();
         for &p in object.occluder.as_ref().unwrap().iter() {
             assert!(((p - building.center).abs() - building.half_extent).max_element() < 0.0);
         }

@@ -1,6 +1,12 @@
 //! Stage 2, frustum: planes extracted from a view-projection matrix, and the SoA box-versus-frustum test run
 //! in parallel over blocks of the [`BoundsStore`], 8 objects a SIMD step.
 //!
+//! Each group of 64 consecutive objects, and each supergroup of 64 groups, has a box ([`GroupBounds`]) tested
+//! first (a two-level hierarchy, as in the hierarchical culling of seed 000 section 19.4): a group outside or
+//! inside the frustum is decided without touching its objects. Scenes stored in spatial order (the city is) decide most groups this way; in a shuffled store
+//! every group crosses and every object is tested. The per-object kernel always runs all six planes, fully
+//! unrolled: branch-free, it is faster than skipping the planes a group lies inside.
+//!
 //! # Conventions
 //! - A plane is `(normal, d)` with `normal` of unit length pointing *into* the frustum: a point `p` is inside
 //!   when `normal · p + d >= 0`.
@@ -15,7 +21,7 @@
 //! bounds the `f32` rounding error of the test (relative `2^-20` of the magnitudes involved). The f64 property
 //! tests check that nothing an exact test keeps is ever culled.
 
-use crate::bounds::{BoundsStore, SIMD_LANES, WorldBounds};
+use crate::bounds::{BoundsStore, GROUPS_PER_SUPERGROUP, GroupBounds, SIMD_LANES, WorldBounds};
 use crate::visible::VisibleSet;
 use glam::{DMat4, DVec4, Mat4, Vec3};
 use rayon::prelude::*;
@@ -25,8 +31,8 @@ use thiserror::Error;
 /// (about 16 units in the last place) so that the fast test never culls what the exact test keeps.
 pub const PLANE_TEST_TOLERANCE: f32 = 1.0 / (1 << 20) as f32;
 
-/// Bitset words handed to one rayon task: 64 words of 64 objects.
-const WORDS_PER_TASK: usize = 64;
+/// Bitset words handed to one rayon task: one supergroup.
+const WORDS_PER_TASK: usize = GROUPS_PER_SUPERGROUP;
 
 /// How clip-space depth maps the near and far planes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -65,6 +71,20 @@ pub enum FrustumError {
     /// A plane has a zero normal and excludes everything: the projection is degenerate.
     #[error("view-projection matrix is degenerate: plane {0} excludes all space")]
     Degenerate(usize),
+}
+
+/// Offset of the stand-in for a plane at infinity: never rejects, and any sphere is inside it.
+const PLANE_AT_INFINITY_D: f32 = f32::MAX / 4.0;
+
+/// Where a group of objects lies relative to the frustum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GroupClass {
+    /// Entirely outside one plane: every member is culled.
+    Outside,
+    /// Inside every plane: every member is visible.
+    Inside,
+    /// Crossing at least one plane: members are tested one by one.
+    Crossing,
 }
 
 /// Which instruction set runs the culling kernel.
@@ -146,10 +166,7 @@ impl Frustum {
         // Near first: it rejects everything behind the camera, half of all objects in an open world.
         let raw = [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far];
         let mut frustum = Self {
-            planes: [Plane {
-                normal: Vec3::ZERO,
-                d: 1.0,
-            }; 6],
+            planes: [Plane { normal: Vec3::ZERO, d: PLANE_AT_INFINITY_D }; 6],
             slack_d: [0.0; 6],
             plane_count: 0,
             origin,
@@ -166,10 +183,7 @@ impl Frustum {
 
     /// Planes of a plain `clip_from_world` matrix, camera-relative at the world origin. Prefer
     /// [`Frustum::from_clip_from_relative`] far from the origin.
-    pub fn from_clip_from_world(
-        clip_from_world: Mat4,
-        depth: DepthConvention,
-    ) -> Result<Self, FrustumError> {
+    pub fn from_clip_from_world(clip_from_world: Mat4, depth: DepthConvention) -> Result<Self, FrustumError> {
         Self::from_clip_from_relative(Vec3::ZERO, clip_from_world, depth)
     }
 
@@ -183,14 +197,72 @@ impl Frustum {
         self.origin
     }
 
-    /// Whether a box may be visible: the exact arithmetic of the batch kernels, for a single object.
+    /// Whether a box may be visible: the arithmetic of the batch kernels, for a single object, all planes.
     pub fn intersects(&self, bounds: &WorldBounds) -> bool {
         let c = bounds.center;
         let e = bounds.half_extent;
         self.test_lane(c.x, c.y, c.z, e.x, e.y, e.z, bounds.radius)
     }
 
-    /// The per-object test every backend computes, operation for operation.
+    /// Where a group box lies: entirely outside one plane, inside all, or crossing.
+    pub fn classify_group(&self, group: &GroupBounds) -> GroupClass {
+        let (outside, inside) = self.classify_groups(std::slice::from_ref(group));
+        if outside & 1 != 0 {
+            GroupClass::Outside
+        } else if inside & 1 != 0 {
+            GroupClass::Inside
+        } else {
+            GroupClass::Crossing
+        }
+    }
+
+    /// Classifies up to 8 groups at once, one per lane: returns the bits of those outside and of those inside.
+    /// Written lane-parallel so the compiler vectorizes it (8 lanes where built with AVX2).
+    #[inline(always)]
+    fn classify_groups(&self, groups: &[GroupBounds]) -> (u8, u8) {
+        let mut center = [[0f32; SIMD_LANES]; 3];
+        let mut extent = [[0f32; SIMD_LANES]; 3];
+        let mut empty = 0u8;
+        for (lane, group) in groups.iter().enumerate().take(SIMD_LANES) {
+            // Centre and extent rounded outward: their f32 error is below an ulp of the corners' magnitude.
+            let corner_magnitude = group.min.abs().max(group.max.abs());
+            let c = (group.min + group.max) * 0.5 - self.origin;
+            let e = (group.max - group.min) * 0.5 + corner_magnitude * f32::EPSILON;
+            for axis in 0..3 {
+                center[axis][lane] = c[axis];
+                extent[axis][lane] = e[axis];
+            }
+            empty |= (!group.min.cmple(group.max).all() as u8) << lane;
+        }
+        let mut magnitude = [0f32; SIMD_LANES];
+        for lane in 0..SIMD_LANES {
+            magnitude[lane] = center[0][lane].abs()
+                + center[1][lane].abs()
+                + center[2][lane].abs()
+                + extent[0][lane]
+                + extent[1][lane]
+                + extent[2][lane];
+        }
+        let mut outside = [false; SIMD_LANES];
+        let mut crossing = [false; SIMD_LANES];
+        for (plane, slack_d) in self.planes.iter().zip(self.slack_d) {
+            let (n, abs_n) = (plane.normal, plane.normal.abs());
+            for lane in 0..SIMD_LANES {
+                let dist = n.x * center[0][lane] + n.y * center[1][lane] + n.z * center[2][lane] + plane.d;
+                let reach = abs_n.x * extent[0][lane] + abs_n.y * extent[1][lane] + abs_n.z * extent[2][lane];
+                let slack = PLANE_TEST_TOLERANCE * magnitude[lane] + slack_d;
+                outside[lane] |= dist + reach + slack < 0.0;
+                crossing[lane] |= dist - reach - slack < 0.0;
+            }
+        }
+        let valid = if groups.len() >= SIMD_LANES { 0xFF } else { (1u8 << groups.len()) - 1 };
+        let bits = |flags: [bool; SIMD_LANES]| flags.iter().enumerate().fold(0u8, |b, (i, &f)| b | (f as u8) << i);
+        let outside = (bits(outside) | empty) & valid;
+        (outside, !bits(crossing) & !outside & valid)
+    }
+
+    /// The per-object test every backend computes, operation for operation, over all six plane slots (absent
+    /// planes are stand-ins that never reject).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn test_lane(&self, cx: f32, cy: f32, cz: f32, ex: f32, ey: f32, ez: f32, r: f32) -> bool {
@@ -199,7 +271,7 @@ impl Frustum {
         let mut sphere_out = false;
         let mut sphere_in = true;
         let mut box_out = false;
-        for (plane, slack_d) in self.planes().iter().zip(self.slack_d) {
+        for (plane, slack_d) in self.planes.iter().zip(self.slack_d) {
             let n = plane.normal;
             let dist = n.x * rx + n.y * ry + n.z * rz + plane.d;
             let slack = PLANE_TEST_TOLERANCE * magnitude + slack_d;
@@ -234,17 +306,10 @@ fn normalize_plane(plane: DVec4, index: usize) -> Result<Option<Plane>, FrustumE
     let length = plane.truncate().length();
     // A normal this small relative to d puts the plane beyond any f32 distance: treat it as at infinity.
     if length <= plane.w.abs() * 1e-12 || length == 0.0 {
-        return if plane.w > 0.0 {
-            Ok(None)
-        } else {
-            Err(FrustumError::Degenerate(index))
-        };
+        return if plane.w > 0.0 { Ok(None) } else { Err(FrustumError::Degenerate(index)) };
     }
     let plane = plane / length;
-    Ok(Some(Plane {
-        normal: plane.truncate().as_vec3(),
-        d: plane.w as f32,
-    }))
+    Ok(Some(Plane { normal: plane.truncate().as_vec3(), d: plane.w as f32 }))
 }
 
 /// Frustum-culls every object of `store` into `visible` (resized to the store), in parallel over blocks of
@@ -269,13 +334,36 @@ pub fn cull_frustum_with(
         .enumerate()
         .map(|(task, words)| {
             let mut count = 0;
+            let supergroup = frustum.classify_group(&store.supergroups()[task]);
+            let mut classes = [supergroup; SIMD_LANES];
             for (offset, word) in words.iter_mut().enumerate() {
-                let base = (task * WORDS_PER_TASK + offset) * 64;
-                *word = match backend {
-                    #[cfg(target_arch = "x86_64")]
-                    // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2.
-                    SimdBackend::Avx2 => unsafe { avx2::cull_word(frustum, store, base) },
-                    _ => frustum.cull_word_scalar(store, base),
+                let group = task * WORDS_PER_TASK + offset;
+                let base = group * 64;
+                if supergroup == GroupClass::Crossing && offset % SIMD_LANES == 0 {
+                    let groups = &store.groups()[group..(group + SIMD_LANES).min(store.groups().len())];
+                    let (outside, inside) = match backend {
+                        #[cfg(target_arch = "x86_64")]
+                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2.
+                        SimdBackend::Avx2 => unsafe { avx2::classify_groups(frustum, groups) },
+                        _ => frustum.classify_groups(groups),
+                    };
+                    for (lane, class) in classes.iter_mut().enumerate() {
+                        *class = match (outside >> lane & 1, inside >> lane & 1) {
+                            (1, _) => GroupClass::Outside,
+                            (_, 1) => GroupClass::Inside,
+                            _ => GroupClass::Crossing,
+                        };
+                    }
+                }
+                *word = match classes[offset % SIMD_LANES] {
+                    GroupClass::Outside => 0,
+                    GroupClass::Inside => u64::MAX,
+                    GroupClass::Crossing => match backend {
+                        #[cfg(target_arch = "x86_64")]
+                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2.
+                        SimdBackend::Avx2 => unsafe { avx2::cull_word(frustum, store, base) },
+                        _ => frustum.cull_word_scalar(store, base),
+                    },
                 };
                 if len - base < 64 {
                     // Padding slots hold zero-size boxes at the origin, which may test visible.
@@ -295,6 +383,15 @@ mod avx2 {
     use super::*;
     use std::arch::x86_64::*;
 
+    /// [`Frustum::classify_groups`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// The processor must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn classify_groups(frustum: &Frustum, groups: &[GroupBounds]) -> (u8, u8) {
+        frustum.classify_groups(groups)
+    }
+
     /// Culls the 64 objects from `base`, returning their visibility bits.
     ///
     /// # Safety
@@ -306,8 +403,8 @@ mod avx2 {
         for block in 0..64 / SIMD_LANES {
             let i = base + block * SIMD_LANES;
             // SAFETY: the caller guarantees `i + 8 <= padded_len` for every array of the store.
-            let mask = unsafe { cull_block(frustum, store, i) };
-            word |= (mask as u64) << (block * SIMD_LANES);
+            let bits = unsafe { cull_block(frustum, store, i) };
+            word |= (bits as u64) << (block * SIMD_LANES);
         }
         word
     }
@@ -325,16 +422,12 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2")]
+    #[inline]
     unsafe fn cull_block(frustum: &Frustum, store: &BoundsStore, i: usize) -> u8 {
         let zero = _mm256_setzero_ps();
         let tolerance = _mm256_set1_ps(PLANE_TEST_TOLERANCE);
         let (cx, cy, cz, r) = unsafe {
-            (
-                load(&store.center_x, i),
-                load(&store.center_y, i),
-                load(&store.center_z, i),
-                load(&store.radius, i),
-            )
+            (load(&store.center_x, i), load(&store.center_y, i), load(&store.center_z, i), load(&store.radius, i))
         };
         let rx = _mm256_sub_ps(cx, _mm256_set1_ps(frustum.origin.x));
         let ry = _mm256_sub_ps(cy, _mm256_set1_ps(frustum.origin.y));
@@ -346,14 +439,11 @@ mod avx2 {
         let mut slack = [zero; 6];
         let mut sphere_out = zero;
         let mut sphere_in = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
-        for (p, plane) in frustum.planes().iter().enumerate() {
+        for (p, plane) in frustum.planes.iter().enumerate() {
             let n = plane.normal;
             let d = _mm256_add_ps(
                 _mm256_add_ps(
-                    _mm256_add_ps(
-                        _mm256_mul_ps(_mm256_set1_ps(n.x), rx),
-                        _mm256_mul_ps(_mm256_set1_ps(n.y), ry),
-                    ),
+                    _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(n.x), rx), _mm256_mul_ps(_mm256_set1_ps(n.y), ry)),
                     _mm256_mul_ps(_mm256_set1_ps(n.z), rz),
                 ),
                 _mm256_set1_ps(plane.d),
@@ -372,27 +462,15 @@ mod avx2 {
             // Early out: every sphere is fully inside or outside, the boxes cannot change the answer.
             return sphere_in_bits;
         }
-        let (ex, ey, ez) = unsafe {
-            (
-                load(&store.extent_x, i),
-                load(&store.extent_y, i),
-                load(&store.extent_z, i),
-            )
-        };
+        let (ex, ey, ez) = unsafe { (load(&store.extent_x, i), load(&store.extent_y, i), load(&store.extent_z, i)) };
         let mut box_out = zero;
-        for (p, plane) in frustum.planes().iter().enumerate() {
+        for (p, plane) in frustum.planes.iter().enumerate() {
             let n = plane.normal.abs();
             let projected = _mm256_add_ps(
-                _mm256_add_ps(
-                    _mm256_mul_ps(_mm256_set1_ps(n.x), ex),
-                    _mm256_mul_ps(_mm256_set1_ps(n.y), ey),
-                ),
+                _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(n.x), ex), _mm256_mul_ps(_mm256_set1_ps(n.y), ey)),
                 _mm256_mul_ps(_mm256_set1_ps(n.z), ez),
             );
-            let out = _mm256_cmp_ps::<_CMP_LT_OQ>(
-                _mm256_add_ps(_mm256_add_ps(dist[p], projected), slack[p]),
-                zero,
-            );
+            let out = _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_add_ps(_mm256_add_ps(dist[p], projected), slack[p]), zero);
             box_out = _mm256_or_ps(box_out, out);
         }
         let rejected = _mm256_movemask_ps(_mm256_or_ps(sphere_out, box_out)) as u8;

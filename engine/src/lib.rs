@@ -5,7 +5,10 @@
 //!
 //! 1. [`bounds`]: world-space bounding boxes as linear SoA arrays in a `bevy_ecs` resource, updated only where
 //!    transforms changed;
-//! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset.
+//! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset;
+//! 3. [`occluder`] selects artist occluders and [`raster`] rasterizes them into a small conservative depth
+//!    buffer and its farthest-depth pyramid;
+//! 4. [`occlusion`]: each frustum survivor's box tested against that pyramid.
 //!
 //! [`pipeline`] wires the stages into a `bevy_ecs` schedule; [`city`] generates the built-in test scene;
 //! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw.
@@ -17,12 +20,13 @@ pub mod camera;
 pub mod city;
 pub mod frustum;
 pub mod mesh;
+pub mod occluder;
+pub mod occlusion;
 pub mod pipeline;
+pub mod raster;
 pub mod visible;
 
-pub use bounds::{
-    BoundsError, BoundsStore, LocalBounds, MeshRef, ObjectTransform, Occluder, Static, WorldBounds,
-};
+pub use bounds::{BoundsError, BoundsStore, LocalBounds, MeshRef, ObjectTransform, Occluder, Static, WorldBounds};
 pub use camera::{Camera, CameraPath};
 pub use frustum::{DepthConvention, Frustum, SimdBackend};
 pub use visible::VisibleSet;

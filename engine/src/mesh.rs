@@ -48,18 +48,14 @@ impl Mesh {
 
     /// A copy with every vertex moved by `scale * p + offset`.
     pub fn scaled(&self, scale: Vec3, offset: Vec3) -> Self {
-        Self {
-            positions: self.positions.iter().map(|&p| p * scale + offset).collect(),
-            indices: self.indices.clone(),
-        }
+        Self { positions: self.positions.iter().map(|&p| p * scale + offset).collect(), indices: self.indices.clone() }
     }
 
     /// Appends `other`'s triangles.
     pub fn append(&mut self, other: &Mesh) {
         let first = self.positions.len() as u32;
         self.positions.extend_from_slice(&other.positions);
-        self.indices
-            .extend(other.indices.iter().map(|&i| i + first));
+        self.indices.extend(other.indices.iter().map(|&i| i + first));
     }
 
     /// Number of triangles.
@@ -74,10 +70,7 @@ impl Mesh {
 
     /// The triangles as a flat list of corner positions, three per triangle.
     pub fn triangle_soup(&self) -> Vec<Vec3> {
-        self.indices
-            .iter()
-            .map(|&i| self.positions[i as usize])
-            .collect()
+        self.indices.iter().map(|&i| self.positions[i as usize]).collect()
     }
 }
 

@@ -1,9 +1,12 @@
 //! The culling pipeline as `bevy_ecs` systems, one per stage, in a fixed order: data flows one way, each stage
 //! narrowing the [`VisibleSet`] of the stage before.
 
-use crate::bounds::{BoundsStore, on_bounds_removed, sync_bounds};
+use crate::bounds::{BoundsStore, ObjectTransform, Occluder, on_bounds_inserted, on_bounds_removed, sync_bounds};
 use crate::camera::Camera;
 use crate::frustum::{FrustumError, cull_frustum};
+use crate::occluder::{OccluderEntry, select_occluders};
+use crate::occlusion::test_occlusion;
+use crate::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use std::time::{Duration, Instant};
@@ -15,6 +18,8 @@ pub enum CullStage {
     Bounds,
     /// Cull against the view frustum.
     Frustum,
+    /// Rasterize artist occluders and test the frustum survivors against them.
+    Occlusion,
 }
 
 /// Output of the frustum stage: store slots whose boxes touch the frustum.
@@ -36,24 +41,70 @@ pub struct CullStats {
     pub frustum_time: Duration,
     /// Set when the camera could not produce a frustum; the stage then keeps every object.
     pub frustum_error: Option<FrustumError>,
+    /// Occluders rasterized this frame.
+    pub occluders: usize,
+    /// Occluder triangles rasterized this frame (after clipping, front faces only).
+    pub occluder_triangles: usize,
+    /// Objects left after occlusion culling.
+    pub after_occlusion: usize,
+    /// Time spent selecting and rasterizing occluders and building the depth pyramid.
+    pub raster_time: Duration,
+    /// Time spent testing occludees.
+    pub occlusion_time: Duration,
 }
 
-/// Sets up a world for culling: the [`BoundsStore`], the removal observer and the stage outputs. The
+/// Settings of the software occlusion stage.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct OcclusionSettings {
+    /// Whether the stage runs at all; when off, every frustum survivor stays visible.
+    pub enabled: bool,
+    /// Depth-buffer width in texels.
+    pub width: u32,
+    /// Depth-buffer height in texels.
+    pub height: u32,
+    /// Conservative (default) or fast sampling.
+    pub mode: RasterMode,
+    /// Most occluder triangles rasterized per frame.
+    pub triangle_budget: usize,
+}
+
+impl Default for OcclusionSettings {
+    fn default() -> Self {
+        Self { enabled: true, width: 256, height: 144, mode: RasterMode::Conservative, triangle_budget: 16_384 }
+    }
+}
+
+/// Output and working memory of the occlusion stage.
+#[derive(Resource, Default, Debug, Clone)]
+pub struct OcclusionState {
+    /// The occluder depth buffer of this frame.
+    pub depth: DepthBuffer,
+    /// Its farthest-depth pyramid.
+    pub pyramid: DepthPyramid,
+    /// Store slots still visible after occlusion culling: the input of the next stage.
+    pub visible: VisibleSet,
+    /// Store slots the frustum kept and occlusion hid. It stays until the next frame's occlusion stage runs,
+    /// so earlier stages of the next frame can use it (for instance to test last frame's occluded first).
+    pub occluded: VisibleSet,
+}
+
+/// Sets up a world for culling: the [`BoundsStore`], its insertion and removal observers, and the stage
+/// outputs. The
 /// [`Camera`] resource must be inserted by the caller.
 pub fn init_world(world: &mut World) {
     world.init_resource::<BoundsStore>();
     world.init_resource::<FrustumVisible>();
     world.init_resource::<CullStats>();
+    world.init_resource::<OcclusionSettings>();
+    world.init_resource::<OcclusionState>();
+    world.add_observer(on_bounds_inserted);
     world.add_observer(on_bounds_removed);
 }
 
 /// Adds the culling stages to `schedule`, in order.
 pub fn add_systems(schedule: &mut Schedule) {
     schedule.configure_sets((CullStage::Bounds, CullStage::Frustum).chain());
-    schedule.add_systems((
-        sync_bounds.in_set(CullStage::Bounds),
-        frustum_stage.in_set(CullStage::Frustum),
-    ));
+    schedule.add_systems((sync_bounds.in_set(CullStage::Bounds), frustum_stage.in_set(CullStage::Frustum)));
 }
 
 /// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`]. A camera that gives no valid
@@ -81,4 +132,60 @@ pub fn frustum_stage(
         }
     }
     stats.frustum_time = start.elapsed();
+}
+
+/// Selects occluders among the frustum survivors, rasterizes them into the depth buffer, builds its pyramid and
+/// tests every frustum survivor against it, into [`OcclusionState`]. With no occluder in view it rasterizes
+/// and tests nothing.
+#[allow(clippy::too_many_arguments)]
+pub fn occlusion_stage(
+    store: Res<BoundsStore>,
+    camera: Res<Camera>,
+    frustum_visible: Res<FrustumVisible>,
+    settings: Res<OcclusionSettings>,
+    mut state: ResMut<OcclusionState>,
+    mut stats: ResMut<CullStats>,
+    occluders: Query<(Entity, &Occluder, &ObjectTransform)>,
+) {
+    let start = Instant::now();
+    let state = &mut *state;
+    let candidates: Vec<OccluderEntry<'_>> = if settings.enabled {
+        occluders
+            .iter()
+            .filter_map(|(entity, occluder, transform)| {
+                let slot = store.slot_of(entity)?;
+                Some(OccluderEntry { entity, slot, occluder, transform: transform.0 })
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let chosen = select_occluders(&candidates, &store, &frustum_visible.0, camera.position, settings.triangle_budget);
+    stats.occluders = chosen.len();
+    if chosen.is_empty() {
+        state.depth.reset(0, 0);
+        state.pyramid = DepthPyramid::default();
+        state.visible.clone_from(&frustum_visible.0);
+        state.occluded.reset(store.len());
+        stats.occluder_triangles = 0;
+        stats.after_occlusion = stats.after_frustum;
+        stats.raster_time = start.elapsed();
+        stats.occlusion_time = Duration::ZERO;
+        return;
+    }
+    let view = ScreenView::new(&camera, settings.width, settings.height);
+    let instances: Vec<OccluderInstance<'_>> = chosen
+        .iter()
+        .map(|&i| OccluderInstance { triangles: &candidates[i].occluder.triangles, transform: candidates[i].transform })
+        .collect();
+    let raster = rasterize(&view, &instances, settings.mode, &mut state.depth);
+    state.pyramid.build(&state.depth);
+    stats.occluder_triangles = raster.triangles_rasterized;
+    stats.raster_time = start.elapsed();
+
+    let start = Instant::now();
+    let result =
+        test_occlusion(&store, &frustum_visible.0, &view, &state.pyramid, &mut state.visible, &mut state.occluded);
+    stats.after_occlusion = result.visible;
+    stats.occlusion_time = start.elapsed();
 }

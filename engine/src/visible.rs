@@ -11,18 +11,12 @@ pub struct VisibleSet {
 impl VisibleSet {
     /// A set of `len` slots, all clear.
     pub fn new(len: usize) -> Self {
-        Self {
-            words: vec![0; len.div_ceil(64)],
-            len,
-        }
+        Self { words: vec![0; len.div_ceil(64)], len }
     }
 
     /// A set of `len` slots, all set.
     pub fn all(len: usize) -> Self {
-        let mut set = Self {
-            words: vec![u64::MAX; len.div_ceil(64)],
-            len,
-        };
+        let mut set = Self { words: vec![u64::MAX; len.div_ceil(64)], len };
         set.clear_tail();
         set
     }
@@ -86,19 +80,16 @@ impl VisibleSet {
 
     /// The set slots in increasing order.
     pub fn iter(&self) -> impl Iterator<Item = usize> + '_ {
-        self.words
-            .iter()
-            .enumerate()
-            .flat_map(|(word_index, &word)| {
-                let mut bits = word;
-                std::iter::from_fn(move || {
-                    (bits != 0).then(|| {
-                        let bit = bits.trailing_zeros() as usize;
-                        bits &= bits - 1;
-                        word_index * 64 + bit
-                    })
+        self.words.iter().enumerate().flat_map(|(word_index, &word)| {
+            let mut bits = word;
+            std::iter::from_fn(move || {
+                (bits != 0).then(|| {
+                    let bit = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    word_index * 64 + bit
                 })
             })
+        })
     }
 }
 

@@ -43,32 +43,22 @@ fn move_objects(time: Res<FrameTime>, mut movers: Query<(&Velocity, &mut ObjectT
 fn parse_scene(scene: &str) -> Result<usize, String> {
     match scene.split_once(':') {
         None if scene == "city" => Ok(100_000),
-        Some(("city", count)) => count
-            .parse()
-            .map_err(|_| format!("bad object count in --scene {scene}")),
-        _ => Err(format!(
-            "unknown scene '{scene}': this build knows only the built-in `city[:N]`"
-        )),
+        Some(("city", count)) => count.parse().map_err(|_| format!("bad object count in --scene {scene}")),
+        _ => Err(format!("unknown scene '{scene}': this build knows only the built-in `city[:N]`")),
     }
 }
 
 fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
-    let parsed = resolution
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)));
+    let parsed = resolution.split_once('x').and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)));
     match parsed {
         Some((w, h)) if w > 0 && h > 0 => Ok((w, h)),
-        _ => Err(format!(
-            "bad --resolution '{resolution}', expected WIDTHxHEIGHT"
-        )),
+        _ => Err(format!("bad --resolution '{resolution}', expected WIDTHxHEIGHT")),
     }
 }
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
-        )
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
         .init();
     let args = Args::parse();
     match run(&args) {
@@ -159,27 +149,11 @@ fn print_summary(frames: &[CullStats]) {
     };
     let objects = frames[0].objects as f64;
     let kept = frames.iter().map(|f| f.after_frustum as f64).sum::<f64>() / n;
-    println!(
-        "\nsummary over {} frames, {} objects",
-        frames.len(),
-        frames[0].objects
-    );
-    println!(
-        "{:<10} {:>12} {:>12} {:>12} {:>12} {:>10}",
-        "stage", "mean us", "median us", "max us", "kept", "culled"
-    );
+    println!("\nsummary over {} frames, {} objects", frames.len(), frames[0].objects);
+    println!("{:<10} {:>12} {:>12} {:>12} {:>12} {:>10}", "stage", "mean us", "median us", "max us", "kept", "culled");
     let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.bounds_time)).collect());
-    let updated = frames
-        .iter()
-        .map(|f| f.bounds_recomputed as f64)
-        .sum::<f64>()
-        / n;
-    println!(
-        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {:>12} {:>10}",
-        "bounds",
-        format!("{updated:.0} upd"),
-        ""
-    );
+    let updated = frames.iter().map(|f| f.bounds_recomputed as f64).sum::<f64>() / n;
+    println!("{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {:>12} {:>10}", "bounds", format!("{updated:.0} upd"), "");
     let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.frustum_time)).collect());
     println!(
         "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {kept:>12.0} {:>9.1}%",
