@@ -83,13 +83,55 @@ pub struct MeshRef(pub u32);
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct Static;
 
+/// Marks an edge of an [`Occluder`] triangle without a neighbouring triangle.
+pub const NO_NEIGHBOUR: u32 = u32::MAX;
+
 /// An artist occluder: triangles in the entity's local space, meant to lie inside the rendered geometry, that
-/// the software occlusion stage rasterizes to hide what is behind them.
+/// the software occlusion stage rasterizes to hide what is behind them. Triangles are counter-clockwise seen
+/// from outside; closed meshes occlude best, since the raster covers the union of their front faces.
 #[derive(Component, Clone, Debug, PartialEq)]
 pub struct Occluder {
     /// Triangle list: every three vertices form one triangle, in the entity's local space. Shared, since many
     /// objects of one shape carry the same occluder.
     pub triangles: Arc<[Vec3]>,
+    /// For edge `e` of triangle `t` (from vertex `e` to vertex `e + 1`), at `3 * t + e`: the triangle sharing
+    /// that edge in the opposite direction, or [`NO_NEIGHBOUR`]. Built once by [`Occluder::new`].
+    pub neighbours: Arc<[u32]>,
+}
+
+impl Occluder {
+    /// An occluder from a triangle list (a trailing partial triangle is ignored). Edges are matched by exact
+    /// vertex positions; an edge shared by more than two triangles counts as having no neighbour.
+    pub fn new(triangles: impl Into<Arc<[Vec3]>>) -> Self {
+        let triangles: Arc<[Vec3]> = triangles.into();
+        let key = |p: Vec3| p.to_array().map(f32::to_bits);
+        let mut edges: std::collections::HashMap<([u32; 3], [u32; 3]), Vec<u32>> = std::collections::HashMap::new();
+        let count = triangles.len() / 3;
+        for t in 0..count {
+            for e in 0..3 {
+                let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
+                edges.entry((key(a), key(b))).or_default().push(t as u32);
+            }
+        }
+        let mut neighbours = vec![NO_NEIGHBOUR; 3 * count];
+        for t in 0..count {
+            for e in 0..3 {
+                let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
+                let forward = edges.get(&(key(a), key(b))).map_or(0, Vec::len);
+                if let Some([other]) = edges.get(&(key(b), key(a))).map(Vec::as_slice)
+                    && forward == 1
+                {
+                    neighbours[3 * t + e] = *other;
+                }
+            }
+        }
+        Self { triangles: Arc::from(&triangles[..3 * count]), neighbours: neighbours.into() }
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len() / 3
+    }
 }
 
 /// Inserted on an entity whose bounds were rejected, with the reason. The entity is not in the store, so no

@@ -2,7 +2,6 @@
 
 use crate::frustum::{DepthConvention, Frustum, FrustumError};
 use bevy_ecs::prelude::*;
-use glam::camera::rh::view as view_f32;
 use glam::dcamera::rh::proj::{directx, opengl};
 use glam::dcamera::rh::view;
 use glam::{DMat4, DVec3, Mat4, Vec3};
@@ -47,7 +46,13 @@ impl Camera {
 
     /// View matrix with the eye at the origin: rotation only.
     pub fn view_from_relative(&self) -> Mat4 {
-        view_f32::look_to_mat4(Vec3::ZERO, self.forward, self.up)
+        self.view_from_relative_f64().as_mat4()
+    }
+
+    /// [`Camera::view_from_relative`] in f64. `forward` is normalized here: glam's look-to matrix expects a
+    /// unit direction and would otherwise scale the view.
+    pub fn view_from_relative_f64(&self) -> DMat4 {
+        view::look_to_mat4(DVec3::ZERO, self.forward.as_dvec3().normalize(), self.up.as_dvec3())
     }
 
     /// Projection matrix for this camera's depth convention.
@@ -94,7 +99,12 @@ impl Camera {
     /// Clip from camera-relative world space: `clip_from_view * view_from_relative`. Apply it to
     /// `world_point - position`.
     pub fn clip_from_relative(&self) -> Mat4 {
-        self.clip_from_view() * self.view_from_relative()
+        self.clip_from_relative_f64().as_mat4()
+    }
+
+    /// [`Camera::clip_from_relative`] in f64.
+    pub fn clip_from_relative_f64(&self) -> DMat4 {
+        self.clip_from_view_f64() * self.view_from_relative_f64()
     }
 
     /// Clip from absolute world space; loses precision far from the origin, prefer
@@ -105,8 +115,7 @@ impl Camera {
 
     /// The camera-relative culling frustum, its planes extracted from the f64 matrices.
     pub fn frustum(&self) -> Result<Frustum, FrustumError> {
-        let view = view::look_to_mat4(DVec3::ZERO, self.forward.as_dvec3(), self.up.as_dvec3());
-        Frustum::from_clip_from_relative_f64(self.position, self.clip_from_view_f64() * view, self.depth)
+        Frustum::from_clip_from_relative_f64(self.position, self.clip_from_relative_f64(), self.depth)
     }
 }
 

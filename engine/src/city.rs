@@ -11,7 +11,6 @@ use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec3};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
-use std::sync::Arc;
 
 /// Distance between block centres: a 64-unit block plus a 16-unit street.
 pub const BLOCK_PITCH: f32 = 80.0;
@@ -44,8 +43,8 @@ pub struct SceneObject {
     pub mesh: u32,
     /// Placement in the world.
     pub transform: Affine3A,
-    /// Occluder triangles in local space, shared between objects of the same shape.
-    pub occluder: Option<Arc<[Vec3]>>,
+    /// Occluder in local space, shared between objects of the same shape.
+    pub occluder: Option<Occluder>,
     /// Velocity in units per second for moving objects; `None` for static ones.
     pub velocity: Option<Vec3>,
 }
@@ -106,8 +105,9 @@ impl CityScene {
     pub fn generate(params: CityParams) -> Self {
         let meshes = mesh_library();
         let mesh_bounds = meshes.iter().map(|m| m.local_bounds().expect("library meshes are not empty")).collect();
-        let occluder: Arc<[Vec3]> =
-            Mesh::unit_cube(1).scaled(Vec3::splat(1.0 - 2.0 * OCCLUDER_INSET), Vec3::ZERO).triangle_soup().into();
+        let occluder = Occluder::new(
+            Mesh::unit_cube(1).scaled(Vec3::splat(1.0 - 2.0 * OCCLUDER_INSET), Vec3::ZERO).triangle_soup(),
+        );
         // About 50 objects a block; lay the blocks out on a square grid around the origin.
         let blocks = params.objects.div_ceil(50).max(1);
         let blocks_per_side = (blocks as f64).sqrt().ceil() as u32;
@@ -147,8 +147,8 @@ impl CityScene {
                     Some(velocity) => entity.insert(Velocity(velocity)),
                     None => entity.insert(Static),
                 };
-                if let Some(triangles) = &object.occluder {
-                    entity.insert(Occluder { triangles: triangles.clone() });
+                if let Some(occluder) = &object.occluder {
+                    entity.insert(occluder.clone());
                 }
                 entity.id()
             })
@@ -214,7 +214,7 @@ fn grid_from_centre(side: u32) -> impl Iterator<Item = (i32, i32)> {
 fn generate_block(
     rng: &mut Pcg64Mcg,
     origin: Vec3,
-    occluder: &Arc<[Vec3]>,
+    occluder: &Occluder,
     moving_fraction: f32,
     out: &mut Vec<SceneObject>,
 ) {
@@ -327,7 +327,7 @@ mod tests {
         let city = CityScene::generate(CityParams::with_objects(200));
         let building = &city.mesh_bounds[meshes::BUILDING as usize];
         let object = city.objects.iter().find(|o| o.kind == ObjectKind::Building).unwrap();
-        for &p in object.occluder.as_ref().unwrap().iter() {
+        for &p in object.occluder.as_ref().unwrap().triangles.iter() {
             assert!(((p - building.center).abs() - building.half_extent).max_element() < 0.0);
         }
     }

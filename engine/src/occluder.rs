@@ -53,7 +53,7 @@ pub fn select_occluders(
     let mut remaining = triangle_budget;
     let mut chosen = Vec::new();
     for (_, index) in ranked {
-        let triangles = candidates[index].occluder.triangles.len() / 3;
+        let triangles = candidates[index].occluder.triangle_count();
         if triangles <= remaining {
             remaining -= triangles;
             chosen.push(index);

@@ -103,8 +103,12 @@ pub fn init_world(world: &mut World) {
 
 /// Adds the culling stages to `schedule`, in order.
 pub fn add_systems(schedule: &mut Schedule) {
-    schedule.configure_sets((CullStage::Bounds, CullStage::Frustum).chain());
-    schedule.add_systems((sync_bounds.in_set(CullStage::Bounds), frustum_stage.in_set(CullStage::Frustum)));
+    schedule.configure_sets((CullStage::Bounds, CullStage::Frustum, CullStage::Occlusion).chain());
+    schedule.add_systems((
+        sync_bounds.in_set(CullStage::Bounds),
+        frustum_stage.in_set(CullStage::Frustum),
+        occlusion_stage.in_set(CullStage::Occlusion),
+    ));
 }
 
 /// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`]. A camera that gives no valid
@@ -176,7 +180,7 @@ pub fn occlusion_stage(
     let view = ScreenView::new(&camera, settings.width, settings.height);
     let instances: Vec<OccluderInstance<'_>> = chosen
         .iter()
-        .map(|&i| OccluderInstance { triangles: &candidates[i].occluder.triangles, transform: candidates[i].transform })
+        .map(|&i| OccluderInstance { occluder: candidates[i].occluder, transform: candidates[i].transform })
         .collect();
     let raster = rasterize(&view, &instances, settings.mode, &mut state.depth);
     state.pyramid.build(&state.depth);

@@ -9,18 +9,24 @@
 //! screen space, so a triangle's depth over a texel is bounded exactly by its plane.
 //!
 //! # Modes
-//! - [`RasterMode::Conservative`] (default): a texel is written only where a triangle covers the *whole*
-//!   texel, with the triangle's farthest depth over that texel, shrunk by a bound on rounding error. So
-//!   anything the buffer calls hidden is hidden behind the occluders at any finer resolution.
+//! - [`RasterMode::Conservative`] (default): a texel is written only where an occluder covers the *whole*
+//!   texel, with the farthest depth the occluder can have over that texel, less a bound on rounding error. So
+//!   anything the buffer calls hidden is hidden behind the occluders at any finer resolution. Coverage is
+//!   that of the union of an occluder's front faces, not of single triangles, so the shared edges inside a
+//!   mesh (a quad's diagonal, the edge between two walls) leave no holes: a texel is covered whole when some
+//!   front face covers its centre and no boundary edge of the union (silhouette, open border, near-plane
+//!   cut) touches it.
 //! - [`RasterMode::Fast`]: sampled at texel centres like Collin's 256x144 buffer; not conservative.
 //!
-//! Triangle setup (transform, clipping against the near plane and the viewport, edge and depth planes) runs
-//! in f64; only the per-texel loop runs in f32, with margins that cover its rounding. Back faces are skipped:
-//! a closed occluder's front faces hide everything its back faces would, and from inside an occluder nothing
-//! is hidden by it.
+//! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64; only the
+//! per-texel loop runs in f32, with margins that cover its rounding. Nothing is clipped against the sides of
+//! the screen: f64 setup is precise far outside it, and texel loops are clamped to the buffer. Back faces are
+//! skipped: a closed occluder's front faces hide everything its back faces would, and from inside an occluder
+//! nothing is hidden by it.
 
+use crate::bounds::{NO_NEIGHBOUR, Occluder};
 use crate::camera::Camera;
-use glam::{DAffine3, DMat4, DVec3, DVec4, Mat4, Vec3};
+use glam::{DAffine3, DMat4, DVec3, Mat4, Vec3};
 use rayon::prelude::*;
 
 /// Rows of the depth buffer rasterized by one rayon task; each band is a contiguous slice, so tasks never share
@@ -59,8 +65,7 @@ pub struct ScreenView {
 impl ScreenView {
     /// The view of `camera` on a `width` x `height` buffer.
     pub fn new(camera: &Camera, width: u32, height: u32) -> Self {
-        let view = glam::dcamera::rh::view::look_to_mat4(DVec3::ZERO, camera.forward.as_dvec3(), camera.up.as_dvec3());
-        let clip_from_relative = camera.clip_from_view_f64() * view;
+        let clip_from_relative = camera.clip_from_relative_f64();
         Self {
             origin: camera.position,
             clip_from_relative,
@@ -115,19 +120,53 @@ impl DepthBuffer {
     }
 }
 
-/// A triangle ready for the per-texel loop: three edge functions and a depth plane, in f32, with each
-/// function's sampling offset and error margin folded into its constant term.
+/// A triangle ready for the per-texel loop, in f32, all offsets and margins folded into constant terms.
 #[derive(Clone, Copy, Debug)]
 struct SetupTriangle {
-    /// Per edge `(a, b, c)`: texel `(x, y)` passes the edge when `a*x + b*y + c >= 0`.
-    edges: [[f32; 3]; 3],
-    /// `(p, q, r)`: the depth written at texel `(x, y)` is `p*x + q*y + r`.
+    /// Per edge `(a, b, c_centre, c_outer)`: the texel centre is inside the edge when `a*x + b*y + c_centre >= 0`;
+    /// the texel may overlap the triangle only if `a*x + b*y + c_outer >= 0`.
+    edges: [[f32; 4]; 3],
+    /// `(p, q, r)`: the depth written for texel `(x, y)` is `p*x + q*y + r` (the plane's minimum over the texel
+    /// less a margin in conservative mode, its value at the centre in fast mode).
     depth: [f32; 3],
-    /// Texel bounds: columns `x0..x1`, rows `y0..y1`.
+    /// Texel bounds.
+    rect: TexelRect,
+}
+
+/// Columns `x0..x1`, rows `y0..y1`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct TexelRect {
     x0: u32,
     x1: u32,
     y0: u32,
     y1: u32,
+}
+
+impl TexelRect {
+    const EMPTY: Self = Self { x0: u32::MAX, x1: 0, y0: u32::MAX, y1: 0 };
+
+    fn union(self, other: Self) -> Self {
+        Self {
+            x0: self.x0.min(other.x0),
+            x1: self.x1.max(other.x1),
+            y0: self.y0.min(other.y0),
+            y1: self.y1.max(other.y1),
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.x0 >= self.x1 || self.y0 >= self.y1
+    }
+}
+
+/// One occluder after setup: its front-facing triangles, and the screen segments that bound their union.
+#[derive(Clone, Debug)]
+struct SetupOccluder {
+    triangles: Vec<SetupTriangle>,
+    /// Silhouette, open-boundary and near-clip edges `(x0, y0, x1, y1)`: the union of the triangles has no other
+    /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole.
+    boundary: Vec<[f64; 4]>,
+    rect: TexelRect,
 }
 
 /// Counts from one rasterization.
@@ -137,15 +176,15 @@ pub struct RasterStats {
     pub triangles_in: usize,
     /// Triangles (after clipping and fan splitting) that reached the texel loop.
     pub triangles_rasterized: usize,
-    /// Triangles skipped as back-facing, degenerate, or clipped away entirely.
+    /// Triangles skipped as back-facing, degenerate, off screen or clipped away entirely.
     pub triangles_rejected: usize,
 }
 
-/// One occluder to rasterize: its local triangle list and its world transform.
+/// One occluder to rasterize: its mesh and its world transform.
 #[derive(Clone, Copy, Debug)]
 pub struct OccluderInstance<'a> {
-    /// Local-space triangle list, three vertices per triangle.
-    pub triangles: &'a [Vec3],
+    /// The occluder mesh, with its edge adjacency.
+    pub occluder: &'a Occluder,
     /// Local-to-world transform.
     pub transform: glam::Affine3A,
 }
@@ -158,19 +197,14 @@ pub fn rasterize(
     buffer: &mut DepthBuffer,
 ) -> RasterStats {
     buffer.reset(view.width, view.height);
-    let triangles_in = occluders.iter().map(|o| o.triangles.len() / 3).sum();
-    let setups: Vec<SetupTriangle> = occluders
-        .par_iter()
-        .flat_map_iter(|occluder| {
-            let mut setups = Vec::new();
-            setup_occluder(view, occluder, mode, &mut setups);
-            setups
-        })
-        .collect();
+    let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
+    let setups: Vec<SetupOccluder> =
+        occluders.par_iter().filter_map(|occluder| setup_occluder(view, occluder, mode)).collect();
+    let triangles_rasterized = setups.iter().map(|o| o.triangles.len()).sum();
     let stats = RasterStats {
         triangles_in,
-        triangles_rasterized: setups.len(),
-        triangles_rejected: triangles_in.saturating_sub(setups.len()),
+        triangles_rasterized,
+        triangles_rejected: triangles_in.saturating_sub(triangles_rasterized),
     };
     if setups.is_empty() {
         return stats;
@@ -179,9 +213,9 @@ pub fn rasterize(
     let width = view.width as usize;
     let bands = (view.height as usize).div_ceil(BAND_ROWS);
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); bands];
-    for (index, tri) in setups.iter().enumerate() {
-        let bands = tri.y0 as usize / BAND_ROWS..(tri.y1 as usize).div_ceil(BAND_ROWS);
-        for bin in &mut bins[bands] {
+    for (index, occluder) in setups.iter().enumerate() {
+        let rows = occluder.rect.y0 as usize / BAND_ROWS..(occluder.rect.y1 as usize).div_ceil(BAND_ROWS);
+        for bin in &mut bins[rows] {
             bin.push(index as u32);
         }
     }
@@ -189,11 +223,12 @@ pub fn rasterize(
         |(band, (texels, bin))| {
             let band_y0 = (band * BAND_ROWS) as u32;
             let band_y1 = band_y0 + (texels.len() / width) as u32;
+            let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
+            let mut scratch = Scratch::default();
             for &index in bin {
-                let tri = &setups[index as usize];
-                for y in tri.y0.max(band_y0)..tri.y1.min(band_y1) {
-                    let row = &mut texels[(y - band_y0) as usize * width..][..width];
-                    raster_row(tri, y, &mut row[tri.x0 as usize..tri.x1 as usize]);
+                match mode {
+                    RasterMode::Conservative => raster_union(&setups[index as usize], band.reborrow(), &mut scratch),
+                    RasterMode::Fast => raster_centres(&setups[index as usize], band.reborrow()),
                 }
             }
         },
@@ -201,83 +236,209 @@ pub fn rasterize(
     stats
 }
 
-/// The inner loop: one row of one triangle, written so the compiler vectorizes it (no branches, a select and
-/// a max per texel).
-#[inline(always)]
-fn raster_row(tri: &SetupTriangle, y: u32, row: &mut [f32]) {
-    let yf = y as f32;
-    let [[a0, b0, c0], [a1, b1, c1], [a2, b2, c2]] = tri.edges;
-    let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
-    let [p, q, r] = tri.depth;
-    let rz = q * yf + r;
-    for (i, texel) in row.iter_mut().enumerate() {
-        let xf = (tri.x0 + i as u32) as f32;
-        let inside = (a0 * xf + r0 >= 0.0) & (a1 * xf + r1 >= 0.0) & (a2 * xf + r2 >= 0.0);
-        let depth = p * xf + rz;
-        *texel = if inside { texel.max(depth) } else { *texel };
+/// The rows `y0..y1` of the depth buffer one task owns.
+struct Band<'a> {
+    texels: &'a mut [f32],
+    width: usize,
+    y0: u32,
+    y1: u32,
+}
+
+impl Band<'_> {
+    fn reborrow(&mut self) -> Band<'_> {
+        Band { texels: self.texels, width: self.width, y0: self.y0, y1: self.y1 }
+    }
+
+    /// The part of `rect` inside the band.
+    fn clip(&self, rect: TexelRect) -> TexelRect {
+        TexelRect { y0: rect.y0.max(self.y0), y1: rect.y1.min(self.y1), ..rect }
     }
 }
 
-/// Transforms, clips and sets up every front-facing triangle of one occluder.
-fn setup_occluder(view: &ScreenView, occluder: &OccluderInstance<'_>, mode: RasterMode, out: &mut Vec<SetupTriangle>) {
+/// Per-occluder working memory of the conservative mode, over the occluder's rectangle within a band.
+#[derive(Default)]
+struct Scratch {
+    /// Some triangle covers the texel centre.
+    covered: Vec<bool>,
+    /// A boundary segment touches the texel.
+    blocked: Vec<bool>,
+    /// The farthest depth of every triangle that may overlap the texel.
+    farthest: Vec<f32>,
+}
+
+/// Fast mode: each triangle writes its centre depth wherever it covers the texel centre.
+fn raster_centres(occluder: &SetupOccluder, band: Band<'_>) {
+    for tri in &occluder.triangles {
+        let rect = band.clip(tri.rect);
+        for y in rect.y0..rect.y1 {
+            let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
+            let [[a0, b0, c0, _], [a1, b1, c1, _], [a2, b2, c2, _]] = tri.edges;
+            let yf = y as f32;
+            let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
+            let [p, q, r] = tri.depth;
+            let rz = q * yf + r;
+            for (i, texel) in row.iter_mut().enumerate() {
+                let xf = (rect.x0 + i as u32) as f32;
+                let inside = (a0 * xf + r0 >= 0.0) & (a1 * xf + r1 >= 0.0) & (a2 * xf + r2 >= 0.0);
+                let depth = p * xf + rz;
+                *texel = if inside { texel.max(depth) } else { *texel };
+            }
+        }
+    }
+}
+
+/// Conservative mode: a texel is written when the occluder's front faces cover its centre and no boundary
+/// segment of their union touches it (so the union covers it whole), with the farthest depth of every
+/// triangle that may overlap it.
+fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch) {
+    let rect = band.clip(occluder.rect);
+    if rect.is_empty() {
+        return;
+    }
+    let (w, h) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
+    for (buffer, value) in [(&mut scratch.covered, false), (&mut scratch.blocked, false)] {
+        buffer.clear();
+        buffer.resize(w * h, value);
+    }
+    scratch.farthest.clear();
+    scratch.farthest.resize(w * h, f32::INFINITY);
+
+    for tri in &occluder.triangles {
+        let tri_rect = band.clip(tri.rect);
+        let [[a0, b0, c0, o0], [a1, b1, c1, o1], [a2, b2, c2, o2]] = tri.edges;
+        let [p, q, r] = tri.depth;
+        for y in tri_rect.y0..tri_rect.y1 {
+            let yf = y as f32;
+            let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
+            let (s0, s1, s2) = (b0 * yf + o0, b1 * yf + o1, b2 * yf + o2);
+            let rz = q * yf + r;
+            let start = (y - rect.y0) as usize * w + (tri_rect.x0 - rect.x0) as usize;
+            let count = (tri_rect.x1 - tri_rect.x0) as usize;
+            let covered = &mut scratch.covered[start..start + count];
+            let farthest = &mut scratch.farthest[start..start + count];
+            for (i, (covered, farthest)) in covered.iter_mut().zip(farthest.iter_mut()).enumerate() {
+                let xf = (tri_rect.x0 + i as u32) as f32;
+                let (e0, e1, e2) = (a0 * xf, a1 * xf, a2 * xf);
+                let centre = (e0 + r0 >= 0.0) & (e1 + r1 >= 0.0) & (e2 + r2 >= 0.0);
+                let overlaps = (e0 + s0 >= 0.0) & (e1 + s1 >= 0.0) & (e2 + s2 >= 0.0);
+                let depth = p * xf + rz;
+                *covered |= centre;
+                *farthest = if overlaps { farthest.min(depth) } else { *farthest };
+            }
+        }
+    }
+    for segment in &occluder.boundary {
+        block_segment(segment, rect, w, &mut scratch.blocked);
+    }
+    for y in rect.y0..rect.y1 {
+        let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
+        let offset = (y - rect.y0) as usize * w;
+        for (i, texel) in row.iter_mut().enumerate() {
+            let k = offset + i;
+            if scratch.covered[k] && !scratch.blocked[k] {
+                *texel = texel.max(scratch.farthest[k]);
+            }
+        }
+    }
+}
+
+/// Marks every texel of `rect` that the segment touches, each texel grown by a margin for rounding.
+fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [bool]) {
+    const GROW: f64 = 1e-3;
+    let [x0, y0, x1, y1] = *segment;
+    let (dx, dy) = (x1 - x0, y1 - y0);
+    for y in rect.y0..rect.y1 {
+        let (lo, hi) = (y as f64 - GROW, y as f64 + 1.0 + GROW);
+        // Parameter range of the segment inside the slab lo <= y <= hi.
+        let (t0, t1) = if dy.abs() < 1e-12 {
+            if y0 < lo || y0 > hi { continue } else { (0.0, 1.0) }
+        } else {
+            let (ta, tb) = ((lo - y0) / dy, (hi - y0) / dy);
+            (ta.min(tb).max(0.0), ta.max(tb).min(1.0))
+        };
+        if t0 > t1 {
+            continue;
+        }
+        let (xa, xb) = (x0 + dx * t0, x0 + dx * t1);
+        let first = ((xa.min(xb) - GROW).floor().max(rect.x0 as f64)) as u32;
+        let last = ((xa.max(xb) + GROW).floor().min(rect.x1 as f64 - 1.0)) as u32;
+        let row = (y - rect.y0) as usize * w;
+        for x in first..=last.max(first) {
+            if x >= rect.x0 && x <= last {
+                blocked[row + (x - rect.x0) as usize] = true;
+            }
+        }
+    }
+}
+
+/// Transforms, clips against the near plane and sets up the front faces of one occluder, with the boundary of
+/// their union: edges whose neighbour is missing or back-facing, and edges made by near clipping.
+fn setup_occluder(view: &ScreenView, instance: &OccluderInstance<'_>, mode: RasterMode) -> Option<SetupOccluder> {
     let transform = DAffine3::from_mat3_translation(
-        glam::Mat3::from(occluder.transform.matrix3).as_dmat3(),
-        DVec3::from(Vec3::from(occluder.transform.translation)) - view.origin.as_dvec3(),
+        glam::Mat3::from(instance.transform.matrix3).as_dmat3(),
+        DVec3::from(Vec3::from(instance.transform.translation)) - view.origin.as_dvec3(),
     );
+    let occluder = instance.occluder;
+    let relative: Vec<DVec3> = occluder.triangles.iter().map(|p| transform.transform_point3(p.as_dvec3())).collect();
+    // Front-facing in 3D: the eye (the origin here) is on the outer side of the counter-clockwise face.
+    let front: Vec<bool> = relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(t[0]) < 0.0).collect();
     let m = view.clip_from_relative;
-    let clip = |p: Vec3| {
-        let v = m * transform.transform_point3(p.as_dvec3()).extend(1.0);
-        DVec3::new(v.x, v.y, v.w)
-    };
-    for tri in occluder.triangles.chunks_exact(3) {
-        let mut polygon = [DVec3::ZERO; 9];
-        polygon[..3].copy_from_slice(&[clip(tri[0]), clip(tri[1]), clip(tri[2])]);
-        let count = clip_polygon(&mut polygon, 3, view.near as f64);
+    let mut setup = SetupOccluder { triangles: Vec::new(), boundary: Vec::new(), rect: TexelRect::EMPTY };
+    for (t, corners) in relative.chunks_exact(3).enumerate() {
+        if !front[t] {
+            continue;
+        }
+        let mut polygon = [(DVec3::ZERO, false); 4];
+        for (e, corner) in corners.iter().enumerate() {
+            let v = m * corner.extend(1.0);
+            let neighbour = occluder.neighbours[3 * t + e];
+            let boundary = neighbour == NO_NEIGHBOUR || !front[neighbour as usize];
+            polygon[e] = (DVec3::new(v.x, v.y, v.w), boundary);
+        }
+        let (polygon, count) = clip_near(&polygon, view.near as f64);
         if count < 3 {
             continue;
         }
-        let screen: Vec<DVec3> = polygon[..count].iter().map(|&v| to_screen(view, v)).collect();
+        let screen: Vec<DVec3> = polygon[..count].iter().map(|&(v, _)| to_screen(view, v)).collect();
+        for (i, &(_, boundary)) in polygon[..count].iter().enumerate() {
+            if boundary {
+                let (a, b) = (screen[i], screen[(i + 1) % count]);
+                setup.boundary.push([a.x, a.y, b.x, b.y]);
+            }
+        }
         for i in 1..count - 1 {
-            if let Some(setup) = setup_triangle([screen[0], screen[i], screen[i + 1]], view, mode) {
-                out.push(setup);
+            if let Some(tri) = setup_triangle([screen[0], screen[i], screen[i + 1]], view, mode) {
+                setup.rect = setup.rect.union(tri.rect);
+                setup.triangles.push(tri);
             }
         }
     }
+    (!setup.triangles.is_empty()).then_some(setup)
 }
 
-/// Clips a homogeneous `(x, y, w)` polygon against `w >= near` and the viewport `-w <= x, y <= w`
-/// (Sutherland-Hodgman). Returns the new vertex count (0 when nothing is left).
-fn clip_polygon(polygon: &mut [DVec3; 9], mut count: usize, near: f64) -> usize {
-    let planes = [
-        DVec4::new(0.0, 0.0, 1.0, -near),
-        DVec4::new(1.0, 0.0, 1.0, 0.0),
-        DVec4::new(-1.0, 0.0, 1.0, 0.0),
-        DVec4::new(0.0, 1.0, 1.0, 0.0),
-        DVec4::new(0.0, -1.0, 1.0, 0.0),
-    ];
-    let mut scratch = [DVec3::ZERO; 9];
-    for plane in planes {
-        let distance = |v: DVec3| plane.truncate().dot(v) + plane.w;
-        let mut out = 0;
-        for i in 0..count {
-            let (a, b) = (polygon[i], polygon[(i + 1) % count]);
-            let (da, db) = (distance(a), distance(b));
-            if da >= 0.0 {
-                scratch[out] = a;
-                out += 1;
+/// Clips a triangle of homogeneous `(x, y, w)` vertices, each flagged when the edge leaving it is a boundary,
+/// against `w >= near`. Edges along the clipping plane are boundaries. Returns the polygon and its size.
+fn clip_near(triangle: &[(DVec3, bool); 4], near: f64) -> ([(DVec3, bool); 4], usize) {
+    let mut out = [(DVec3::ZERO, false); 4];
+    let mut count = 0;
+    for i in 0..3 {
+        let ((a, boundary), (b, _)) = (triangle[i], triangle[(i + 1) % 3]);
+        let (da, db) = (a.z - near, b.z - near);
+        let crossing = (da >= 0.0) != (db >= 0.0);
+        let cut = a + (b - a) * (da / (da - db));
+        if da >= 0.0 {
+            out[count] = (a, boundary);
+            count += 1;
+            if crossing {
+                out[count] = (cut, true); // Leaves along the near plane.
+                count += 1;
             }
-            if (da >= 0.0) != (db >= 0.0) {
-                scratch[out] = a + (b - a) * (da / (da - db));
-                out += 1;
-            }
-        }
-        count = out.min(9);
-        polygon[..count].copy_from_slice(&scratch[..count]);
-        if count < 3 {
-            return 0;
+        } else if crossing {
+            out[count] = (cut, boundary);
+            count += 1;
         }
     }
-    count
+    (out, count)
 }
 
 /// Homogeneous `(x, y, w)` to screen texel coordinates and `1/w`, y down.
@@ -286,43 +447,36 @@ fn to_screen(view: &ScreenView, v: DVec3) -> DVec3 {
     DVec3::new((v.x * inv_w * 0.5 + 0.5) * view.width as f64, (0.5 - v.y * inv_w * 0.5) * view.height as f64, inv_w)
 }
 
-/// Edge and depth planes of a screen-space triangle, or `None` if it is back-facing, degenerate, or covers no
-/// texel row or column.
+/// Edge and depth planes of a screen-space triangle, or `None` if it is degenerate or off screen.
 fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<SetupTriangle> {
-    // Counter-clockwise in y-up NDC is clockwise on the y-down screen: negative area here is front-facing.
     let area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
-    if area >= 0.0 || !area.is_finite() {
+    if area == 0.0 || !area.is_finite() {
         return None;
     }
-    let v = [v[0], v[2], v[1]]; // Now counter-clockwise on screen: edge functions are positive inside.
+    // Make the triangle counter-clockwise in these coordinates, so edge functions are positive inside.
+    let v = if area > 0.0 { v } else { [v[0], v[2], v[1]] };
     let (width, height) = (view.width as f64, view.height as f64);
     let min = v[0].min(v[1]).min(v[2]);
     let max = v[0].max(v[1]).max(v[2]);
-    let x0 = min.x.floor().clamp(0.0, width) as u32;
-    let x1 = max.x.ceil().clamp(0.0, width) as u32;
-    let y0 = min.y.floor().clamp(0.0, height) as u32;
-    let y1 = max.y.ceil().clamp(0.0, height) as u32;
-    if x0 >= x1 || y0 >= y1 {
+    let rect = TexelRect {
+        x0: min.x.floor().clamp(0.0, width) as u32,
+        x1: max.x.ceil().clamp(0.0, width) as u32,
+        y0: min.y.floor().clamp(0.0, height) as u32,
+        y1: max.y.ceil().clamp(0.0, height) as u32,
+    };
+    if rect.is_empty() {
         return None;
     }
-    let conservative = mode == RasterMode::Conservative;
-    // Texel (x, y) spans [x, x+1] x [y, y+1]. Fast mode samples its centre; conservative mode takes the
-    // minimum over the texel (the centre less half the plane's slope on each axis), less a rounding margin.
-    let fold = |a: f64, b: f64, c: f64| {
-        let centre = c + 0.5 * (a + b);
-        if conservative {
-            let margin = EVAL_MARGIN * (a.abs() * width + b.abs() * height + c.abs() + 1.0);
-            centre - 0.5 * (a.abs() + b.abs()) - margin
-        } else {
-            centre
-        }
-    };
-    let mut edges = [[0.0f32; 3]; 3];
+    // Texel (x, y) spans [x, x+1] x [y, y+1]. The margin covers the f32 evaluation of a plane over the buffer.
+    let margin = |a: f64, b: f64, c: f64| EVAL_MARGIN * (a.abs() * width + b.abs() * height + c.abs()) + 1e-9;
+    let mut edges = [[0.0f32; 4]; 3];
     for (i, edge) in edges.iter_mut().enumerate() {
         let (p, q) = (v[i], v[(i + 1) % 3]);
         let (a, b) = (-(q.y - p.y), q.x - p.x);
         let c = -(a * p.x + b * p.y);
-        *edge = [a as f32, b as f32, fold(a, b, c) as f32];
+        let centre = c + 0.5 * (a + b);
+        let outer = centre + 0.5 * (a.abs() + b.abs()) + margin(a, b, c);
+        *edge = [a as f32, b as f32, centre as f32, outer as f32];
     }
     // Depth plane z = p*x + q*y + r through the three vertices (Cramer's rule on the edge vectors).
     let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
@@ -330,15 +484,13 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     let p = (e1.z * e2.y - e2.z * e1.y) / det;
     let q = (e2.z * e1.x - e1.z * e2.x) / det;
     let r = v[0].z - p * v[0].x - q * v[0].y;
-    let depth = [p as f32, q as f32, fold(p, q, r) as f32];
-    (edges.iter().flatten().chain(&depth).all(|c| c.is_finite())).then_some(SetupTriangle {
-        edges,
-        depth,
-        x0,
-        x1,
-        y0,
-        y1,
-    })
+    let centre = r + 0.5 * (p + q);
+    let r_written = match mode {
+        RasterMode::Conservative => centre - 0.5 * (p.abs() + q.abs()) - margin(p, q, r),
+        RasterMode::Fast => centre,
+    };
+    let depth = [p as f32, q as f32, r_written as f32];
+    (edges.iter().flatten().chain(&depth).all(|c| c.is_finite())).then_some(SetupTriangle { edges, depth, rect })
 }
 
 /// A farthest-depth mip pyramid of a [`DepthBuffer`]: level `k + 1` has `ceil(size / 2)` texels per axis and

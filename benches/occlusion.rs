@@ -1,0 +1,152 @@
+//! Software occlusion culling on the city: occluder rasterization at several buffer sizes and triangle counts,
+//! the occludee test at several object counts, the two together (the 10k-triangle, 1e5-object target), and
+//! thread scaling.
+//!
+//! `cargo bench -p cullet-benches --bench occlusion`
+
+use bevy_ecs::entity::Entity;
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use cullet::bounds::{Occluder, WorldBounds};
+use cullet::city::{CityParams, CityScene};
+use cullet::frustum::cull_frustum;
+use cullet::occluder::{OccluderEntry, select_occluders};
+use cullet::occlusion::test_occlusion;
+use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use cullet::{BoundsStore, Camera, VisibleSet};
+use std::hint::black_box;
+use std::time::Duration;
+
+/// A city from its street-corner benchmark camera: bounds, frustum survivors and its occluders.
+struct Fixture {
+    store: BoundsStore,
+    camera: Camera,
+    frustum_visible: VisibleSet,
+    occluders: Vec<(usize, Occluder, glam::Affine3A)>,
+}
+
+fn fixture(objects: usize) -> Fixture {
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let mut store = BoundsStore::default();
+    let mut occluders = Vec::new();
+    for (i, object) in city.objects.iter().enumerate() {
+        let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
+        let local = city.mesh_bounds[object.mesh as usize];
+        let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
+        if let Some(occluder) = &object.occluder {
+            occluders.push((slot, occluder.clone(), object.transform));
+        }
+    }
+    let camera = city.benchmark_cameras()[0].1;
+    let mut frustum_visible = VisibleSet::default();
+    cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+    Fixture { store, camera, frustum_visible, occluders }
+}
+
+impl Fixture {
+    /// The best occluders in view, up to `budget` triangles.
+    fn select(&self, budget: usize) -> Vec<OccluderInstance<'_>> {
+        let entries: Vec<OccluderEntry<'_>> = self
+            .occluders
+            .iter()
+            .map(|(slot, occluder, transform)| OccluderEntry {
+                entity: Entity::PLACEHOLDER,
+                slot: *slot,
+                occluder,
+                transform: *transform,
+            })
+            .collect();
+        select_occluders(&entries, &self.store, &self.frustum_visible, self.camera.position, budget)
+            .into_iter()
+            .map(|i| OccluderInstance { occluder: entries[i].occluder, transform: entries[i].transform })
+            .collect()
+    }
+}
+
+fn configure(group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>) {
+    group.sample_size(30).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_secs(1));
+}
+
+fn raster(c: &mut Criterion) {
+    let fixture = fixture(1_000_000);
+    let mut group = c.benchmark_group("occlusion");
+    configure(&mut group);
+    let mut depth = DepthBuffer::default();
+    for triangles in [1_000, 10_000, 100_000] {
+        let occluders = fixture.select(triangles);
+        let submitted: usize = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
+        group.throughput(Throughput::Elements(submitted as u64));
+        for (width, height) in [(128, 72), (256, 144), (512, 288), (1024, 576)] {
+            let view = ScreenView::new(&fixture.camera, width, height);
+            let id = BenchmarkId::new(format!("raster/{triangles}"), format!("{width}x{height}"));
+            group.bench_function(id, |b| {
+                b.iter(|| black_box(rasterize(&view, &occluders, RasterMode::Conservative, &mut depth)))
+            });
+        }
+    }
+    group.finish();
+}
+
+fn test(c: &mut Criterion) {
+    let mut group = c.benchmark_group("occlusion");
+    configure(&mut group);
+    let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
+    for objects in [10_000, 100_000, 1_000_000] {
+        let fixture = fixture(objects);
+        let view = ScreenView::new(&fixture.camera, 256, 144);
+        let mut depth = DepthBuffer::default();
+        rasterize(&view, &fixture.select(10_000), RasterMode::Conservative, &mut depth);
+        let mut pyramid = DepthPyramid::default();
+        pyramid.build(&depth);
+        group.throughput(Throughput::Elements(fixture.frustum_visible.count() as u64));
+        group.bench_function(BenchmarkId::new("test", objects), |b| {
+            b.iter(|| {
+                black_box(test_occlusion(
+                    &fixture.store,
+                    &fixture.frustum_visible,
+                    &view,
+                    &pyramid,
+                    &mut visible,
+                    &mut occluded,
+                ))
+            })
+        });
+    }
+    group.finish();
+}
+
+/// The whole stage: select 10k occluder triangles, rasterize at 256x144, build the pyramid, test the frustum
+/// survivors of a 1e5-object city; with 1, 2, ... threads.
+fn combined(c: &mut Criterion) {
+    let fixture = fixture(100_000);
+    let mut group = c.benchmark_group("occlusion");
+    configure(&mut group);
+    let max_threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
+    let view = ScreenView::new(&fixture.camera, 256, 144);
+    let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
+    let mut depth = DepthBuffer::default();
+    let mut pyramid = DepthPyramid::default();
+    for threads in 1..=max_threads {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        group.bench_function(BenchmarkId::new("raster10k+test100k/threads", threads), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    let occluders = fixture.select(10_000);
+                    rasterize(&view, &occluders, RasterMode::Conservative, &mut depth);
+                    pyramid.build(&depth);
+                    black_box(test_occlusion(
+                        &fixture.store,
+                        &fixture.frustum_visible,
+                        &view,
+                        &pyramid,
+                        &mut visible,
+                        &mut occluded,
+                    ))
+                })
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, raster, test, combined);
+criterion_main!(benches);
