@@ -4,7 +4,8 @@
 use bevy_ecs::prelude::*;
 use clap::Parser;
 use cullet::city::{CityParams, CityScene, Velocity};
-use cullet::pipeline::{self, CullStats};
+use cullet::pipeline::{self, CullStats, OcclusionSettings};
+use cullet::raster::RasterMode;
 use cullet::{BoundsStore, Camera, ObjectTransform};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -25,6 +26,18 @@ struct Args {
     /// Print only the summary, not one line per frame.
     #[arg(long)]
     quiet: bool,
+    /// Size of the software occlusion depth buffer, `WIDTHxHEIGHT`.
+    #[arg(long, default_value = "256x144")]
+    occlusion_resolution: String,
+    /// Sample the occlusion buffer at texel centres (not conservative) instead of whole-texel coverage.
+    #[arg(long)]
+    fast_occlusion: bool,
+    /// Turn the software occlusion stage off.
+    #[arg(long)]
+    no_occlusion: bool,
+    /// Most occluder triangles rasterized per frame.
+    #[arg(long, default_value_t = 16_384)]
+    occluder_budget: usize,
 }
 
 /// Seconds since the start of the run and since the last frame.
@@ -74,6 +87,14 @@ fn run(args: &Args) -> Result<(), String> {
     let objects = parse_scene(&args.scene)?;
     let (width, height) = parse_resolution(&args.resolution)?;
     let aspect = width as f32 / height as f32;
+    let (occlusion_width, occlusion_height) = parse_resolution(&args.occlusion_resolution)?;
+    let occlusion = OcclusionSettings {
+        enabled: !args.no_occlusion,
+        width: occlusion_width,
+        height: occlusion_height,
+        mode: if args.fast_occlusion { RasterMode::Fast } else { RasterMode::Conservative },
+        triangle_budget: args.occluder_budget,
+    };
 
     let start = Instant::now();
     let city = CityScene::generate(CityParams::with_objects(objects));
@@ -83,6 +104,7 @@ fn run(args: &Args) -> Result<(), String> {
     let path = city.flythrough();
     world.insert_resource(path.camera_at(0.0, aspect));
     world.init_resource::<FrameTime>();
+    world.insert_resource(occlusion);
     let mut schedule = Schedule::default();
     pipeline::add_systems(&mut schedule);
     schedule.add_systems(move_objects.before(pipeline::CullStage::Bounds));
@@ -110,7 +132,8 @@ fn run(args: &Args) -> Result<(), String> {
             let camera = world.resource::<Camera>();
             println!(
                 "frame {frame:4}  camera ({:8.1} {:6.1} {:8.1})  objects {:8}  bounds updated {:6} in {:7.1} us  \
-                 after frustum {:8} ({:5.1}%) in {:7.1} us",
+                 after frustum {:8} in {:7.1} us  occluders {:5} ({:6} tris) in {:7.1} us  \
+                 after occlusion {:8} in {:7.1} us",
                 camera.position.x,
                 camera.position.y,
                 camera.position.z,
@@ -118,8 +141,12 @@ fn run(args: &Args) -> Result<(), String> {
                 stats.bounds_recomputed,
                 micros(stats.bounds_time),
                 stats.after_frustum,
-                100.0 * stats.after_frustum as f64 / stats.objects.max(1) as f64,
                 micros(stats.frustum_time),
+                stats.occluders,
+                stats.occluder_triangles,
+                micros(stats.raster_time),
+                stats.after_occlusion,
+                micros(stats.occlusion_time),
             );
         }
         per_frame.push(stats);
@@ -159,5 +186,20 @@ fn print_summary(frames: &[CullStats]) {
         "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {kept:>12.0} {:>9.1}%",
         "frustum",
         100.0 * (1.0 - kept / objects.max(1.0))
+    );
+    let triangles = frames.iter().map(|f| f.occluder_triangles as f64).sum::<f64>() / n;
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.raster_time)).collect());
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {:>12} {:>10}",
+        "raster",
+        format!("{triangles:.0} tris"),
+        ""
+    );
+    let after = frames.iter().map(|f| f.after_occlusion as f64).sum::<f64>() / n;
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.occlusion_time)).collect());
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {after:>12.0} {:>9.1}%",
+        "occlusion",
+        100.0 * (1.0 - after / kept.max(1.0))
     );
 }
