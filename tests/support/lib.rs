@@ -1,44 +1,13 @@
 //! Shared helpers of Cullet's integration tests: exact (f64) references that the fast paths are judged against.
 
 use cullet::{Camera, DepthConvention, WorldBounds};
-use glam::dcamera::rh::proj::{directx, opengl};
-use glam::dcamera::rh::view;
 use glam::{DMat4, DVec3, DVec4};
 
-/// The camera's clip-from-relative matrix built entirely in f64 from its parameters: the true frustum, free of
-/// the f32 rounding of [`Camera::clip_from_relative`].
+/// The camera's clip-from-relative matrix in f64, from its parameters: the true frustum, free of the f32
+/// rounding the engine's culling arithmetic works with. (The depth conventions themselves are checked by the
+/// explicit near- and far-plane cases of the frustum tests.)
 pub fn reference_clip_from_relative(camera: &Camera) -> DMat4 {
-    let (fov, aspect, near) = (camera.fov_y as f64, camera.aspect as f64, camera.near as f64);
-    let far = camera.far.map(f64::from);
-    let projection = match (camera.depth, far) {
-        (DepthConvention::Reversed, None) => directx::perspective_infinite_reverse(fov, aspect, near),
-        (DepthConvention::Reversed, Some(far)) => directx::perspective(fov, aspect, far, near),
-        (DepthConvention::Standard, None) => directx::perspective_infinite(fov, aspect, near),
-        (DepthConvention::Standard, Some(far)) => directx::perspective(fov, aspect, near, far),
-        (DepthConvention::NegativeOneToOne, Some(far)) => opengl::perspective(fov, aspect, near, far),
-        (DepthConvention::NegativeOneToOne, None) => {
-            let f = 1.0 / (0.5 * fov).tan();
-            DMat4::from_cols_array(&[
-                f / aspect,
-                0.0,
-                0.0,
-                0.0, //
-                0.0,
-                f,
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-                -1.0,
-                -1.0,
-                0.0,
-                0.0,
-                -2.0 * near,
-                0.0,
-            ])
-        }
-    };
-    projection * view::look_to_mat4(DVec3::ZERO, camera.forward.as_dvec3().normalize(), camera.up.as_dvec3())
+    camera.clip_from_relative_f64()
 }
 
 /// The frustum's half-spaces `(n, d)` (inside where `n · p + d >= 0`, p camera-relative), in f64, with planes at
