@@ -1,20 +1,24 @@
 //! Stage 4, occlusion test: each frustum survivor's box against the [`DepthPyramid`] of the occluder raster.
 //!
-//! Per object: project the 8 corners of its box (8 objects a step, SIMD-friendly lanes), take the screen
-//! rectangle and the nearest depth (`1/w` of its nearest corner); a box reaching the near plane is visible.
+//! Per object (8 objects a step, SIMD-friendly lanes): bound the box's screen rectangle and nearest depth
+//! (`1/w` of its nearest point) from its centre and extents in clip space; a box reaching the near plane is
+//! visible.
 //! Pick the mip level of eq. 19.5 of seed 000, where the rectangle covers at most 2x2 texels; the object is
-//! occluded if its nearest depth is farther than the farthest occluder depth of those texels. If that is
-//! inconclusive, the test is repeated one level finer (at most 3x3 texels).
+//! occluded if its nearest depth is farther than the farthest occluder depth of those texels, refined one
+//! level finer (at most 3x3 texels; see [`test_occlusion`]).
 //!
 //! Projection runs in f32; the rectangle is widened and the depth moved nearer by a bound on its rounding
 //! error, so the test culls only what the pyramid provably hides.
 
 use crate::bounds::BoundsStore;
+use crate::frustum::SimdBackend;
 use crate::raster::{DepthPyramid, ScreenView};
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
 
 const LANES: usize = 8;
+/// Bitset words (of 64 objects) handed to one rayon task.
+const WORDS_PER_TASK: usize = 16;
 /// Relative rounding slack of the f32 projection (a few hundred times its error bound).
 const PROJECTION_SLACK: f32 = 1.0 / (1 << 16) as f32;
 
@@ -25,8 +29,6 @@ pub struct OcclusionStats {
     pub tested: usize,
     /// Objects found visible.
     pub visible: usize,
-    /// Objects decided at the coarse level (the rest needed the finer level or were visible).
-    pub decided_coarse: usize,
 }
 
 /// Where a box lands on the screen: texel rectangle `x0..x1`, `y0..y1` of level 0, and its nearest `1/w`.
@@ -53,41 +55,67 @@ pub fn test_occlusion(
 ) -> OcclusionStats {
     visible.reset(store.len());
     occluded.reset(store.len());
+    let tested = frustum_visible.count();
     if pyramid.level_count() == 0 {
         visible.clone_from(frustum_visible);
-        let tested = frustum_visible.count();
-        return OcclusionStats { tested, visible: tested, decided_coarse: 0 };
+        return OcclusionStats { tested, visible: tested };
     }
-    let (tested, coarse) = visible
+    let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+    visible
         .words_mut()
-        .par_chunks_mut(16)
-        .zip(occluded.words_mut().par_chunks_mut(16))
-        .zip(frustum_visible.words().par_chunks(16))
+        .par_chunks_mut(WORDS_PER_TASK)
+        .zip(occluded.words_mut().par_chunks_mut(WORDS_PER_TASK))
+        .zip(frustum_visible.words().par_chunks(WORDS_PER_TASK))
         .enumerate()
-        .map(|(chunk, ((visible_words, occluded_words), input_words))| {
-            let mut tested = 0;
-            let mut coarse = 0;
+        .for_each(|(chunk, ((visible_words, occluded_words), input_words))| {
             for (i, ((visible_word, occluded_word), &input)) in
                 visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words).enumerate()
             {
-                let base = (chunk * 16 + i) * 64;
-                let (kept, decided) = test_word(store, view, pyramid, base, input);
+                let base = (chunk * WORDS_PER_TASK + i) * 64;
+                let kept = match avx2 {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: AVX2 was detected on this processor.
+                    true => unsafe { test_word_avx2(store, view, pyramid, base, input) },
+                    _ => test_word(store, view, pyramid, base, input),
+                };
                 *visible_word = kept;
                 *occluded_word = input & !kept;
-                tested += input.count_ones() as usize;
-                coarse += decided;
             }
-            (tested, coarse)
-        })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    OcclusionStats { tested, visible: visible.count(), decided_coarse: coarse }
+        });
+    OcclusionStats { tested, visible: visible.count() }
 }
 
-/// Tests the objects of one 64-object word; returns the bits of those still visible and how many were
-/// decided at the coarse level.
-fn test_word(store: &BoundsStore, view: &ScreenView, pyramid: &DepthPyramid, base: usize, input: u64) -> (u64, usize) {
+/// [`test_word`] with the AVX2 projection.
+///
+/// # Safety
+/// The processor must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn test_word_avx2(
+    store: &BoundsStore,
+    view: &ScreenView,
+    pyramid: &DepthPyramid,
+    base: usize,
+    input: u64,
+) -> u64 {
+    // SAFETY: this function only runs where AVX2 is available.
+    test_word_with(store, pyramid, base, input, |lanes| unsafe { avx2::project_boxes(store, view, base, lanes) })
+}
+
+/// Tests the objects set in `input`, the word of slots from `base`; returns the bits of those still visible.
+fn test_word(store: &BoundsStore, view: &ScreenView, pyramid: &DepthPyramid, base: usize, input: u64) -> u64 {
+    test_word_with(store, pyramid, base, input, |lanes| project_boxes(store, view, base, lanes))
+}
+
+#[inline(always)]
+fn test_word_with(
+    _store: &BoundsStore,
+    pyramid: &DepthPyramid,
+    _base: usize,
+    input: u64,
+    project: impl Fn(&[usize]) -> [ScreenRect; LANES],
+) -> u64 {
     let mut kept = 0u64;
-    let mut decided = 0;
     let mut bits = input;
     while bits != 0 {
         let mut lanes = [0usize; LANES];
@@ -97,73 +125,63 @@ fn test_word(store: &BoundsStore, view: &ScreenView, pyramid: &DepthPyramid, bas
             bits &= bits - 1;
             count += 1;
         }
-        let rects = project_boxes(store, view, base, &lanes[..count]);
+        let rects = project(&lanes[..count]);
         for (lane, rect) in lanes[..count].iter().zip(&rects) {
-            let (occluded, coarse) = rect_occluded(rect, pyramid);
-            decided += coarse as usize;
-            if !occluded {
-                kept |= 1 << lane;
-            }
+            kept |= (!rect_occluded(rect, pyramid) as u64) << lane;
         }
     }
-    (kept, decided)
+    kept
 }
 
 /// Projects up to 8 boxes (slots `base + lane`), one per SIMD lane.
+///
+/// The box's clip coordinates are its centre's plus or minus its reach along each clip axis (`|row| · extent`),
+/// each widened by a bound on its rounding error. With `w > 0` over the whole box, `x / w` lies between the
+/// quotients of those interval ends, which gives the screen rectangle with two reciprocals per box.
+#[inline(always)]
 fn project_boxes(store: &BoundsStore, view: &ScreenView, base: usize, lanes: &[usize]) -> [ScreenRect; LANES] {
-    let mut cx = [0f32; LANES];
-    let mut cy = [0f32; LANES];
-    let mut cz = [0f32; LANES];
-    let mut ex = [0f32; LANES];
-    let mut ey = [0f32; LANES];
-    let mut ez = [0f32; LANES];
+    let mut c = [[0f32; LANES]; 3];
+    let mut e = [[0f32; LANES]; 3];
     for (i, &lane) in lanes.iter().enumerate() {
         let slot = base + lane;
-        cx[i] = store.center_x[slot] - view.origin.x;
-        cy[i] = store.center_y[slot] - view.origin.y;
-        cz[i] = store.center_z[slot] - view.origin.z;
-        ex[i] = store.extent_x[slot];
-        ey[i] = store.extent_y[slot];
-        ez[i] = store.extent_z[slot];
+        c[0][i] = store.center_x[slot] - view.origin.x;
+        c[1][i] = store.center_y[slot] - view.origin.y;
+        c[2][i] = store.center_z[slot] - view.origin.z;
+        e[0][i] = store.extent_x[slot];
+        e[1][i] = store.extent_y[slot];
+        e[2][i] = store.extent_z[slot];
     }
     let m = view.clip_from_relative_f32;
-    let row = |r: usize| [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]];
-    let (rx, ry, rw) = (row(0), row(1), row(3));
-
-    let mut rects = [ScreenRect::default(); LANES];
-    for i in 0..LANES {
-        // Clip coordinates of the centre and the reach of the box along each clip axis.
-        let dot = |r: [f32; 4]| r[0] * cx[i] + r[1] * cy[i] + r[2] * cz[i] + r[3];
-        let reach = |r: [f32; 4]| r[0].abs() * ex[i] + r[1].abs() * ey[i] + r[2].abs() * ez[i];
-        let magnitude = |r: [f32; 4]| {
-            r[0].abs() * (cx[i].abs() + ex[i])
-                + r[1].abs() * (cy[i].abs() + ey[i])
-                + r[2].abs() * (cz[i].abs() + ez[i])
-                + r[3].abs()
-        };
-        let (wc, wr) = (dot(rw), reach(rw));
-        // Every clip coordinate is off by at most `slack` from its exact value.
-        let slack = PROJECTION_SLACK * (magnitude(rx) + magnitude(ry) + magnitude(rw));
-        let w_min = wc - wr - slack;
-        let mut min_x = f32::INFINITY;
-        let mut max_x = f32::NEG_INFINITY;
-        let mut min_y = f32::INFINITY;
-        let mut max_y = f32::NEG_INFINITY;
-        for corner in 0..8 {
-            let s = |bit: usize| if corner & bit == 0 { -1.0 } else { 1.0 };
-            let p = [cx[i] + s(1) * ex[i], cy[i] + s(2) * ey[i], cz[i] + s(4) * ez[i]];
-            let x = rx[0] * p[0] + rx[1] * p[1] + rx[2] * p[2] + rx[3];
-            let y = ry[0] * p[0] + ry[1] * p[1] + ry[2] * p[2] + ry[3];
-            let w = rw[0] * p[0] + rw[1] * p[1] + rw[2] * p[2] + rw[3];
-            // The widest NDC interval any (x, w) within `slack` of this corner can give, w > 0 assumed.
-            let (w_lo, w_hi) = (w - slack, w + slack);
-            for (lo, hi, value) in [(&mut min_x, &mut max_x, x), (&mut min_y, &mut max_y, y)] {
-                let (v_lo, v_hi) = (value - slack, value + slack);
-                *lo = lo.min(v_lo / if v_lo < 0.0 { w_lo } else { w_hi });
-                *hi = hi.max(v_hi / if v_hi > 0.0 { w_lo } else { w_hi });
-            }
+    let rows = [0, 1, 3].map(|r| [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]]);
+    // Per clip axis (x, y, w): centre value and reach, and the magnitude that bounds rounding.
+    let mut centre = [[0f32; LANES]; 3];
+    let mut reach = [[0f32; LANES]; 3];
+    for (axis, row) in rows.iter().enumerate() {
+        // Summed in the order of the AVX2 path, so both give the same rectangles.
+        for i in 0..LANES {
+            let value = row[3] + row[0] * c[0][i] + row[1] * c[1][i] + row[2] * c[2][i];
+            let extent = 0.0 + row[0].abs() * e[0][i] + row[1].abs() * e[1][i] + row[2].abs() * e[2][i];
+            let magnitude = row[3].abs()
+                + row[0].abs() * c[0][i].abs()
+                + row[1].abs() * c[1][i].abs()
+                + row[2].abs() * c[2][i].abs()
+                + extent;
+            centre[axis][i] = value;
+            reach[axis][i] = extent + PROJECTION_SLACK * magnitude;
         }
-        let rect = &mut rects[i];
+    }
+    let (width, height) = (view.width as f32, view.height as f32);
+    let mut rects = [ScreenRect::default(); LANES];
+    for (i, rect) in rects.iter_mut().enumerate() {
+        let w_min = centre[2][i] - reach[2][i];
+        let w_max = centre[2][i] + reach[2][i];
+        let (inv_near, inv_far) = (1.0 / w_min, 1.0 / w_max);
+        // x / w over x in [lo, hi], w in [w_min, w_max], w > 0: the extreme quotients.
+        let bounds = |lo: f32, hi: f32| {
+            (lo * if lo < 0.0 { inv_near } else { inv_far }, hi * if hi > 0.0 { inv_near } else { inv_far })
+        };
+        let (min_x, max_x) = bounds(centre[0][i] - reach[0][i], centre[0][i] + reach[0][i]);
+        let (min_y, max_y) = bounds(centre[1][i] - reach[1][i], centre[1][i] + reach[1][i]);
         // Written so that NaN falls on the visible side.
         let in_front = w_min > view.near * 0.5;
         let ordered = min_x <= max_x && min_y <= max_y;
@@ -171,38 +189,195 @@ fn project_boxes(store: &BoundsStore, view: &ScreenView, base: usize, lanes: &[u
             rect.always_visible = true;
             continue;
         }
-        let (width, height) = (view.width as f32, view.height as f32);
         let to_texel_x = |ndc: f32| ((ndc * 0.5 + 0.5) * width).clamp(0.0, width);
         let to_texel_y = |ndc: f32| ((0.5 - ndc * 0.5) * height).clamp(0.0, height);
-        rect.x0 = to_texel_x(min_x).floor() as u32;
-        rect.x1 = to_texel_x(max_x).ceil() as u32;
-        rect.y0 = to_texel_y(max_y).floor() as u32;
-        rect.y1 = to_texel_y(min_y).ceil() as u32;
-        rect.nearest = 1.0 / w_min;
+        rect.x0 = floor(to_texel_x(min_x));
+        rect.x1 = ceil(to_texel_x(max_x));
+        rect.y0 = floor(to_texel_y(max_y));
+        rect.y1 = ceil(to_texel_y(min_y));
+        rect.nearest = inv_near;
         // Off screen after clamping: the frustum test kept it by its slack; keeping it is free.
         rect.always_visible = rect.x0 >= rect.x1 || rect.y0 >= rect.y1;
     }
     rects
 }
 
-/// Whether `rect` is hidden by the pyramid, and whether the coarse level decided it.
-fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> (bool, bool) {
+/// `x.floor()` for `x >= 0`, without a libm call (baseline x86-64 has no rounding instruction).
+#[inline(always)]
+fn floor(x: f32) -> u32 {
+    x as u32
+}
+
+/// `x.ceil()` for `x >= 0`, without a libm call.
+#[inline(always)]
+fn ceil(x: f32) -> u32 {
+    let truncated = x as u32;
+    truncated + ((truncated as f32) < x) as u32
+}
+
+/// Whether `rect` is hidden by the pyramid.
+///
+/// Eq. 19.5 picks the level `l` where the rectangle spans at most 2x2 texels; the test reads the at most 3x3
+/// texels it spans one level finer, `l - 1`. That is the coarse test refined, in one step: a coarse texel holds
+/// the farthest depth of the finer texels under it, so whatever the coarse level hides, the finer one hides
+/// too. A fixed 3x3 window (edge texels repeated) keeps it free of data-dependent branches.
+#[inline(always)]
+fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
     if rect.always_visible {
-        return (false, false);
+        return false;
     }
     let size = (rect.x1 - rect.x0).max(rect.y1 - rect.y0).max(1);
-    // Eq. 19.5: the lowest level at which the rectangle spans at most 2x2 texels.
     let coarse = (size.next_power_of_two().trailing_zeros() as usize).min(pyramid.level_count() - 1);
-    let hidden_at = |level: usize| {
-        let farthest =
-            pyramid.farthest(level, rect.x0 >> level, rect.y0 >> level, (rect.x1 - 1) >> level, (rect.y1 - 1) >> level);
-        rect.nearest < farthest
-    };
-    if hidden_at(coarse) {
-        (true, true)
-    } else if coarse > 0 && hidden_at(coarse - 1) {
-        (true, false)
-    } else {
-        (false, false)
+    let level = coarse.saturating_sub(1);
+    let texels = pyramid.level(level);
+    let (x0, y0) = (rect.x0 >> level, rect.y0 >> level);
+    let (x1, y1) = ((rect.x1 - 1) >> level, (rect.y1 - 1) >> level);
+    let mut farthest = f32::INFINITY;
+    for dy in 0..3 {
+        let row = (y0 + dy).min(y1) * texels.width();
+        for dx in 0..3 {
+            let x = (x0 + dx).min(x1);
+            farthest = farthest.min(texels.texels()[(row + x) as usize]);
+        }
+    }
+    rect.nearest < farthest
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    //! The projection of [`super::project_boxes`], 8 boxes at once in AVX2 registers.
+    use super::*;
+    use std::arch::x86_64::*;
+
+    /// # Safety
+    /// The processor must support AVX2; every `base + lane` must be a slot of `store`.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn project_boxes(
+        store: &BoundsStore,
+        view: &ScreenView,
+        base: usize,
+        lanes: &[usize],
+    ) -> [ScreenRect; LANES] {
+        let mut gathered = [[0f32; LANES]; 6];
+        let arrays =
+            [&store.center_x, &store.center_y, &store.center_z, &store.extent_x, &store.extent_y, &store.extent_z];
+        for (i, &lane) in lanes.iter().enumerate() {
+            for (values, array) in gathered.iter_mut().zip(arrays) {
+                values[i] = array[base + lane];
+            }
+        }
+        let load = |values: &[f32; LANES]| unsafe { _mm256_loadu_ps(values.as_ptr()) };
+        let splat = |value: f32| _mm256_set1_ps(value);
+        let abs = |v: __m256| _mm256_andnot_ps(_mm256_set1_ps(-0.0), v);
+        let c = [
+            _mm256_sub_ps(load(&gathered[0]), splat(view.origin.x)),
+            _mm256_sub_ps(load(&gathered[1]), splat(view.origin.y)),
+            _mm256_sub_ps(load(&gathered[2]), splat(view.origin.z)),
+        ];
+        let e = [load(&gathered[3]), load(&gathered[4]), load(&gathered[5])];
+        let m = view.clip_from_relative_f32;
+        let mut centre = [_mm256_setzero_ps(); 3];
+        let mut reach = [_mm256_setzero_ps(); 3];
+        for (axis, r) in [0, 1, 3].into_iter().enumerate() {
+            let row = [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]];
+            let mut value = splat(row[3]);
+            let mut extent = _mm256_setzero_ps();
+            let mut magnitude = splat(row[3].abs());
+            for k in 0..3 {
+                value = _mm256_add_ps(value, _mm256_mul_ps(splat(row[k]), c[k]));
+                extent = _mm256_add_ps(extent, _mm256_mul_ps(splat(row[k].abs()), e[k]));
+                magnitude = _mm256_add_ps(magnitude, _mm256_mul_ps(splat(row[k].abs()), abs(c[k])));
+            }
+            magnitude = _mm256_add_ps(magnitude, extent);
+            centre[axis] = value;
+            reach[axis] = _mm256_add_ps(extent, _mm256_mul_ps(splat(PROJECTION_SLACK), magnitude));
+        }
+        let w_min = _mm256_sub_ps(centre[2], reach[2]);
+        let w_max = _mm256_add_ps(centre[2], reach[2]);
+        let one = splat(1.0);
+        let (inv_near, inv_far) = (_mm256_div_ps(one, w_min), _mm256_div_ps(one, w_max));
+        let zero = _mm256_setzero_ps();
+        // x / w over x in [lo, hi], w in [w_min, w_max], w > 0: the extreme quotients.
+        let bounds = |axis: usize| {
+            let lo = _mm256_sub_ps(centre[axis], reach[axis]);
+            let hi = _mm256_add_ps(centre[axis], reach[axis]);
+            let lo_scale = _mm256_blendv_ps(inv_far, inv_near, _mm256_cmp_ps::<_CMP_LT_OQ>(lo, zero));
+            let hi_scale = _mm256_blendv_ps(inv_far, inv_near, _mm256_cmp_ps::<_CMP_GT_OQ>(hi, zero));
+            (_mm256_mul_ps(lo, lo_scale), _mm256_mul_ps(hi, hi_scale))
+        };
+        let (min_x, max_x) = bounds(0);
+        let (min_y, max_y) = bounds(1);
+        // Ordered comparisons: NaN anywhere makes the lane invalid, so always visible.
+        let valid = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(w_min, splat(view.near * 0.5)),
+            _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(min_x, max_x), _mm256_cmp_ps::<_CMP_LE_OQ>(min_y, max_y)),
+        );
+        let (width, height) = (splat(view.width as f32), splat(view.height as f32));
+        let half = splat(0.5);
+        let clamp = |v: __m256, limit: __m256| _mm256_min_ps(_mm256_max_ps(v, zero), limit);
+        let to_x = |ndc: __m256| clamp(_mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(ndc, half), half), width), width);
+        let to_y = |ndc: __m256| clamp(_mm256_mul_ps(_mm256_sub_ps(half, _mm256_mul_ps(ndc, half)), height), height);
+        let x0 = _mm256_cvttps_epi32(_mm256_floor_ps(to_x(min_x)));
+        let x1 = _mm256_cvttps_epi32(_mm256_ceil_ps(to_x(max_x)));
+        let y0 = _mm256_cvttps_epi32(_mm256_floor_ps(to_y(max_y)));
+        let y1 = _mm256_cvttps_epi32(_mm256_ceil_ps(to_y(min_y)));
+        let nonempty = _mm256_and_si256(_mm256_cmpgt_epi32(x1, x0), _mm256_cmpgt_epi32(y1, y0));
+        let visible_mask = !_mm256_movemask_ps(_mm256_and_ps(valid, _mm256_castsi256_ps(nonempty))) as u8;
+        let store_i32 = |v: __m256i| {
+            let mut out = [0i32; LANES];
+            unsafe { _mm256_storeu_si256(out.as_mut_ptr().cast(), v) };
+            out
+        };
+        let (x0, x1, y0, y1) = (store_i32(x0), store_i32(x1), store_i32(y0), store_i32(y1));
+        let mut nearest = [0f32; LANES];
+        unsafe { _mm256_storeu_ps(nearest.as_mut_ptr(), inv_near) };
+        std::array::from_fn(|i| ScreenRect {
+            x0: x0[i] as u32,
+            x1: x1[i] as u32,
+            y0: y0[i] as u32,
+            y1: y1[i] as u32,
+            nearest: nearest[i],
+            always_visible: visible_mask >> i & 1 != 0,
+        })
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+    use crate::bounds::WorldBounds;
+    use crate::camera::Camera;
+    use glam::Vec3;
+
+    #[test]
+    fn avx2_and_scalar_projections_agree() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("skipped: no AVX2 on this processor");
+            return;
+        }
+        let mut store = BoundsStore::default();
+        for i in 0..512u32 {
+            let f = i as f32;
+            let bounds = WorldBounds {
+                center: Vec3::new((f * 0.37).sin() * 40.0, (f * 0.11).cos() * 10.0, -(f * 0.7) % 90.0 + 20.0),
+                half_extent: Vec3::new(0.1 + (f * 0.3) % 4.0, 0.2 + (f * 0.7) % 3.0, 0.05 + (f * 0.13) % 5.0),
+                radius: 0.0,
+            };
+            store.insert(bevy_ecs::entity::Entity::from_raw_u32(i + 1).unwrap(), &bounds);
+        }
+        let camera = Camera::looking_at(Vec3::new(1.0, 2.0, 30.0), Vec3::new(0.0, 0.0, 0.0));
+        let view = ScreenView::new(&camera, 256, 144);
+        let lanes: Vec<usize> = (0..LANES).collect();
+        for base in (0..512).step_by(LANES) {
+            let scalar = project_boxes(&store, &view, base, &lanes);
+            // SAFETY: AVX2 was detected above; the slots exist.
+            let simd = unsafe { avx2::project_boxes(&store, &view, base, &lanes) };
+            for (a, b) in scalar.iter().zip(&simd) {
+                assert_eq!(a.always_visible, b.always_visible);
+                if !a.always_visible {
+                    assert_eq!(a, b);
+                }
+            }
+        }
     }
 }

@@ -167,6 +167,8 @@ struct SetupOccluder {
     /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole.
     boundary: Vec<[f64; 4]>,
     rect: TexelRect,
+    /// The largest `1/w` of any of its vertices: nothing of the occluder is nearer.
+    nearest: f32,
 }
 
 /// Counts from one rasterization.
@@ -198,8 +200,10 @@ pub fn rasterize(
 ) -> RasterStats {
     buffer.reset(view.width, view.height);
     let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
-    let setups: Vec<SetupOccluder> =
+    let mut setups: Vec<SetupOccluder> =
         occluders.par_iter().filter_map(|occluder| setup_occluder(view, occluder, mode)).collect();
+    // Nearest first, so that occluders hidden behind nearer ones can be skipped.
+    setups.sort_unstable_by(|a, b| b.nearest.total_cmp(&a.nearest));
     let triangles_rasterized = setups.iter().map(|o| o.triangles.len()).sum();
     let stats = RasterStats {
         triangles_in,
@@ -226,6 +230,10 @@ pub fn rasterize(
             let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
             let mut scratch = Scratch::default();
             for &index in bin {
+                let occluder = &setups[index as usize];
+                if band.hides(occluder.rect, occluder.nearest) {
+                    continue;
+                }
                 match mode {
                     RasterMode::Conservative => raster_union(&setups[index as usize], band.reborrow(), &mut scratch),
                     RasterMode::Fast => raster_centres(&setups[index as usize], band.reborrow()),
@@ -247,6 +255,16 @@ struct Band<'a> {
 impl Band<'_> {
     fn reborrow(&mut self) -> Band<'_> {
         Band { texels: self.texels, width: self.width, y0: self.y0, y1: self.y1 }
+    }
+
+    /// Whether every texel of `rect` within the band already holds a depth nearer than `nearest`: an occluder
+    /// no nearer than that can add nothing there.
+    fn hides(&self, rect: TexelRect, nearest: f32) -> bool {
+        let rect = self.clip(rect);
+        (rect.y0..rect.y1).all(|y| {
+            let row = &self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize];
+            row.iter().all(|&texel| texel > nearest)
+        })
     }
 
     /// The part of `rect` inside the band.
@@ -311,13 +329,32 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
             let yf = y as f32;
             let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
             let (s0, s1, s2) = (b0 * yf + o0, b1 * yf + o1, b2 * yf + o2);
+            // Columns where the outer tests can pass, widened by a texel for rounding: the loop below still
+            // tests every texel, this only skips the ones that cannot pass.
+            let (mut lo, mut hi) = (tri_rect.x0 as f32, tri_rect.x1 as f32);
+            for (a, s) in [(a0, s0), (a1, s1), (a2, s2)] {
+                if a > 0.0 {
+                    lo = lo.max(-s / a - 1.0);
+                } else if a < 0.0 {
+                    hi = hi.min(-s / a + 2.0);
+                }
+            }
+            // Also skips NaN.
+            if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+                continue;
+            }
+            let x_lo = (lo as u32).max(tri_rect.x0);
+            let x_hi = (hi as u32).min(tri_rect.x1);
+            if x_lo >= x_hi {
+                continue;
+            }
             let rz = q * yf + r;
-            let start = (y - rect.y0) as usize * w + (tri_rect.x0 - rect.x0) as usize;
-            let count = (tri_rect.x1 - tri_rect.x0) as usize;
+            let start = (y - rect.y0) as usize * w + (x_lo - rect.x0) as usize;
+            let count = (x_hi - x_lo) as usize;
             let covered = &mut scratch.covered[start..start + count];
             let farthest = &mut scratch.farthest[start..start + count];
             for (i, (covered, farthest)) in covered.iter_mut().zip(farthest.iter_mut()).enumerate() {
-                let xf = (tri_rect.x0 + i as u32) as f32;
+                let xf = (x_lo + i as u32) as f32;
                 let (e0, e1, e2) = (a0 * xf, a1 * xf, a2 * xf);
                 let centre = (e0 + r0 >= 0.0) & (e1 + r1 >= 0.0) & (e2 + r2 >= 0.0);
                 let overlaps = (e0 + s0 >= 0.0) & (e1 + s1 >= 0.0) & (e2 + s2 >= 0.0);
@@ -383,7 +420,7 @@ fn setup_occluder(view: &ScreenView, instance: &OccluderInstance<'_>, mode: Rast
     // Front-facing in 3D: the eye (the origin here) is on the outer side of the counter-clockwise face.
     let front: Vec<bool> = relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(t[0]) < 0.0).collect();
     let m = view.clip_from_relative;
-    let mut setup = SetupOccluder { triangles: Vec::new(), boundary: Vec::new(), rect: TexelRect::EMPTY };
+    let mut setup = SetupOccluder { triangles: Vec::new(), boundary: Vec::new(), rect: TexelRect::EMPTY, nearest: 0.0 };
     for (t, corners) in relative.chunks_exact(3).enumerate() {
         if !front[t] {
             continue;
@@ -400,6 +437,7 @@ fn setup_occluder(view: &ScreenView, instance: &OccluderInstance<'_>, mode: Rast
             continue;
         }
         let screen: Vec<DVec3> = polygon[..count].iter().map(|&(v, _)| to_screen(view, v)).collect();
+        setup.nearest = screen.iter().fold(setup.nearest, |nearest, v| nearest.max(v.z as f32));
         for (i, &(_, boundary)) in polygon[..count].iter().enumerate() {
             if boundary {
                 let (a, b) = (screen[i], screen[(i + 1) % count]);

@@ -1,0 +1,77 @@
+//! Times the occlusion stage's parts on the city's street camera: selection, raster, pyramid, occludee test.
+//! `cargo run --release -p cullet --example occlusion_profile [objects]`
+use cullet::BoundsStore;
+use cullet::bounds::WorldBounds;
+use cullet::city::{CityParams, CityScene};
+use cullet::frustum::cull_frustum;
+use cullet::occluder::{OccluderEntry, select_occluders};
+use cullet::occlusion::test_occlusion;
+use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use std::time::Instant;
+
+fn main() {
+    let objects = std::env::args().nth(1).and_then(|n| n.parse().ok()).unwrap_or(100_000);
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let mut store = BoundsStore::default();
+    let mut occluders = Vec::new();
+    for (i, object) in city.objects.iter().enumerate() {
+        let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
+        let local = city.mesh_bounds[object.mesh as usize];
+        let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
+        if let Some(occluder) = &object.occluder {
+            occluders.push((entity, slot, occluder.clone(), object.transform));
+        }
+    }
+    for (name, camera) in city.benchmark_cameras() {
+        let mut frustum_visible = cullet::VisibleSet::default();
+        cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+        let entries: Vec<OccluderEntry<'_>> = occluders
+            .iter()
+            .map(|(entity, slot, occluder, transform)| OccluderEntry {
+                entity: *entity,
+                slot: *slot,
+                occluder,
+                transform: *transform,
+            })
+            .collect();
+        let view = ScreenView::new(&camera, 256, 144);
+        let (mut depth, mut pyramid) = (DepthBuffer::default(), DepthPyramid::default());
+        let (mut visible, mut occluded) = (cullet::VisibleSet::default(), cullet::VisibleSet::default());
+        let mut times = [0f64; 4];
+        let runs = 30;
+        let mut kept = 0;
+        let mut tris = 0;
+        for _ in 0..runs {
+            let t = Instant::now();
+            let chosen = select_occluders(&entries, &store, &frustum_visible, camera.position, 10_000);
+            let instances: Vec<OccluderInstance<'_>> = chosen
+                .iter()
+                .map(|&i| OccluderInstance { occluder: entries[i].occluder, transform: entries[i].transform })
+                .collect();
+            times[0] += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            tris = rasterize(&view, &instances, RasterMode::Conservative, &mut depth).triangles_rasterized;
+            times[1] += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            pyramid.build(&depth);
+            times[2] += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            kept = test_occlusion(&store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded).visible;
+            times[3] += t.elapsed().as_secs_f64();
+        }
+        if std::env::var("TEST_ONLY").is_ok() {
+            for _ in 0..300 {
+                test_occlusion(&store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded);
+            }
+        }
+        let ms = times.map(|t| t * 1e3 / runs as f64);
+        println!(
+            "{name}: frustum {} -> occlusion {kept}; {tris} tris; select {:.3} ms raster {:.3} ms pyramid {:.3} ms test {:.3} ms",
+            frustum_visible.count(),
+            ms[0],
+            ms[1],
+            ms[2],
+            ms[3]
+        );
+    }
+}
