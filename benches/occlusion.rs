@@ -115,9 +115,9 @@ fn test(c: &mut Criterion) {
 }
 
 /// The whole stage: select 10k occluder triangles, rasterize at 256x144, build the pyramid, test the frustum
-/// survivors of a 1e5-object city; with 1, 2, ... threads.
+/// survivors of a 400k-object city (about 1e5 from the street camera); with 1, 2, ... threads.
 fn combined(c: &mut Criterion) {
-    let fixture = fixture(100_000);
+    let fixture = fixture(400_000);
     let mut group = c.benchmark_group("occlusion");
     configure(&mut group);
     let max_threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
@@ -125,9 +125,10 @@ fn combined(c: &mut Criterion) {
     let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
     let mut depth = DepthBuffer::default();
     let mut pyramid = DepthPyramid::default();
+    group.throughput(Throughput::Elements(fixture.frustum_visible.count() as u64));
     for threads in 1..=max_threads {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        group.bench_function(BenchmarkId::new("raster10k+test100k/threads", threads), |b| {
+        group.bench_function(BenchmarkId::new("raster10k+test/threads", threads), |b| {
             pool.install(|| {
                 b.iter(|| {
                     let occluders = fixture.select(10_000);

@@ -49,18 +49,33 @@ pub fn select_occluders(
             (!inside && distance_squared > 0.0).then(|| (bounds.radius * bounds.radius / distance_squared, index))
         })
         .collect();
-    ranked.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    let best_first = |a: &(f32, usize), b: &(f32, usize)| b.0.total_cmp(&a.0);
+    // Only the best few can fit the budget: order just enough of them (at least one triangle each), and the
+    // rest only if the budget is still not full.
+    let smallest = ranked.iter().map(|&(_, i)| candidates[i].occluder.triangle_count()).min().unwrap_or(1).max(1);
+    let head = (triangle_budget / smallest + 1).min(ranked.len());
+    if head < ranked.len() {
+        ranked.select_nth_unstable_by(head, best_first);
+    }
+    ranked[..head].sort_unstable_by(best_first);
     let mut remaining = triangle_budget;
     let mut chosen = Vec::new();
-    for (_, index) in ranked {
-        let triangles = candidates[index].occluder.triangle_count();
-        if triangles <= remaining {
-            remaining -= triangles;
-            chosen.push(index);
+    let mut take = |ranked: &[(f32, usize)], remaining: &mut usize| {
+        for &(_, index) in ranked {
+            let triangles = candidates[index].occluder.triangle_count();
+            if triangles <= *remaining {
+                *remaining -= triangles;
+                chosen.push(index);
+            }
+            if *remaining == 0 {
+                return;
+            }
         }
-        if remaining == 0 {
-            break;
-        }
+    };
+    take(&ranked[..head], &mut remaining);
+    if remaining > 0 && head < ranked.len() {
+        ranked[head..].sort_unstable_by(best_first);
+        take(&ranked[head..], &mut remaining);
     }
     chosen
 }
