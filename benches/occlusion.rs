@@ -43,6 +43,17 @@ fn fixture(objects: usize) -> Fixture {
 }
 
 impl Fixture {
+    /// The occludee test of every frustum survivor against `pyramid`.
+    fn test(
+        &self,
+        view: &ScreenView,
+        pyramid: &DepthPyramid,
+        visible: &mut VisibleSet,
+        occluded: &mut VisibleSet,
+    ) -> cullet::occlusion::OcclusionStats {
+        test_occlusion(&self.store, &self.frustum_visible, view, pyramid, visible, occluded)
+    }
+
     /// The best occluders in view, up to `budget` triangles.
     fn select(&self, budget: usize) -> Vec<OccluderInstance<'_>> {
         let entries: Vec<OccluderEntry<'_>> = self
@@ -99,16 +110,7 @@ fn test(c: &mut Criterion) {
         pyramid.build(&depth);
         group.throughput(Throughput::Elements(fixture.frustum_visible.count() as u64));
         group.bench_function(BenchmarkId::new("test", objects), |b| {
-            b.iter(|| {
-                black_box(test_occlusion(
-                    &fixture.store,
-                    &fixture.frustum_visible,
-                    &view,
-                    &pyramid,
-                    &mut visible,
-                    &mut occluded,
-                ))
-            })
+            b.iter(|| black_box(fixture.test(&view, &pyramid, &mut visible, &mut occluded)))
         });
     }
     group.finish();
@@ -134,14 +136,7 @@ fn combined(c: &mut Criterion) {
                     let occluders = fixture.select(10_000);
                     rasterize(&view, &occluders, RasterMode::Conservative, &mut depth);
                     pyramid.build(&depth);
-                    black_box(test_occlusion(
-                        &fixture.store,
-                        &fixture.frustum_visible,
-                        &view,
-                        &pyramid,
-                        &mut visible,
-                        &mut occluded,
-                    ))
+                    black_box(fixture.test(&view, &pyramid, &mut visible, &mut occluded))
                 })
             })
         });
