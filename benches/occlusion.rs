@@ -9,7 +9,7 @@ use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_m
 use cullet::bounds::{Occluder, WorldBounds};
 use cullet::city::{CityParams, CityScene};
 use cullet::frustum::cull_frustum;
-use cullet::occluder::{OccluderEntry, select_occluders};
+use cullet::occluder::select_occluders;
 use cullet::occlusion::test_occlusion;
 use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
 use cullet::{BoundsStore, Camera, VisibleSet};
@@ -21,19 +21,21 @@ struct Fixture {
     store: BoundsStore,
     camera: Camera,
     frustum_visible: VisibleSet,
-    occluders: Vec<(usize, Occluder, glam::Affine3A)>,
+    /// Occluder and transform by store slot.
+    occluders: std::collections::HashMap<usize, (Occluder, glam::Affine3A)>,
 }
 
 fn fixture(objects: usize) -> Fixture {
     let city = CityScene::generate(CityParams::with_objects(objects));
     let mut store = BoundsStore::default();
-    let mut occluders = Vec::new();
+    let mut occluders = std::collections::HashMap::new();
     for (i, object) in city.objects.iter().enumerate() {
         let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
         let local = city.mesh_bounds[object.mesh as usize];
         let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
         if let Some(occluder) = &object.occluder {
-            occluders.push((slot, occluder.clone(), object.transform));
+            store.set_occluder(slot, true);
+            occluders.insert(slot, (occluder.clone(), object.transform));
         }
     }
     let camera = city.benchmark_cameras()[0].1;
@@ -56,20 +58,10 @@ impl Fixture {
 
     /// The best occluders in view, up to `budget` triangles.
     fn select(&self, budget: usize) -> Vec<OccluderInstance<'_>> {
-        let entries: Vec<OccluderEntry<'_>> = self
-            .occluders
-            .iter()
-            .map(|(slot, occluder, transform)| OccluderEntry {
-                entity: Entity::PLACEHOLDER,
-                slot: *slot,
-                occluder,
-                transform: *transform,
-            })
-            .collect();
-        select_occluders(&entries, &self.store, &self.frustum_visible, self.camera.position, budget)
-            .into_iter()
-            .map(|i| OccluderInstance { occluder: entries[i].occluder, transform: entries[i].transform })
-            .collect()
+        select_occluders(&self.store, &self.frustum_visible, self.camera.position, budget, |slot| {
+            let (occluder, transform) = self.occluders.get(&slot)?;
+            Some(OccluderInstance { occluder, transform: *transform })
+        })
     }
 }
 

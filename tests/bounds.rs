@@ -36,10 +36,11 @@ fn spawn_box(world: &mut World, position: Vec3) -> Entity {
 /// group box contains its members.
 fn assert_store_consistent(world: &mut World) {
     let store = world.resource::<BoundsStore>().clone();
-    let mut query = world.query::<(Entity, &LocalBounds, &ObjectTransform)>();
+    let mut query = world.query::<(Entity, &LocalBounds, &ObjectTransform, Has<cullet::Occluder>)>();
     let mut seen = 0;
-    for (entity, local, transform) in query.iter(world) {
+    for (entity, local, transform, has_occluder) in query.iter(world) {
         let Some(slot) = store.slot_of(entity) else { continue };
+        assert_eq!(store.occluder_bits()[slot / 64] >> (slot % 64) & 1 != 0, has_occluder, "occluder bit of {entity}");
         assert_eq!(store.entities()[slot], entity);
         assert_eq!(store.get(slot), WorldBounds::from_local(entity, local, &transform.0).unwrap());
         assert!(store.groups()[slot / 64].contains(&store.get(slot)));
@@ -95,6 +96,10 @@ fn removal_swaps_the_last_object_into_the_hole() {
     assert_eq!(world.resource::<BoundsStore>().len(), 58);
     assert_eq!(world.resource::<BoundsStore>().padded_len(), 64, "the arrays shrink by whole words");
     assert_eq!(world.resource::<BoundsStore>().slot_of(entities[10]), None);
+    assert_store_consistent(&mut world);
+
+    // Removing an occluder clears its bit.
+    world.entity_mut(entities[0]).remove::<cullet::Occluder>();
     assert_store_consistent(&mut world);
 
     // Re-adding the component brings the object back.

@@ -4,7 +4,7 @@ use cullet::BoundsStore;
 use cullet::bounds::WorldBounds;
 use cullet::city::{CityParams, CityScene};
 use cullet::frustum::cull_frustum;
-use cullet::occluder::{OccluderEntry, select_occluders};
+use cullet::occluder::select_occluders;
 use cullet::occlusion::test_occlusion;
 use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
 use std::time::Instant;
@@ -19,21 +19,15 @@ fn main() {
         let local = city.mesh_bounds[object.mesh as usize];
         let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
         if let Some(occluder) = &object.occluder {
-            occluders.push((entity, slot, occluder.clone(), object.transform));
+            store.set_occluder(slot, true);
+            occluders.push((slot, occluder.clone(), object.transform));
         }
     }
     for (name, camera) in city.benchmark_cameras() {
         let mut frustum_visible = cullet::VisibleSet::default();
         cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
-        let entries: Vec<OccluderEntry<'_>> = occluders
-            .iter()
-            .map(|(entity, slot, occluder, transform)| OccluderEntry {
-                entity: *entity,
-                slot: *slot,
-                occluder,
-                transform: *transform,
-            })
-            .collect();
+        let by_slot: std::collections::HashMap<usize, (&cullet::Occluder, glam::Affine3A)> =
+            occluders.iter().map(|(slot, occluder, transform)| (*slot, (occluder, *transform))).collect();
         let view = ScreenView::new(&camera, 256, 144);
         let (mut depth, mut pyramid) = (DepthBuffer::default(), DepthPyramid::default());
         let (mut visible, mut occluded) = (cullet::VisibleSet::default(), cullet::VisibleSet::default());
@@ -43,11 +37,9 @@ fn main() {
         let mut tris = 0;
         for _ in 0..runs {
             let t = Instant::now();
-            let chosen = select_occluders(&entries, &store, &frustum_visible, camera.position, 10_000);
-            let instances: Vec<OccluderInstance<'_>> = chosen
-                .iter()
-                .map(|&i| OccluderInstance { occluder: entries[i].occluder, transform: entries[i].transform })
-                .collect();
+            let instances = select_occluders(&store, &frustum_visible, camera.position, 10_000, |slot| {
+                by_slot.get(&slot).map(|&(occluder, transform)| OccluderInstance { occluder, transform })
+            });
             times[0] += t.elapsed().as_secs_f64();
             let t = Instant::now();
             tris = rasterize(&view, &instances, RasterMode::Conservative, &mut depth).triangles_rasterized;

@@ -285,6 +285,9 @@ pub struct BoundsStore {
     /// Groups whose box may be looser than needed since an object moved or left; tightened by
     /// [`BoundsStore::tighten_groups`].
     loose_groups: Vec<u32>,
+    /// One bit per slot: the object carries an [`Occluder`]. Lets occluder selection find candidates with a
+    /// bitwise AND against the frustum stage's output instead of a scan of every occluder.
+    occluder_bits: Vec<u64>,
     entities: Vec<Entity>,
     slots: EntityHashMap<u32>,
     /// Objects whose bounds were recomputed (inserted or updated) by the last [`sync_bounds`] run.
@@ -328,6 +331,21 @@ impl BoundsStore {
             half_extent: Vec3::new(self.extent_x[slot], self.extent_y[slot], self.extent_z[slot]),
             radius: self.radius[slot],
         }
+    }
+
+    /// Marks whether the object in `slot` carries an occluder.
+    pub fn set_occluder(&mut self, slot: usize, has_occluder: bool) {
+        let bit = 1u64 << (slot % 64);
+        if has_occluder {
+            self.occluder_bits[slot / 64] |= bit;
+        } else {
+            self.occluder_bits[slot / 64] &= !bit;
+        }
+    }
+
+    /// One bit per slot, 64 a word: set where the object carries an occluder.
+    pub fn occluder_bits(&self) -> &[u64] {
+        &self.occluder_bits
     }
 
     /// The box around each group of [`SOA_PADDING`] consecutive slots.
@@ -415,6 +433,7 @@ impl BoundsStore {
                 array.resize(padded, 0.0);
             }
             self.groups.push(GroupBounds::EMPTY);
+            self.occluder_bits.push(0);
             if self.groups.len() > self.supergroups.len() * GROUPS_PER_SUPERGROUP {
                 self.supergroups.push(GroupBounds::EMPTY);
             }
@@ -436,6 +455,9 @@ impl BoundsStore {
             array[slot] = array[last];
             array[last] = 0.0;
         }
+        let last_has_occluder = self.occluder_bits[last / 64] >> (last % 64) & 1 != 0;
+        self.set_occluder(last, false);
+        self.set_occluder(slot, slot != last && last_has_occluder);
         if slot != last {
             let moved = self.get(slot);
             self.write(slot, &moved);
@@ -448,6 +470,7 @@ impl BoundsStore {
                 array.truncate(padded);
             }
             self.groups.truncate(padded / SOA_PADDING);
+            self.occluder_bits.truncate(padded / SOA_PADDING);
             self.supergroups.truncate(self.groups.len().div_ceil(GROUPS_PER_SUPERGROUP));
         }
         true
@@ -544,12 +567,30 @@ pub fn on_bounds_inserted(
     event: On<Insert<(LocalBounds, ObjectTransform)>>,
     mut commands: Commands,
     mut store: ResMut<BoundsStore>,
-    objects: Query<(&LocalBounds, &ObjectTransform, Option<&BoundsRejected>)>,
+    objects: Query<(&LocalBounds, &ObjectTransform, Option<&BoundsRejected>, Has<Occluder>)>,
 ) {
     let entity = event.entity;
-    if let Ok((local, transform, previous)) = objects.get(entity) {
+    if let Ok((local, transform, previous, has_occluder)) = objects.get(entity) {
         let outcome = store.update(entity, local, transform);
+        if let Ok(slot) = outcome {
+            store.set_occluder(slot, has_occluder);
+        }
         report(&mut store, &mut commands, entity, outcome, previous);
+    }
+}
+
+/// Observer: marks the object's slot as carrying an occluder (if it is stored already; otherwise
+/// [`on_bounds_inserted`] marks it when it is).
+pub fn on_occluder_inserted(event: On<Insert<Occluder>>, mut store: ResMut<BoundsStore>) {
+    if let Some(slot) = store.slot_of(event.entity) {
+        store.set_occluder(slot, true);
+    }
+}
+
+/// Observer: clears the occluder mark of the object's slot.
+pub fn on_occluder_removed(event: On<Remove<Occluder>>, mut store: ResMut<BoundsStore>) {
+    if let Some(slot) = store.slot_of(event.entity) {
+        store.set_occluder(slot, false);
     }
 }
 

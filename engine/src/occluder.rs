@@ -8,74 +8,71 @@
 //! 3. Rank: by the solid-angle estimate of Coorg and Teller (seed 002), `area / distance^2`, taken for the
 //!    object's bounding sphere as `radius^2 / distance^2` (distance to the box centre).
 //! 4. Budget: occluders are taken best-first while their triangles fit in the budget; one that does not fit
-//!    is skipped and smaller ones after it may still fill the budget.
+//!    is skipped and smaller ones after it may still fill the budget (see [`select_occluders`]).
 
-use crate::bounds::{BoundsStore, Occluder};
+use crate::bounds::BoundsStore;
+use crate::raster::OccluderInstance;
 use crate::visible::VisibleSet;
-use bevy_ecs::entity::Entity;
-use glam::{Affine3A, Vec3};
+use glam::Vec3;
 
-/// An occluder as the selection sees it: its object's store slot, its triangles and transform.
-#[derive(Clone, Debug)]
-pub struct OccluderEntry<'a> {
-    /// The owning entity.
-    pub entity: Entity,
-    /// Store slot of the owning object.
-    pub slot: usize,
-    /// The occluder's local triangles.
-    pub occluder: &'a Occluder,
-    /// Local-to-world transform.
-    pub transform: Affine3A,
-}
+/// Candidates ordered per round of selection: enough to fill most budgets in one round.
+const ROUND: usize = 1024;
 
-/// Orders `candidates` best-first and keeps those that pass the frustum and inside tests and fit in
-/// `triangle_budget` triangles. Returns indices into `candidates`.
-pub fn select_occluders(
-    candidates: &[OccluderEntry<'_>],
+/// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluder_bits`])
+/// that the frustum kept and whose box does not contain the camera, best-first while their triangles fit in
+/// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform.
+///
+/// Candidates are found with a bitwise AND and ranked from the store's arrays; only the best are ordered, a
+/// round of [`ROUND`] at a time, until the budget is full or a whole round fits nothing more.
+pub fn select_occluders<'a>(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,
     camera_position: Vec3,
     triangle_budget: usize,
-) -> Vec<usize> {
-    let mut ranked: Vec<(f32, usize)> = candidates
-        .iter()
-        .enumerate()
-        .filter(|(_, entry)| frustum_visible.contains(entry.slot))
-        .filter_map(|(index, entry)| {
-            let bounds = store.get(entry.slot);
-            let offset = bounds.center - camera_position;
-            let inside = offset.abs().cmple(bounds.half_extent).all();
+    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+) -> Vec<OccluderInstance<'a>> {
+    let mut ranked: Vec<(f32, u32)> = Vec::new();
+    for (word_index, (&visible, &occluders)) in frustum_visible.words().iter().zip(store.occluder_bits()).enumerate() {
+        let mut bits = visible & occluders;
+        while bits != 0 {
+            let slot = word_index * 64 + bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let offset = Vec3::new(store.center_x[slot], store.center_y[slot], store.center_z[slot]) - camera_position;
+            let extent = Vec3::new(store.extent_x[slot], store.extent_y[slot], store.extent_z[slot]);
             let distance_squared = offset.length_squared();
-            (!inside && distance_squared > 0.0).then(|| (bounds.radius * bounds.radius / distance_squared, index))
-        })
-        .collect();
-    let best_first = |a: &(f32, usize), b: &(f32, usize)| b.0.total_cmp(&a.0);
-    // Only the best few can fit the budget: order just enough of them (at least one triangle each), and the
-    // rest only if the budget is still not full.
-    let smallest = ranked.iter().map(|&(_, i)| candidates[i].occluder.triangle_count()).min().unwrap_or(1).max(1);
-    let head = (triangle_budget / smallest + 1).min(ranked.len());
-    if head < ranked.len() {
-        ranked.select_nth_unstable_by(head, best_first);
+            if offset.abs().cmple(extent).all() || distance_squared <= 0.0 {
+                continue; // The camera is inside the object.
+            }
+            ranked.push((store.radius[slot] * store.radius[slot] / distance_squared, slot as u32));
+        }
     }
-    ranked[..head].sort_unstable_by(best_first);
+    let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0);
     let mut remaining = triangle_budget;
     let mut chosen = Vec::new();
-    let mut take = |ranked: &[(f32, usize)], remaining: &mut usize| {
-        for &(_, index) in ranked {
-            let triangles = candidates[index].occluder.triangle_count();
-            if triangles <= *remaining {
-                *remaining -= triangles;
-                chosen.push(index);
-            }
-            if *remaining == 0 {
-                return;
+    let mut rest = &mut ranked[..];
+    while remaining > 0 && !rest.is_empty() {
+        let round = ROUND.min(rest.len());
+        if round < rest.len() {
+            rest.select_nth_unstable_by(round, best_first);
+        }
+        let (head, tail) = rest.split_at_mut(round);
+        head.sort_unstable_by(best_first);
+        let before = chosen.len();
+        for &(_, slot) in head.iter() {
+            let Some(instance) = occluder_of(slot as usize) else { continue };
+            let triangles = instance.occluder.triangle_count();
+            if triangles <= remaining {
+                remaining -= triangles;
+                chosen.push(instance);
+                if remaining == 0 {
+                    break;
+                }
             }
         }
-    };
-    take(&ranked[..head], &mut remaining);
-    if remaining > 0 && head < ranked.len() {
-        ranked[head..].sort_unstable_by(best_first);
-        take(&ranked[head..], &mut remaining);
+        if chosen.len() == before {
+            break; // A whole round fitted nothing: the budget is as full as it gets.
+        }
+        rest = tail;
     }
     chosen
 }

@@ -1,10 +1,13 @@
 //! The culling pipeline as `bevy_ecs` systems, one per stage, in a fixed order: data flows one way, each stage
 //! narrowing the [`VisibleSet`] of the stage before.
 
-use crate::bounds::{BoundsStore, ObjectTransform, Occluder, on_bounds_inserted, on_bounds_removed, sync_bounds};
+use crate::bounds::{
+    BoundsStore, ObjectTransform, Occluder, on_bounds_inserted, on_bounds_removed, on_occluder_inserted,
+    on_occluder_removed, sync_bounds,
+};
 use crate::camera::Camera;
 use crate::frustum::{FrustumError, cull_frustum};
-use crate::occluder::{OccluderEntry, select_occluders};
+use crate::occluder::select_occluders;
 use crate::occlusion::test_occlusion;
 use crate::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
 use crate::visible::VisibleSet;
@@ -99,6 +102,8 @@ pub fn init_world(world: &mut World) {
     world.init_resource::<OcclusionState>();
     world.add_observer(on_bounds_inserted);
     world.add_observer(on_bounds_removed);
+    world.add_observer(on_occluder_inserted);
+    world.add_observer(on_occluder_removed);
 }
 
 /// Adds the culling stages to `schedule`, in order.
@@ -149,22 +154,18 @@ pub fn occlusion_stage(
     settings: Res<OcclusionSettings>,
     mut state: ResMut<OcclusionState>,
     mut stats: ResMut<CullStats>,
-    occluders: Query<(Entity, &Occluder, &ObjectTransform)>,
+    occluders: Query<(&Occluder, &ObjectTransform)>,
 ) {
     let start = Instant::now();
     let state = &mut *state;
-    let candidates: Vec<OccluderEntry<'_>> = if settings.enabled {
-        occluders
-            .iter()
-            .filter_map(|(entity, occluder, transform)| {
-                let slot = store.slot_of(entity)?;
-                Some(OccluderEntry { entity, slot, occluder, transform: transform.0 })
-            })
-            .collect()
+    let chosen = if settings.enabled {
+        select_occluders(&store, &frustum_visible.0, camera.position, settings.triangle_budget, |slot| {
+            let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
+            Some(OccluderInstance { occluder, transform: transform.0 })
+        })
     } else {
         Vec::new()
     };
-    let chosen = select_occluders(&candidates, &store, &frustum_visible.0, camera.position, settings.triangle_budget);
     stats.occluders = chosen.len();
     if chosen.is_empty() {
         state.depth.reset(0, 0);
@@ -178,11 +179,7 @@ pub fn occlusion_stage(
         return;
     }
     let view = ScreenView::new(&camera, settings.width, settings.height);
-    let instances: Vec<OccluderInstance<'_>> = chosen
-        .iter()
-        .map(|&i| OccluderInstance { occluder: candidates[i].occluder, transform: candidates[i].transform })
-        .collect();
-    let raster = rasterize(&view, &instances, settings.mode, &mut state.depth);
+    let raster = rasterize(&view, &chosen, settings.mode, &mut state.depth);
     state.pyramid.build(&state.depth);
     stats.occluder_triangles = raster.triangles_rasterized;
     stats.raster_time = start.elapsed();
