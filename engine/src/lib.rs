@@ -15,6 +15,8 @@
 //!
 //! Culling is conservative by default: no stage removes an object that could be visible.
 
+#![warn(missing_docs)]
+
 pub mod bounds;
 pub mod camera;
 pub mod city;
