@@ -200,8 +200,11 @@ pub fn rasterize(
 ) -> RasterStats {
     buffer.reset(view.width, view.height);
     let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
-    let mut setups: Vec<SetupOccluder> =
-        occluders.par_iter().filter_map(|occluder| setup_occluder(view, occluder, mode)).collect();
+    let mut setups: Vec<SetupOccluder> = occluders
+        .par_iter()
+        .map_init(SetupScratch::default, |scratch, occluder| setup_occluder(view, occluder, mode, scratch))
+        .flatten()
+        .collect();
     // Nearest first, so that occluders hidden behind nearer ones can be skipped.
     setups.sort_unstable_by(|a, b| b.nearest.total_cmp(&a.nearest));
     let triangles_rasterized = setups.iter().map(|o| o.triangles.len()).sum();
@@ -410,15 +413,24 @@ fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [b
 
 /// Transforms, clips against the near plane and sets up the front faces of one occluder, with the boundary of
 /// their union: edges whose neighbour is missing or back-facing, and edges made by near clipping.
-fn setup_occluder(view: &ScreenView, instance: &OccluderInstance<'_>, mode: RasterMode) -> Option<SetupOccluder> {
+fn setup_occluder(
+    view: &ScreenView,
+    instance: &OccluderInstance<'_>,
+    mode: RasterMode,
+    scratch: &mut SetupScratch,
+) -> Option<SetupOccluder> {
     let transform = DAffine3::from_mat3_translation(
         glam::Mat3::from(instance.transform.matrix3).as_dmat3(),
         DVec3::from(Vec3::from(instance.transform.translation)) - view.origin.as_dvec3(),
     );
     let occluder = instance.occluder;
-    let relative: Vec<DVec3> = occluder.triangles.iter().map(|p| transform.transform_point3(p.as_dvec3())).collect();
+    let SetupScratch { relative, front } = scratch;
+    let (mut screen_min, mut screen_max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    relative.clear();
+    relative.extend(occluder.triangles.iter().map(|p| transform.transform_point3(p.as_dvec3())));
     // Front-facing in 3D: the eye (the origin here) is on the outer side of the counter-clockwise face.
-    let front: Vec<bool> = relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(t[0]) < 0.0).collect();
+    front.clear();
+    front.extend(relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(t[0]) < 0.0));
     let m = view.clip_from_relative;
     let mut setup = SetupOccluder { triangles: Vec::new(), boundary: Vec::new(), rect: TexelRect::EMPTY, nearest: 0.0 };
     for (t, corners) in relative.chunks_exact(3).enumerate() {
@@ -436,7 +448,14 @@ fn setup_occluder(view: &ScreenView, instance: &OccluderInstance<'_>, mode: Rast
         if count < 3 {
             continue;
         }
-        let screen: Vec<DVec3> = polygon[..count].iter().map(|&(v, _)| to_screen(view, v)).collect();
+        let mut screen = [DVec3::ZERO; 4];
+        for (screen, &(v, _)) in screen.iter_mut().zip(&polygon[..count]) {
+            *screen = to_screen(view, v);
+        }
+        let screen = &screen[..count];
+        for v in screen {
+            (screen_min, screen_max) = (screen_min.min(*v), screen_max.max(*v));
+        }
         setup.nearest = screen.iter().fold(setup.nearest, |nearest, v| nearest.max(v.z as f32));
         for (i, &(_, boundary)) in polygon[..count].iter().enumerate() {
             if boundary {
@@ -451,7 +470,18 @@ fn setup_occluder(view: &ScreenView, instance: &OccluderInstance<'_>, mode: Rast
             }
         }
     }
-    (!setup.triangles.is_empty()).then_some(setup)
+    // In conservative mode a texel is written only where the occluder covers it whole: one less than a texel
+    // across on screen (before clamping to the buffer) can write none.
+    let extent = screen_max - screen_min;
+    let too_small = mode == RasterMode::Conservative && (extent.x < 1.0 || extent.y < 1.0);
+    (!setup.triangles.is_empty() && !too_small).then_some(setup)
+}
+
+/// Reused buffers of [`setup_occluder`], one per rayon worker.
+#[derive(Default)]
+struct SetupScratch {
+    relative: Vec<DVec3>,
+    front: Vec<bool>,
 }
 
 /// Clips a triangle of homogeneous `(x, y, w)` vertices, each flagged when the edge leaving it is a boundary,
