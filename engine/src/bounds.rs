@@ -34,6 +34,8 @@ pub const SIMD_LANES: usize = 8;
 /// Every SoA array's length is a multiple of this: one 64-bit word of a visibility bitset, and one group of
 /// the culling hierarchy ([`GroupBounds`]).
 pub const SOA_PADDING: usize = 64;
+/// Group boxes [`sync_bounds`] tightens per frame at most (seed 001 section 4.3.4: spread work over frames).
+pub const TIGHTEN_BUDGET: usize = 256;
 /// Groups per supergroup, the top level of the culling hierarchy (4096 objects, one rayon task).
 pub const GROUPS_PER_SUPERGROUP: usize = 64;
 
@@ -284,7 +286,9 @@ pub struct BoundsStore {
     supergroups: Vec<GroupBounds>,
     /// Groups whose box may be looser than needed since an object moved or left; tightened by
     /// [`BoundsStore::tighten_groups`].
-    loose_groups: Vec<u32>,
+    loose_groups: std::collections::VecDeque<u32>,
+    /// Per group: queued in `loose_groups`.
+    loose_flags: Vec<bool>,
     /// One bit per slot: the object carries an [`Occluder`]. Lets occluder selection find candidates with a
     /// bitwise AND against the frustum stage's output instead of a scan of every occluder.
     occluder_bits: Vec<u64>,
@@ -361,43 +365,50 @@ impl BoundsStore {
     /// Recomputes the boxes of groups that were loosened by moves and removals. Group boxes are always
     /// conservative; this only makes them tight again. [`sync_bounds`] calls it every frame.
     pub fn tighten_groups(&mut self) {
-        let mut loose = std::mem::take(&mut self.loose_groups);
-        loose.sort_unstable();
-        loose.dedup();
-        for &group in &loose {
+        self.tighten_some_groups(usize::MAX);
+    }
+
+    /// [`BoundsStore::tighten_groups`] for at most `budget` groups, the longest-loose first: the work of many
+    /// moving objects is spread over frames, while every group box stays conservative in between.
+    pub fn tighten_some_groups(&mut self, budget: usize) {
+        let mut supergroups = Vec::new();
+        for _ in 0..budget {
+            let Some(group) = self.loose_groups.pop_front() else { break };
             let group = group as usize;
             if group >= self.groups.len() {
-                continue;
+                continue; // Truncated away since it was queued.
             }
+            self.loose_flags[group] = false;
             let end = ((group + 1) * SOA_PADDING).min(self.len());
             let mut bounds = GroupBounds::EMPTY;
             for slot in group * SOA_PADDING..end {
                 bounds.grow(&self.get(slot));
             }
             self.groups[group] = bounds;
+            supergroups.push(group / GROUPS_PER_SUPERGROUP);
         }
-        loose.dedup_by_key(|group| *group as usize / GROUPS_PER_SUPERGROUP);
-        for &group in &loose {
-            let supergroup = group as usize / GROUPS_PER_SUPERGROUP;
-            if supergroup < self.supergroups.len() {
-                let first = supergroup * GROUPS_PER_SUPERGROUP;
-                let last = (first + GROUPS_PER_SUPERGROUP).min(self.groups.len());
-                self.supergroups[supergroup] =
-                    self.groups[first..last].iter().fold(GroupBounds::EMPTY, |acc, g| acc.union(g));
-            }
+        supergroups.sort_unstable();
+        supergroups.dedup();
+        for supergroup in supergroups {
+            let first = supergroup * GROUPS_PER_SUPERGROUP;
+            let last = (first + GROUPS_PER_SUPERGROUP).min(self.groups.len());
+            self.supergroups[supergroup] =
+                self.groups[first..last].iter().fold(GroupBounds::EMPTY, |acc, g| acc.union(g));
         }
-        loose.clear();
-        self.loose_groups = loose;
+    }
+
+    /// Queues `group` for tightening, once.
+    fn mark_loose(&mut self, group: usize) {
+        if !self.loose_flags[group] {
+            self.loose_flags[group] = true;
+            self.loose_groups.push_back(group as u32);
+        }
     }
 
     /// Overwrites the bounds in `slot`. Its group box grows at once, so it stays conservative; it is marked
     /// loose, since the object may have left part of it.
     pub fn set(&mut self, slot: usize, bounds: &WorldBounds) {
-        self.loose_groups.push((slot / SOA_PADDING) as u32);
-        if self.loose_groups.len() > self.groups.len() {
-            self.loose_groups.sort_unstable();
-            self.loose_groups.dedup();
-        }
+        self.mark_loose(slot / SOA_PADDING);
         self.write(slot, bounds);
     }
 
@@ -433,6 +444,7 @@ impl BoundsStore {
                 array.resize(padded, 0.0);
             }
             self.groups.push(GroupBounds::EMPTY);
+            self.loose_flags.push(false);
             self.occluder_bits.push(0);
             if self.groups.len() > self.supergroups.len() * GROUPS_PER_SUPERGROUP {
                 self.supergroups.push(GroupBounds::EMPTY);
@@ -462,7 +474,8 @@ impl BoundsStore {
             let moved = self.get(slot);
             self.write(slot, &moved);
         }
-        self.loose_groups.extend([(slot / SOA_PADDING) as u32, (last / SOA_PADDING) as u32]);
+        self.mark_loose(slot / SOA_PADDING);
+        self.mark_loose(last / SOA_PADDING);
         // Shrink only when a whole padding word is free, so the arrays stay a multiple of SOA_PADDING.
         let padded = last.div_ceil(SOA_PADDING) * SOA_PADDING;
         if padded + SOA_PADDING <= self.padded_len() {
@@ -470,6 +483,7 @@ impl BoundsStore {
                 array.truncate(padded);
             }
             self.groups.truncate(padded / SOA_PADDING);
+            self.loose_flags.truncate(padded / SOA_PADDING);
             self.occluder_bits.truncate(padded / SOA_PADDING);
             self.supergroups.truncate(self.groups.len().div_ceil(GROUPS_PER_SUPERGROUP));
         }
@@ -556,7 +570,7 @@ pub fn sync_bounds(
         let outcome = store.update(entity, local, transform);
         report(&mut store, &mut commands, entity, outcome, previous);
     }
-    store.tighten_groups();
+    store.tighten_some_groups(TIGHTEN_BUDGET);
     store.recomputed_last_sync = recomputed;
     store.last_sync_time = start.elapsed();
 }
