@@ -362,8 +362,8 @@ impl BoundsStore {
         &self.supergroups
     }
 
-    /// Recomputes the boxes of groups that were loosened by moves and removals. Group boxes are always
-    /// conservative; this only makes them tight again. [`sync_bounds`] calls it every frame.
+    /// Recomputes the boxes of all groups that were loosened by moves and removals. Group boxes are always
+    /// conservative; this only makes them tight again. [`sync_bounds`] tightens [`TIGHTEN_BUDGET`] a frame.
     pub fn tighten_groups(&mut self) {
         self.tighten_some_groups(usize::MAX);
     }
