@@ -226,7 +226,7 @@ impl WorldBounds {
 
 /// A box around a group of [`SOA_PADDING`] consecutive store slots, rounded outward so that it contains every
 /// member's box exactly. The frustum stage tests it first: a group entirely outside or inside the frustum needs
-/// no per-object test, and planes the group is inside are skipped for its members (plane masking).
+/// no per-object test.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GroupBounds {
     /// Smallest corner.
