@@ -40,7 +40,7 @@ fn assert_store_consistent(world: &mut World) {
     let mut seen = 0;
     for (entity, local, transform, has_occluder) in query.iter(world) {
         let Some(slot) = store.slot_of(entity) else { continue };
-        assert_eq!(store.occluder_bits()[slot / 64] >> (slot % 64) & 1 != 0, has_occluder, "occluder bit of {entity}");
+        assert_eq!(store.occluders().contains(slot), has_occluder, "occluder bit of {entity}");
         assert_eq!(store.entities()[slot], entity);
         assert_eq!(store.get(slot), WorldBounds::from_local(entity, local, &transform.0).unwrap());
         assert!(store.groups()[slot / 64].contains(&store.get(slot)));

@@ -36,6 +36,7 @@ fn cull_and_check(store: &BoundsStore, camera: &Camera) -> VisibleSet {
         let bounds = store.get(slot);
         if reference_keeps(&planes, camera.position.as_dvec3(), &bounds) {
             assert!(scalar.contains(slot), "culled a box the f64 reference keeps: {bounds:?} for {camera:?}");
+            assert!(frustum.intersects(&bounds), "single-object test culls what the f64 reference keeps");
         }
     }
     scalar

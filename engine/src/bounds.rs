@@ -22,6 +22,7 @@
 //! 5 units (`4 * f32::EPSILON` of the distance): culling stays conservative and loses only that much
 //! efficiency. Beyond that, keep transforms small by rebasing the world origin near the camera.
 
+use crate::visible::VisibleSet;
 use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Vec3, Vec3A};
@@ -239,11 +240,17 @@ impl GroupBounds {
     /// The empty box: growing it by a box gives that box.
     pub const EMPTY: Self = Self { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
 
+    /// The corners of `bounds`, rounded outward by a bound on the error of `center ± extent`.
+    fn outward_corners(bounds: &WorldBounds) -> (Vec3, Vec3) {
+        let slack = (bounds.center.abs() + bounds.half_extent) * f32::EPSILON;
+        (bounds.center - bounds.half_extent - slack, bounds.center + bounds.half_extent + slack)
+    }
+
     /// Extends the box to contain `bounds`, rounding outward by a bound on the error of `center ± extent`.
     pub fn grow(&mut self, bounds: &WorldBounds) {
-        let slack = (bounds.center.abs() + bounds.half_extent) * f32::EPSILON;
-        self.min = self.min.min(bounds.center - bounds.half_extent - slack);
-        self.max = self.max.max(bounds.center + bounds.half_extent + slack);
+        let (min, max) = Self::outward_corners(bounds);
+        self.min = self.min.min(min);
+        self.max = self.max.max(max);
     }
 
     /// The box around both boxes.
@@ -253,9 +260,8 @@ impl GroupBounds {
 
     /// Whether the box already contains `bounds` (compared as [`GroupBounds::grow`] would extend it).
     pub fn contains(&self, bounds: &WorldBounds) -> bool {
-        let slack = (bounds.center.abs() + bounds.half_extent) * f32::EPSILON;
-        (bounds.center - bounds.half_extent - slack).cmpge(self.min).all()
-            && (bounds.center + bounds.half_extent + slack).cmple(self.max).all()
+        let (min, max) = Self::outward_corners(bounds);
+        min.cmpge(self.min).all() && max.cmple(self.max).all()
     }
 }
 
@@ -289,9 +295,9 @@ pub struct BoundsStore {
     loose_groups: std::collections::VecDeque<u32>,
     /// Per group: queued in `loose_groups`.
     loose_flags: Vec<bool>,
-    /// One bit per slot: the object carries an [`Occluder`]. Lets occluder selection find candidates with a
-    /// bitwise AND against the frustum stage's output instead of a scan of every occluder.
-    occluder_bits: Vec<u64>,
+    /// Set where the object carries an [`Occluder`]. Lets occluder selection find candidates with a bitwise
+    /// AND against the frustum stage's output instead of a scan of every occluder. Sized to the padded length.
+    occluders: VisibleSet,
     entities: Vec<Entity>,
     slots: EntityHashMap<u32>,
     /// Objects whose bounds were recomputed (inserted or updated) by the last [`sync_bounds`] run.
@@ -339,17 +345,12 @@ impl BoundsStore {
 
     /// Marks whether the object in `slot` carries an occluder.
     pub fn set_occluder(&mut self, slot: usize, has_occluder: bool) {
-        let bit = 1u64 << (slot % 64);
-        if has_occluder {
-            self.occluder_bits[slot / 64] |= bit;
-        } else {
-            self.occluder_bits[slot / 64] &= !bit;
-        }
+        self.occluders.set(slot, has_occluder);
     }
 
-    /// One bit per slot, 64 a word: set where the object carries an occluder.
-    pub fn occluder_bits(&self) -> &[u64] {
-        &self.occluder_bits
+    /// The slots whose object carries an occluder.
+    pub fn occluders(&self) -> &VisibleSet {
+        &self.occluders
     }
 
     /// The box around each group of [`SOA_PADDING`] consecutive slots.
@@ -445,7 +446,7 @@ impl BoundsStore {
             }
             self.groups.push(GroupBounds::EMPTY);
             self.loose_flags.push(false);
-            self.occluder_bits.push(0);
+            self.occluders.resize(padded);
             if self.groups.len() > self.supergroups.len() * GROUPS_PER_SUPERGROUP {
                 self.supergroups.push(GroupBounds::EMPTY);
             }
@@ -467,9 +468,9 @@ impl BoundsStore {
             array[slot] = array[last];
             array[last] = 0.0;
         }
-        let last_has_occluder = self.occluder_bits[last / 64] >> (last % 64) & 1 != 0;
-        self.set_occluder(last, false);
-        self.set_occluder(slot, slot != last && last_has_occluder);
+        let last_has_occluder = self.occluders.contains(last);
+        self.occluders.set(last, false);
+        self.occluders.set(slot, slot != last && last_has_occluder);
         if slot != last {
             let moved = self.get(slot);
             self.write(slot, &moved);
@@ -484,7 +485,7 @@ impl BoundsStore {
             }
             self.groups.truncate(padded / SOA_PADDING);
             self.loose_flags.truncate(padded / SOA_PADDING);
-            self.occluder_bits.truncate(padded / SOA_PADDING);
+            self.occluders.resize(padded);
             self.supergroups.truncate(self.groups.len().div_ceil(GROUPS_PER_SUPERGROUP));
         }
         true

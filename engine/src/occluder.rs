@@ -18,7 +18,7 @@ use glam::Vec3;
 /// Candidates ordered per round of selection: enough to fill most budgets in one round.
 const ROUND: usize = 1024;
 
-/// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluder_bits`])
+/// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluders`])
 /// that the frustum kept and whose box does not contain the camera, best-first while their triangles fit in
 /// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform.
 ///
@@ -32,7 +32,9 @@ pub fn select_occluders<'a>(
     occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
 ) -> Vec<OccluderInstance<'a>> {
     let mut ranked: Vec<(f32, u32)> = Vec::new();
-    for (word_index, (&visible, &occluders)) in frustum_visible.words().iter().zip(store.occluder_bits()).enumerate() {
+    for (word_index, (&visible, &occluders)) in
+        frustum_visible.words().iter().zip(store.occluders().words()).enumerate()
+    {
         let mut bits = visible & occluders;
         while bits != 0 {
             let slot = word_index * 64 + bits.trailing_zeros() as usize;

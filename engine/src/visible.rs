@@ -28,6 +28,13 @@ impl VisibleSet {
         self.len = len;
     }
 
+    /// Grows or shrinks to `len` slots, keeping the bits of the slots that remain; new slots are clear.
+    pub fn resize(&mut self, len: usize) {
+        self.words.resize(len.div_ceil(64), 0);
+        self.len = len;
+        self.clear_tail();
+    }
+
     /// Number of slots (set or not).
     pub fn len(&self) -> usize {
         self.len
