@@ -62,6 +62,9 @@ impl Fixture {
             let (occluder, transform) = self.occluders.get(&slot)?;
             Some(OccluderInstance { occluder, transform: *transform })
         })
+        .into_iter()
+        .map(|(_, instance)| instance)
+        .collect()
     }
 }
 

@@ -39,7 +39,10 @@ fn main() {
             let t = Instant::now();
             let instances = select_occluders(&store, &frustum_visible, camera.position, 10_000, |slot| {
                 by_slot.get(&slot).map(|&(occluder, transform)| OccluderInstance { occluder, transform })
-            });
+            })
+            .into_iter()
+            .map(|(_, instance)| instance)
+            .collect::<Vec<_>>();
             times[0] += t.elapsed().as_secs_f64();
             let t = Instant::now();
             tris = rasterize(&view, &instances, RasterMode::Conservative, &mut depth).triangles_rasterized;

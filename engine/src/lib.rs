@@ -11,7 +11,8 @@
 //! 4. [`occlusion`]: each frustum survivor's box tested against that pyramid.
 //!
 //! [`pipeline`] wires the stages into a `bevy_ecs` schedule; [`city`] generates the built-in test scene;
-//! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw.
+//! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw; [`flight`] flies a
+//! camera through a world, frame by frame.
 //!
 //! Culling is conservative by default: no stage removes an object that could be visible.
 
@@ -20,6 +21,7 @@
 pub mod bounds;
 pub mod camera;
 pub mod city;
+pub mod flight;
 pub mod frustum;
 pub mod mesh;
 pub mod occluder;

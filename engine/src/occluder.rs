@@ -20,7 +20,8 @@ const ROUND: usize = 1024;
 
 /// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluders`])
 /// that the frustum kept and whose box does not contain the camera, best-first while their triangles fit in
-/// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform.
+/// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform. Returns the chosen slots with
+/// their occluders, best first.
 ///
 /// Candidates are found with a bitwise AND and ranked from the store's arrays; only the best are ordered, a
 /// round of [`ROUND`] at a time, until the budget is full or a whole round fits nothing more.
@@ -30,7 +31,7 @@ pub fn select_occluders<'a>(
     camera_position: Vec3,
     triangle_budget: usize,
     occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
-) -> Vec<OccluderInstance<'a>> {
+) -> Vec<(u32, OccluderInstance<'a>)> {
     let mut ranked: Vec<(f32, u32)> = Vec::new();
     for (word_index, (&visible, &occluders)) in
         frustum_visible.words().iter().zip(store.occluders().words()).enumerate()
@@ -65,7 +66,7 @@ pub fn select_occluders<'a>(
             let triangles = instance.occluder.triangle_count();
             if triangles <= remaining {
                 remaining -= triangles;
-                chosen.push(instance);
+                chosen.push((slot, instance));
                 if remaining == 0 {
                     break;
                 }

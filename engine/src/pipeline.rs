@@ -86,6 +86,8 @@ pub struct OcclusionState {
     pub pyramid: DepthPyramid,
     /// Store slots still visible after occlusion culling: the input of the next stage.
     pub visible: VisibleSet,
+    /// Store slots of the occluders rasterized this frame, best first.
+    pub occluder_slots: Vec<u32>,
     /// Store slots the frustum kept and occlusion hid. It stays until the next frame's occlusion stage runs,
     /// so earlier stages of the next frame can use it (for instance to test last frame's occluded first).
     pub occluded: VisibleSet,
@@ -158,14 +160,17 @@ pub fn occlusion_stage(
 ) {
     let start = Instant::now();
     let state = &mut *state;
-    let chosen = if settings.enabled {
+    let (slots, chosen): (Vec<u32>, Vec<OccluderInstance>) = if settings.enabled {
         select_occluders(&store, &frustum_visible.0, camera.position, settings.triangle_budget, |slot| {
             let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
             Some(OccluderInstance { occluder, transform: transform.0 })
         })
+        .into_iter()
+        .unzip()
     } else {
-        Vec::new()
+        Default::default()
     };
+    state.occluder_slots = slots;
     stats.occluders = chosen.len();
     if chosen.is_empty() {
         state.depth.reset(0, 0);

@@ -1,12 +1,12 @@
 //! `cullet-game`: flies a camera through a scene and culls it every frame, printing per-frame and summary
 //! statistics of each stage.
 
-use bevy_ecs::prelude::*;
 use clap::Parser;
-use cullet::city::{CityParams, CityScene, Velocity};
-use cullet::pipeline::{self, CullStats, OcclusionSettings};
+use cullet::city::{CityParams, CityScene};
+use cullet::flight::Flight;
+use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::RasterMode;
-use cullet::{BoundsStore, Camera, ObjectTransform};
+use cullet::{BoundsStore, Camera};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -38,19 +38,6 @@ struct Args {
     /// Most occluder triangles rasterized per frame.
     #[arg(long, default_value_t = 16_384)]
     occluder_budget: usize,
-}
-
-/// Seconds since the start of the run and since the last frame.
-#[derive(Resource, Default)]
-struct FrameTime {
-    delta: f32,
-}
-
-/// Moves objects with a [`Velocity`]; only their transforms change, so only their bounds are recomputed.
-fn move_objects(time: Res<FrameTime>, mut movers: Query<(&Velocity, &mut ObjectTransform)>) {
-    for (velocity, mut transform) in &mut movers {
-        transform.0.translation += glam::Vec3A::from(velocity.0 * time.delta);
-    }
 }
 
 fn parse_scene(scene: &str) -> Result<usize, String> {
@@ -98,38 +85,25 @@ fn run(args: &Args) -> Result<(), String> {
 
     let start = Instant::now();
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let mut world = World::new();
-    pipeline::init_world(&mut world);
-    city.spawn(&mut world);
-    let path = city.flythrough();
-    world.insert_resource(path.camera_at(0.0, aspect));
-    world.init_resource::<FrameTime>();
-    world.insert_resource(occlusion);
-    let mut schedule = Schedule::default();
-    pipeline::add_systems(&mut schedule);
-    schedule.add_systems(move_objects.before(pipeline::CullStage::Bounds));
+    let mut flight = Flight::new(city.flythrough(), aspect, args.frames, occlusion, |world| {
+        city.spawn(world);
+    });
     println!(
         "city of {} objects generated and spawned in {:.0} ms; {} frames along a {:.0} s path",
         city.objects.len(),
         start.elapsed().as_secs_f64() * 1e3,
         args.frames,
-        path.duration()
+        flight.path.duration()
     );
 
     let mut per_frame = Vec::with_capacity(args.frames as usize);
-    let frame_delta = path.duration() / args.frames.saturating_sub(1).max(1) as f32;
     for frame in 0..args.frames {
-        let t = frame as f32 * frame_delta;
-        world.insert_resource(path.camera_at(t, aspect));
-        world.resource_mut::<FrameTime>().delta = if frame == 0 { 0.0 } else { frame_delta };
-        schedule.run(&mut world);
-        world.clear_trackers();
-        let stats = *world.resource::<CullStats>();
+        let stats = flight.run_frame(frame);
         if let Some(error) = stats.frustum_error {
             return Err(format!("frame {frame}: {error}"));
         }
         if !args.quiet {
-            let camera = world.resource::<Camera>();
+            let camera = flight.world.resource::<Camera>();
             println!(
                 "frame {frame:4}  camera ({:8.1} {:6.1} {:8.1})  objects {:8}  bounds updated {:6} in {:7.1} us  \
                  after frustum {:8} in {:7.1} us  occluders {:5} ({:6} tris) in {:7.1} us  \
@@ -151,7 +125,7 @@ fn run(args: &Args) -> Result<(), String> {
         }
         per_frame.push(stats);
     }
-    let errors = world.resource_mut::<BoundsStore>().take_errors();
+    let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
     for error in &errors {
         eprintln!("rejected: {error}");
     }

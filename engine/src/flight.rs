@@ -1,0 +1,72 @@
+//! A scene flown through along a camera path: the world, its culling schedule and the camera, advanced one
+//! frame at a time. The sample game, the tests and the benchmarks all drive the pipeline through it.
+
+use crate::bounds::ObjectTransform;
+use crate::camera::CameraPath;
+use crate::city::Velocity;
+use crate::pipeline::{self, CullStage, CullStats, OcclusionSettings};
+use bevy_ecs::prelude::*;
+
+/// Seconds simulated by the current frame.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameDelta(pub f32);
+
+/// Moves objects with a [`Velocity`] by one [`FrameDelta`]; only their transforms change, so only their bounds
+/// are recomputed.
+pub fn move_objects(delta: Res<FrameDelta>, mut movers: Query<(&Velocity, &mut ObjectTransform)>) {
+    for (velocity, mut transform) in &mut movers {
+        transform.0.translation += glam::Vec3A::from(velocity.0 * delta.0);
+    }
+}
+
+/// A world being flown through: `frames` frames spread evenly over the camera path's duration.
+pub struct Flight {
+    /// The world: scene entities and the pipeline's resources.
+    pub world: World,
+    /// Moving objects, then the culling stages.
+    pub schedule: Schedule,
+    /// The camera path.
+    pub path: CameraPath,
+    /// Viewport width over height.
+    pub aspect: f32,
+    /// Frames along the path.
+    pub frames: u32,
+}
+
+impl Flight {
+    /// A world set up for culling ([`pipeline::init_world`]) with `occlusion` settings, filled by `spawn`,
+    /// with the camera at the start of `path`.
+    pub fn new(
+        path: CameraPath,
+        aspect: f32,
+        frames: u32,
+        occlusion: OcclusionSettings,
+        spawn: impl FnOnce(&mut World),
+    ) -> Self {
+        let mut world = World::new();
+        pipeline::init_world(&mut world);
+        spawn(&mut world);
+        world.insert_resource(path.camera_at(0.0, aspect));
+        world.insert_resource(occlusion);
+        world.init_resource::<FrameDelta>();
+        let mut schedule = Schedule::default();
+        pipeline::add_systems(&mut schedule);
+        schedule.add_systems(move_objects.before(CullStage::Bounds));
+        Self { world, schedule, path, aspect, frames }
+    }
+
+    /// Seconds between frames.
+    pub fn frame_delta(&self) -> f32 {
+        self.path.duration() / self.frames.saturating_sub(1).max(1) as f32
+    }
+
+    /// Places the camera for frame `frame`, moves objects by one frame (none on frame 0) and culls.
+    pub fn run_frame(&mut self, frame: u32) -> CullStats {
+        let delta = self.frame_delta();
+        self.world.insert_resource(self.path.camera_at(frame as f32 * delta, self.aspect));
+        self.world.resource_mut::<FrameDelta>().0 = if frame == 0 { 0.0 } else { delta };
+        self.schedule.run(&mut self.world);
+        self.world.clear_trackers();
+        *self.world.resource::<CullStats>()
+    }
+}

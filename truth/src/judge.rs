@@ -1,0 +1,99 @@
+//! Judging a `bevy_ecs` world that has just run the culling schedule: the exact visible set of its objects,
+//! in store-slot order, against the stages' outputs.
+
+use crate::metrics::{FrameMetrics, OcclusionIdeal};
+use crate::occluders::ExactOccluderDepth;
+use crate::render::{IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
+use bevy_ecs::world::World;
+use cullet::mesh::Mesh;
+use cullet::pipeline::{FrustumVisible, OcclusionState};
+use cullet::{BoundsStore, Camera, LocalBounds, MeshRef, ObjectTransform, Occluder};
+use glam::Vec3;
+
+/// Names of the stages [`judge_frame`] reports, in pipeline order.
+pub const STAGES: [&str; 2] = ["frustum", "occlusion"];
+
+/// What [`judge_frame`] measures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct JudgeSettings {
+    /// Resolution and face culling of the exact rendering.
+    pub reference: ReferenceSettings,
+    /// Also rasterize this frame's occluders exactly at the reference resolution and measure the occlusion
+    /// stage against that ideal (about doubles the cost).
+    pub occlusion_ideal: bool,
+}
+
+/// One judged frame.
+#[derive(Clone, Debug)]
+pub struct Judgement {
+    /// Accuracy of each stage; object indices are store slots.
+    pub metrics: FrameMetrics,
+    /// The exact rendering: object IDs are store slots.
+    pub truth: IdBuffer,
+}
+
+/// The objects of `world` in store-slot order, each drawing `meshes[MeshRef]`; an object without a (valid)
+/// mesh is drawn as its bounding box.
+pub fn reference_objects<'a>(world: &World, meshes: &'a [Mesh]) -> Vec<ReferenceObject<'a>> {
+    let store = world.resource::<BoundsStore>();
+    store
+        .entities()
+        .iter()
+        .map(|&entity| {
+            let transform = world.get::<ObjectTransform>(entity).map_or(glam::Affine3A::IDENTITY, |t| t.0);
+            match world.get::<MeshRef>(entity).and_then(|m| meshes.get(m.0 as usize)) {
+                Some(mesh) => ReferenceObject::new(mesh, transform),
+                None => {
+                    let bounds = world
+                        .get::<LocalBounds>(entity)
+                        .copied()
+                        .unwrap_or(LocalBounds { center: Vec3::ZERO, half_extent: Vec3::ZERO });
+                    ReferenceObject::from_bounds(&bounds, transform)
+                }
+            }
+        })
+        .collect()
+}
+
+/// Judges the frame `world` has just culled for its [`Camera`]: the frustum stage by [`FrustumVisible`], the
+/// occlusion stage by [`OcclusionState::visible`], against the exact rendering of every object's mesh.
+pub fn judge_frame(world: &World, meshes: &[Mesh], settings: &JudgeSettings) -> Judgement {
+    let camera = *world.resource::<Camera>();
+    let objects = reference_objects(world, meshes);
+    let truth = render_ids(&camera, &objects, &settings.reference);
+    let frustum = &world.resource::<FrustumVisible>().0;
+    let occlusion = world.resource::<OcclusionState>();
+    let mut metrics = FrameMetrics::new(&truth, &[(STAGES[0], frustum), (STAGES[1], &occlusion.visible)]);
+    if settings.occlusion_ideal {
+        metrics.occlusion_ideal = Some(occlusion_ideal(world, &camera, &settings.reference));
+    }
+    Judgement { metrics, truth }
+}
+
+/// The occlusion stage's culled count next to that of an exact buffer of the same occluders.
+fn occlusion_ideal(world: &World, camera: &Camera, reference: &ReferenceSettings) -> OcclusionIdeal {
+    let store = world.resource::<BoundsStore>();
+    let frustum = &world.resource::<FrustumVisible>().0;
+    let state = world.resource::<OcclusionState>();
+    let culled = frustum.count() - state.visible.count();
+    if state.occluder_slots.is_empty() {
+        return OcclusionIdeal { culled, ideal_culled: 0 };
+    }
+    let occluders: Vec<(&[Vec3], glam::Affine3A)> = state
+        .occluder_slots
+        .iter()
+        .filter_map(|&slot| {
+            let entity = store.entities()[slot as usize];
+            Some((&world.get::<Occluder>(entity)?.triangles[..], world.get::<ObjectTransform>(entity)?.0))
+        })
+        .collect();
+    let exact = ExactOccluderDepth::rasterize(camera, &occluders, reference.width, reference.height);
+    let ideal_culled = frustum
+        .iter()
+        .filter(|&slot| {
+            let bounds = store.get(slot);
+            !exact.box_visible(bounds.center, bounds.half_extent)
+        })
+        .count();
+    OcclusionIdeal { culled, ideal_culled }
+}

@@ -1,0 +1,26 @@
+//! # Cullet ground truth
+//!
+//! The judge the culling engine is measured against; shared by the tests, the benchmarks and the game's
+//! validate mode. It is deliberately simple and slow next to the engine: every object's real triangles are
+//! rasterized at full resolution in f64 and nothing is approximated.
+//!
+//! - [`render`]: the exact visible set. Each object's triangles go into an object-ID (and triangle-ID)
+//!   buffer at full resolution (1920x1080 by default), with exact edge functions, the top-left fill rule and
+//!   f64 `1/w` depth. An object, or a triangle, is visible when it owns at least one pixel.
+//! - [`occluders`]: the ideal the low-resolution occlusion buffer is compared with: the same occluders in an
+//!   exact full-resolution depth buffer, and the same box test against it.
+//! - [`metrics`]: false negatives (with the stage that culled them), false positives, culling efficiency per
+//!   stage, occlusion efficiency against the ideal, and image error; per frame and over a camera path.
+//! - [`judge`]: all of the above for a `bevy_ecs` world that has just run the culling schedule.
+
+#![warn(missing_docs)]
+
+pub mod judge;
+pub mod metrics;
+pub mod occluders;
+pub mod render;
+mod triangle;
+
+pub use judge::{JudgeSettings, judge_frame};
+pub use metrics::{FrameMetrics, PathMetrics};
+pub use render::{IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
