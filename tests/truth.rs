@@ -23,7 +23,7 @@ fn placed(mesh: &Mesh, center: Vec3, size: Vec3) -> ReferenceObject<'_> {
 }
 
 fn visible(objects: &[ReferenceObject], camera: &Camera, settings: &ReferenceSettings) -> Vec<usize> {
-    render_ids(camera, objects, settings).visible_objects().iter().collect()
+    render_ids(camera, objects, settings).visibility().visible.iter().collect()
 }
 
 /// A 2x2 face at distance 4 spans x, y in [-1, 1]: 8 pixels a unit, 16x16 pixels from 24 to 40, whose edges
@@ -141,7 +141,7 @@ fn metrics_name_the_stage_that_culled_a_visible_object() {
         s
     };
     let (frustum, occlusion) = (set(&[0, 1, 3]), set(&[0]));
-    let metrics = FrameMetrics::new(&truth, &[("frustum", &frustum), ("occlusion", &occlusion)]);
+    let metrics = FrameMetrics::new(&truth.visibility(), &[("frustum", &frustum), ("occlusion", &occlusion)]);
     assert_eq!(metrics.visible, 2);
     assert_eq!(metrics.stages[0].false_positives, 1);
     assert_eq!(metrics.stages[0].efficiency, 0.5);

@@ -67,13 +67,14 @@ pub struct OcclusionSettings {
     pub height: u32,
     /// Conservative (default) or fast sampling.
     pub mode: RasterMode,
-    /// Most occluder triangles rasterized per frame.
+    /// Most occluder triangles rasterized per frame. The default, 4096, sits on the measured run-time-against-
+    /// error Pareto front (see the README): on the city, 16 384 culls 1.5% more for 75% more time.
     pub triangle_budget: usize,
 }
 
 impl Default for OcclusionSettings {
     fn default() -> Self {
-        Self { enabled: true, width: 256, height: 144, mode: RasterMode::Conservative, triangle_budget: 16_384 }
+        Self { enabled: true, width: 256, height: 144, mode: RasterMode::Conservative, triangle_budget: 4096 }
     }
 }
 

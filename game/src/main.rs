@@ -7,6 +7,7 @@ use cullet::flight::Flight;
 use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::RasterMode;
 use cullet::{BoundsStore, Camera};
+use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -36,8 +37,13 @@ struct Args {
     #[arg(long)]
     no_occlusion: bool,
     /// Most occluder triangles rasterized per frame.
-    #[arg(long, default_value_t = 16_384)]
+    #[arg(long, default_value_t = OcclusionSettings::default().triangle_budget)]
     occluder_budget: usize,
+    /// Judge every frame against the exact ground truth (every object's triangles rasterized at the viewport
+    /// resolution): report false negatives, false positives and image error, and fail if a conservative
+    /// configuration culled anything visible.
+    #[arg(long)]
+    validate: bool,
 }
 
 fn parse_scene(scene: &str) -> Result<usize, String> {
@@ -97,8 +103,30 @@ fn run(args: &Args) -> Result<(), String> {
     );
 
     let mut per_frame = Vec::with_capacity(args.frames as usize);
+    let judge = JudgeSettings {
+        reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
+        occlusion_ideal: false,
+    };
+    let mut accuracy = PathMetrics::default();
     for frame in 0..args.frames {
         let stats = flight.run_frame(frame);
+        if args.validate {
+            let metrics = judge_frame(&flight.world, &city.meshes, &judge).metrics;
+            if !args.quiet || !metrics.false_negatives.is_empty() {
+                println!(
+                    "frame {frame:4}  visible {:6}  false negatives {:4}  false positives {:7}  image error {:6} px",
+                    metrics.visible,
+                    metrics.false_negatives.len(),
+                    metrics.stages.last().map_or(0, |s| s.false_positives),
+                    metrics.image_error_pixels
+                );
+            }
+            for missed in &metrics.false_negatives {
+                let entity = flight.world.resource::<BoundsStore>().entities()[missed.object];
+                println!("  false negative: {entity:?} (store slot {}) culled by {}", missed.object, missed.stage);
+            }
+            accuracy.add(&metrics);
+        }
         if let Some(error) = stats.frustum_error {
             return Err(format!("frame {frame}: {error}"));
         }
@@ -130,6 +158,22 @@ fn run(args: &Args) -> Result<(), String> {
         eprintln!("rejected: {error}");
     }
     print_summary(&per_frame);
+    if args.validate {
+        println!(
+            "\nvalidation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \
+             + occlusion {:.1}%, image error {} pixels in all",
+            accuracy.frames,
+            accuracy.false_negatives,
+            accuracy.frames_with_false_negatives,
+            100.0 * accuracy.efficiency(0),
+            100.0 * accuracy.efficiency(1),
+            accuracy.image_error_pixels
+        );
+        let conservative = occlusion.mode == RasterMode::Conservative || !occlusion.enabled;
+        if conservative && accuracy.false_negatives > 0 {
+            return Err("validation failed: a conservative configuration culled visible objects".into());
+        }
+    }
     Ok(())
 }
 

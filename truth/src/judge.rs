@@ -3,7 +3,7 @@
 
 use crate::metrics::{FrameMetrics, OcclusionIdeal};
 use crate::occluders::ExactOccluderDepth;
-use crate::render::{IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
+use crate::render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
 use bevy_ecs::world::World;
 use cullet::mesh::Mesh;
 use cullet::pipeline::{FrustumVisible, OcclusionState};
@@ -55,23 +55,34 @@ pub fn reference_objects<'a>(world: &World, meshes: &'a [Mesh]) -> Vec<Reference
         .collect()
 }
 
-/// Judges the frame `world` has just culled for its [`Camera`]: the frustum stage by [`FrustumVisible`], the
-/// occlusion stage by [`OcclusionState::visible`], against the exact rendering of every object's mesh.
+/// Judges the frame `world` has just culled for its [`Camera`] against the exact rendering of every object's
+/// mesh: [`render_world`], then [`stage_metrics`] and, if asked, [`occlusion_ideal`].
 pub fn judge_frame(world: &World, meshes: &[Mesh], settings: &JudgeSettings) -> Judgement {
-    let camera = *world.resource::<Camera>();
-    let objects = reference_objects(world, meshes);
-    let truth = render_ids(&camera, &objects, &settings.reference);
-    let frustum = &world.resource::<FrustumVisible>().0;
-    let occlusion = world.resource::<OcclusionState>();
-    let mut metrics = FrameMetrics::new(&truth, &[(STAGES[0], frustum), (STAGES[1], &occlusion.visible)]);
+    let truth = render_world(world, meshes, &settings.reference);
+    let mut metrics = stage_metrics(world, &truth.visibility());
     if settings.occlusion_ideal {
-        metrics.occlusion_ideal = Some(occlusion_ideal(world, &camera, &settings.reference));
+        metrics.occlusion_ideal = Some(occlusion_ideal(world, &settings.reference));
     }
     Judgement { metrics, truth }
 }
 
-/// The occlusion stage's culled count next to that of an exact buffer of the same occluders.
-fn occlusion_ideal(world: &World, camera: &Camera, reference: &ReferenceSettings) -> OcclusionIdeal {
+/// The exact rendering of `world`'s objects (IDs are store slots) from its [`Camera`].
+pub fn render_world(world: &World, meshes: &[Mesh], reference: &ReferenceSettings) -> IdBuffer {
+    render_ids(world.resource::<Camera>(), &reference_objects(world, meshes), reference)
+}
+
+/// The frustum stage ([`FrustumVisible`]) and the occlusion stage ([`OcclusionState::visible`]) of `world`'s
+/// last frame against `truth`.
+pub fn stage_metrics(world: &World, truth: &ExactVisibility) -> FrameMetrics {
+    let frustum = &world.resource::<FrustumVisible>().0;
+    let occlusion = &world.resource::<OcclusionState>().visible;
+    FrameMetrics::new(truth, &[(STAGES[0], frustum), (STAGES[1], occlusion)])
+}
+
+/// The occlusion stage's culled count in `world`'s last frame next to that of an exact buffer of the same
+/// occluders at the reference resolution.
+pub fn occlusion_ideal(world: &World, reference: &ReferenceSettings) -> OcclusionIdeal {
+    let camera = world.resource::<Camera>();
     let store = world.resource::<BoundsStore>();
     let frustum = &world.resource::<FrustumVisible>().0;
     let state = world.resource::<OcclusionState>();

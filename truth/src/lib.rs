@@ -23,4 +23,4 @@ mod triangle;
 
 pub use judge::{JudgeSettings, judge_frame};
 pub use metrics::{FrameMetrics, PathMetrics};
-pub use render::{IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
+pub use render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};

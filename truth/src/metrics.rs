@@ -12,7 +12,7 @@
 //! efficiency**, objects the occlusion stage culled over objects an exact full-resolution buffer of the same
 //! occluders culls ([`crate::occluders`]).
 
-use crate::render::IdBuffer;
+use crate::render::ExactVisibility;
 use cullet::VisibleSet;
 
 /// One stage's result, cumulative over the stages up to it.
@@ -66,9 +66,10 @@ pub struct FrameMetrics {
 }
 
 impl FrameMetrics {
-    /// Judges `stages` (name and objects kept after it, in pipeline order) against the exact rendering `truth`.
-    pub fn new(truth: &IdBuffer, stages: &[(&'static str, &VisibleSet)]) -> Self {
-        let visible = truth.visible_objects();
+    /// Judges `stages` (name and objects kept after it, in pipeline order) against the exact visibility
+    /// `truth`.
+    pub fn new(truth: &ExactVisibility, stages: &[(&'static str, &VisibleSet)]) -> Self {
+        let visible = &truth.visible;
         let objects = visible.len();
         let visible_count = visible.count();
         let cullable = objects - visible_count;

@@ -105,15 +105,25 @@ impl IdBuffer {
         self.object[(y * self.width + x) as usize]
     }
 
-    /// The exact visible set: objects that own at least one pixel, indexed like the rendered slice.
-    pub fn visible_objects(&self) -> VisibleSet {
-        let mut visible = VisibleSet::new(self.objects);
+    /// The exact visible set and each visible object's pixel count.
+    pub fn visibility(&self) -> ExactVisibility {
+        let mut pixels = vec![0u32; self.objects];
         for &object in &self.object {
             if object != NO_OBJECT {
-                visible.set(object as usize, true);
+                pixels[object as usize] += 1;
             }
         }
-        visible
+        let mut visible = VisibleSet::new(self.objects);
+        let pixels = pixels
+            .into_iter()
+            .enumerate()
+            .filter(|&(_, count)| count > 0)
+            .map(|(object, count)| {
+                visible.set(object, true);
+                (object as u32, count)
+            })
+            .collect();
+        ExactVisibility { visible, pixels }
     }
 
     /// Visible triangles as sorted, distinct `(object, triangle)` pairs.
@@ -129,11 +139,22 @@ impl IdBuffer {
         pairs.dedup();
         pairs
     }
+}
 
-    /// Pixels that would change if only the objects in `kept` were drawn: those whose nearest object is not
-    /// kept. (Where the nearest object is kept, it is still the nearest of a subset, with the same tie order.)
+/// What a frame's exact rendering says about objects, small enough to keep for a whole camera path.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ExactVisibility {
+    /// Objects that own at least one pixel.
+    pub visible: VisibleSet,
+    /// `(object, pixels it owns)` for each visible object, by object index.
+    pub pixels: Vec<(u32, u32)>,
+}
+
+impl ExactVisibility {
+    /// Pixels that change if only the objects in `kept` are drawn: those whose nearest object is not kept.
+    /// (Where the nearest object is kept, it stays the nearest of a subset, with the same tie order.)
     pub fn pixels_lost(&self, kept: &VisibleSet) -> usize {
-        self.object.iter().filter(|&&object| object != NO_OBJECT && !kept.contains(object as usize)).count()
+        self.pixels.iter().filter(|(object, _)| !kept.contains(*object as usize)).map(|&(_, n)| n as usize).sum()
     }
 }
 

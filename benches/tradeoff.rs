@@ -1,0 +1,299 @@
+//! Run time against error: sweeps the software occlusion buffer's resolution, its mode and the occluder
+//! budget over the city's fly-through, judging every frame against the exact ground truth, and writes
+//! `target/tradeoff/tradeoff.csv` and `target/tradeoff/tradeoff.png` (the Pareto front).
+//!
+//! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
+//! `CULLET_TRADEOFF_FRAMES` (default 200) size the run.
+
+use cullet::city::{CityParams, CityScene};
+use cullet::flight::Flight;
+use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
+use cullet::raster::RasterMode;
+use cullet_truth::judge::{occlusion_ideal, render_world, stage_metrics};
+use cullet_truth::metrics::OcclusionIdeal;
+use cullet_truth::{ExactVisibility, PathMetrics, ReferenceSettings};
+use plotters::prelude::*;
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+const RESOLUTIONS: [(u32, u32); 5] = [(64, 36), (128, 72), (256, 144), (512, 288), (1024, 576)];
+const BUDGETS: [usize; 4] = [1024, 4096, 8192, 16_384];
+/// Timed passes per configuration; the fastest is kept (the machine is noisy, the work is deterministic).
+const TIMED_PASSES: usize = 3;
+
+/// One configuration's results over the path.
+struct Row {
+    settings: OcclusionSettings,
+    /// Mean per-frame time of all culling stages, fastest pass, microseconds.
+    cull_us: f64,
+    raster_us: f64,
+    occlusion_us: f64,
+    accuracy: PathMetrics,
+    on_front: bool,
+}
+
+impl Row {
+    fn label(&self) -> String {
+        if !self.settings.enabled {
+            return "frustum only".into();
+        }
+        let mode = match self.settings.mode {
+            RasterMode::Conservative => "conservative",
+            RasterMode::Fast => "fast",
+        };
+        format!("{}x{} {mode} {}", self.settings.width, self.settings.height, self.settings.triangle_budget)
+    }
+
+    fn is_default(&self) -> bool {
+        self.settings == OcclusionSettings::default()
+    }
+
+    fn efficiency(&self) -> f64 {
+        self.accuracy.efficiency(1)
+    }
+
+    fn false_negatives_per_frame(&self) -> f64 {
+        self.accuracy.false_negatives as f64 / self.accuracy.frames as f64
+    }
+
+    fn image_error_per_frame(&self) -> f64 {
+        self.accuracy.image_error_pixels as f64 / self.accuracy.frames as f64
+    }
+}
+
+fn env_or(name: &str, default: usize) -> usize {
+    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; a filter argument from `cargo bench -- x` that is not ours skips the run.
+    if std::env::args().skip(1).any(|a| !a.starts_with('-') && !"tradeoff".contains(a.as_str())) {
+        return;
+    }
+    let objects = env_or("CULLET_TRADEOFF_OBJECTS", 100_000);
+    let frames = env_or("CULLET_TRADEOFF_FRAMES", 200) as u32;
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let reference = ReferenceSettings::default();
+    let flight = |settings| {
+        Flight::new(city.flythrough(), 16.0 / 9.0, frames, settings, |world| {
+            city.spawn(world);
+        })
+    };
+
+    let start = Instant::now();
+    let mut truth_flight = flight(OcclusionSettings::default());
+    let truth: Vec<ExactVisibility> = (0..frames)
+        .map(|frame| {
+            truth_flight.run_frame(frame);
+            render_world(&truth_flight.world, &city.meshes, &reference).visibility()
+        })
+        .collect();
+    println!(
+        "exact visibility of {frames} frames of a {objects}-object city in {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
+
+    let mut configs = vec![OcclusionSettings { enabled: false, ..OcclusionSettings::default() }];
+    for (width, height) in RESOLUTIONS {
+        for mode in [RasterMode::Conservative, RasterMode::Fast] {
+            for triangle_budget in BUDGETS {
+                configs.push(OcclusionSettings { enabled: true, width, height, mode, triangle_budget });
+            }
+        }
+    }
+    // Frustum survivors an exact 1920x1080 buffer of the same occluders culls, per budget and frame.
+    let mut ideal: HashMap<usize, Vec<usize>> = HashMap::new();
+    let mut rows = Vec::new();
+    for settings in configs {
+        let start = Instant::now();
+        let mut accuracy = PathMetrics::default();
+        let mut run = flight(settings);
+        let budget_ideal = settings.enabled.then(|| ideal.contains_key(&settings.triangle_budget));
+        let mut ideal_this_budget = Vec::new();
+        let mut times: Vec<Vec<CullStats>> = (0..TIMED_PASSES).map(|_| Vec::new()).collect();
+        for frame in 0..frames {
+            times[0].push(run.run_frame(frame));
+            let mut metrics = stage_metrics(&run.world, &truth[frame as usize]);
+            if settings.enabled {
+                let state = run.world.resource::<OcclusionState>();
+                let culled = metrics.stages[0].kept - metrics.stages[1].kept;
+                let ideal_culled = match budget_ideal {
+                    Some(true) => ideal[&settings.triangle_budget][frame as usize],
+                    _ if state.occluder_slots.is_empty() => 0,
+                    _ => occlusion_ideal(&run.world, &reference).ideal_culled,
+                };
+                ideal_this_budget.push(ideal_culled);
+                metrics.occlusion_ideal = Some(OcclusionIdeal { culled, ideal_culled });
+            }
+            accuracy.add(&metrics);
+        }
+        if budget_ideal == Some(false) {
+            ideal.insert(settings.triangle_budget, ideal_this_budget);
+        }
+        for pass in times.iter_mut().skip(1) {
+            let mut run = flight(settings);
+            pass.extend((0..frames).map(|frame| run.run_frame(frame)));
+        }
+        let mean =
+            |pass: &[CullStats], part: fn(&CullStats) -> f64| pass.iter().map(part).sum::<f64>() / pass.len() as f64;
+        let total =
+            |s: &CullStats| (s.bounds_time + s.frustum_time + s.raster_time + s.occlusion_time).as_secs_f64() * 1e6;
+        let fastest = times.iter().min_by(|a, b| mean(a, total).total_cmp(&mean(b, total))).unwrap();
+        let row = Row {
+            settings,
+            cull_us: mean(fastest, total),
+            raster_us: mean(fastest, |s| s.raster_time.as_secs_f64() * 1e6),
+            occlusion_us: mean(fastest, |s| s.occlusion_time.as_secs_f64() * 1e6),
+            accuracy,
+            on_front: false,
+        };
+        println!(
+            "{:<28} {:8.1} us/frame  efficiency {:5.1}%  vs ideal {:5.1}%  false negatives {:7.2}/frame  \
+             image error {:8.1} px/frame  ({:.1} s)",
+            row.label(),
+            row.cull_us,
+            100.0 * row.efficiency(),
+            100.0 * row.accuracy.occlusion_efficiency().unwrap_or(f64::NAN),
+            row.false_negatives_per_frame(),
+            row.image_error_per_frame(),
+            start.elapsed().as_secs_f64()
+        );
+        rows.push(row);
+    }
+    mark_pareto_front(&mut rows);
+    let default = rows.iter().find(|r| r.is_default()).unwrap();
+    println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
+
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tradeoff");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("tradeoff.csv"), csv(&rows)).unwrap();
+    plot(&rows, &dir.join("tradeoff.png"), objects, frames).unwrap();
+    println!("wrote {}", dir.canonicalize().unwrap().display());
+}
+
+/// Marks the conservative configurations (occlusion off, or on in conservative mode: never a false negative by
+/// construction, and none measured) that no other conservative one dominates: none is both at least as fast
+/// and at least as efficient, and better in one. Fast mode is left out even where this path happened to show
+/// no false negative: it guarantees none.
+fn mark_pareto_front(rows: &mut [Row]) {
+    let conservative = |r: &Row| {
+        r.accuracy.false_negatives == 0 && (!r.settings.enabled || r.settings.mode == RasterMode::Conservative)
+    };
+    let exact: Vec<(f64, f64)> = rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us, r.efficiency())).collect();
+    for row in rows.iter_mut().filter(|r| conservative(r)) {
+        let (time, efficiency) = (row.cull_us, row.efficiency());
+        row.on_front = !exact.iter().any(|&(t, e)| t <= time && e >= efficiency && (t < time || e > efficiency));
+    }
+}
+
+fn csv(rows: &[Row]) -> String {
+    let mut out = String::from(
+        "config,occlusion,width,height,mode,triangle_budget,frames,mean_cull_us,mean_raster_us,mean_occlusion_us,\
+         frustum_efficiency,culling_efficiency,occlusion_efficiency_vs_ideal,false_negatives,\
+         frames_with_false_negatives,image_error_pixels_per_frame,worst_image_error_pixels,pareto_front\n",
+    );
+    for r in rows {
+        let s = &r.settings;
+        writeln!(
+            out,
+            "{},{},{},{},{:?},{},{},{:.1},{:.1},{:.1},{:.4},{:.4},{},{},{},{:.1},{},{}",
+            r.label(),
+            s.enabled,
+            s.width,
+            s.height,
+            s.mode,
+            s.triangle_budget,
+            r.accuracy.frames,
+            r.cull_us,
+            r.raster_us,
+            r.occlusion_us,
+            r.accuracy.efficiency(0),
+            r.efficiency(),
+            r.accuracy.occlusion_efficiency().map_or(String::new(), |e| format!("{e:.4}")),
+            r.accuracy.false_negatives,
+            r.accuracy.frames_with_false_negatives,
+            r.image_error_per_frame(),
+            r.accuracy.worst_image_error_pixels,
+            r.on_front,
+        )
+        .unwrap();
+    }
+    out
+}
+
+/// A panel's y-axis title and the value it plots.
+type Panel = (&'static str, fn(&Row) -> f64);
+
+/// Three panels against cull time: culling efficiency (with the Pareto front of exact configurations),
+/// false negatives per frame, and image error per frame.
+fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Result<(), Box<dyn std::error::Error>> {
+    let root = BitMapBackend::new(path, (2100, 760)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let root = root.titled(
+        &format!("Cullet occlusion: run time against error, {objects}-object city, {frames}-frame fly-through"),
+        ("sans-serif", 26),
+    )?;
+    let panels = root.split_evenly((1, 3));
+    let max_time = rows.iter().map(|r| r.cull_us / 1e3).fold(0.0, f64::max) * 1.1;
+    let color = |r: &Row| match (r.settings.enabled, r.settings.mode) {
+        (false, _) => BLACK,
+        (_, RasterMode::Conservative) => BLUE,
+        (_, RasterMode::Fast) => RED,
+    };
+    let panel_specs: [Panel; 3] = [
+        ("culling efficiency (%)", |r| 100.0 * r.efficiency()),
+        ("false negatives per frame (objects)", |r| r.false_negatives_per_frame()),
+        ("image error per frame (pixels of 1920x1080)", |r| r.image_error_per_frame()),
+    ];
+    for (panel, (y_desc, value)) in panels.iter().zip(panel_specs) {
+        let efficiency_panel = y_desc.starts_with("culling");
+        let (min_y, max_y) = if efficiency_panel {
+            (rows.iter().map(value).fold(100.0, f64::min) - 5.0, 100.0)
+        } else {
+            (0.0, rows.iter().map(value).fold(0.0, f64::max).max(1.0) * 1.1)
+        };
+        let mut chart = ChartBuilder::on(panel)
+            .margin(20)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..max_time, min_y..max_y)?;
+        chart.configure_mesh().x_desc("cull time per frame (ms), all CPU stages").y_desc(y_desc).draw()?;
+        if efficiency_panel {
+            let mut front: Vec<(f64, f64)> =
+                rows.iter().filter(|r| r.on_front).map(|r| (r.cull_us / 1e3, value(r))).collect();
+            front.sort_by(|a, b| a.0.total_cmp(&b.0));
+            chart
+                .draw_series(LineSeries::new(front, BLUE.stroke_width(2)))?
+                .label("Pareto front of the conservative configurations")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        }
+        for (name, mode) in [("conservative", RasterMode::Conservative), ("fast", RasterMode::Fast)] {
+            let series = rows.iter().filter(|r| r.settings.enabled && r.settings.mode == mode);
+            let c = if mode == RasterMode::Fast { RED } else { BLUE };
+            chart
+                .draw_series(series.map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, color(r).filled())))?
+                .label(name)
+                .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
+        }
+        chart.draw_series(
+            rows.iter()
+                .filter(|r| !r.settings.enabled)
+                .map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, BLACK.filled())),
+        )?;
+        chart.draw_series(
+            rows.iter()
+                .filter(|r| r.is_default())
+                .map(|r| Circle::new((r.cull_us / 1e3, value(r)), 10, ShapeStyle::from(&GREEN).stroke_width(3))),
+        )?;
+        let labelled = |r: &&Row| r.is_default() || (efficiency_panel && (r.on_front || !r.settings.enabled));
+        chart.draw_series(rows.iter().filter(labelled).map(|r| {
+            let label = if r.is_default() { format!("{} (default)", r.label()) } else { r.label() };
+            Text::new(label, (r.cull_us / 1e3, value(r)), ("sans-serif", 13))
+        }))?;
+        chart.configure_series_labels().position(SeriesLabelPosition::LowerRight).border_style(BLACK).draw()?;
+    }
+    root.present()?;
+    Ok(())
+}
