@@ -91,7 +91,9 @@ mod meshes {
 
 fn mesh_library() -> Vec<Mesh> {
     let ground = Mesh::unit_cube(1);
-    let building = Mesh::unit_cube(6);
+    // 8x8 quads a face: 128 triangles, more than a cluster holds, so clusters stay within one face and their
+    // normal cones are tight enough for cone culling.
+    let building = Mesh::unit_cube(8);
     let mut car = Mesh::unit_cube(1).scaled(Vec3::new(4.2, 0.9, 1.8), Vec3::new(0.0, 0.65, 0.0));
     car.append(&Mesh::unit_cube(1).scaled(Vec3::new(2.2, 0.6, 1.6), Vec3::new(-0.3, 1.4, 0.0)));
     let mut lamp = Mesh::unit_cube(1).scaled(Vec3::new(0.15, 5.0, 0.15), Vec3::new(0.0, 2.5, 0.0));

@@ -8,7 +8,9 @@
 //! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset;
 //! 3. [`occluder`] selects artist occluders and [`raster`] rasterizes them into a small conservative depth
 //!    buffer and its farthest-depth pyramid;
-//! 4. [`occlusion`]: each frustum survivor's box tested against that pyramid.
+//! 4. [`occlusion`]: each frustum survivor's box tested against that pyramid;
+//! 5. [`gpu`]: on the GPU, the survivors' clusters and triangles culled against the frustum, normal cones and
+//!    an HZB primed from the occluder buffer, compacted, and drawn with one multi-draw-indirect.
 //!
 //! [`pipeline`] wires the stages into a `bevy_ecs` schedule; [`city`] generates the built-in test scene;
 //! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw; [`flight`] flies a
@@ -23,6 +25,7 @@ pub mod camera;
 pub mod city;
 pub mod flight;
 pub mod frustum;
+pub mod gpu;
 pub mod mesh;
 pub mod occluder;
 pub mod occlusion;

@@ -106,6 +106,11 @@ impl DepthBuffer {
         self.texels[y as usize * self.width as usize + x as usize]
     }
 
+    /// All texels, row-major, writable (to load a buffer made elsewhere).
+    pub fn texels_mut(&mut self) -> &mut [f32] {
+        &mut self.texels
+    }
+
     /// All texels, row-major.
     pub fn texels(&self) -> &[f32] {
         &self.texels

@@ -1,0 +1,98 @@
+//! Cluster culling (`shaders/cluster_cull.wgsl`): for every cluster of every instance the CPU stages kept, the
+//! frustum test on its bounding sphere, the normal-cone back-face test (meshoptimizer's cone, tested in mesh
+//! space with the camera brought there, for any transform that does not mirror), the HZB test (the sphere's box against the pyramid at the eq.
+//! 19.5 level, 2x2 texels) and, opt-in and lossy, a small-cluster test. Survivors are appended to a compact
+//! `(instance, cluster)` list with an atomic counter.
+//!
+//! [`cull_cluster`] is the same test on the CPU, operation for operation, for the tests to compare against.
+
+use super::clusters::GpuCluster;
+use super::frame::{GpuView, VIEW_CONE, VIEW_HZB, VIEW_SMALL_CLUSTER};
+use super::scene::{GpuInstance, INSTANCE_CONE_SAFE};
+use glam::{Vec2, Vec3, Vec4};
+
+/// Must match `cluster_cull.wgsl`.
+const CONE_SLACK: f32 = 1e-3;
+const RECT_MARGIN: f32 = 1e-3;
+const DEPTH_MARGIN: f32 = 1e-5;
+const SMALL_CLUSTER_PIXELS: f32 = 1.0;
+
+/// What the cluster test decided.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ClusterVerdict {
+    /// May be visible: its triangles go on to the triangle pass.
+    Keep,
+    /// Its bounding sphere is outside a frustum plane.
+    Frustum,
+    /// All its triangles face away from the camera.
+    Cone,
+    /// Its bounds are behind the HZB.
+    Hzb,
+    /// Smaller than a pixel (opt-in, lossy).
+    Small,
+}
+
+/// The GPU's cluster test on the CPU. `hzb` holds the pyramid's texels, levels as in `view.hzb_levels`.
+pub fn cull_cluster(view: &GpuView, hzb: &[f32], instance: &GpuInstance, cluster: &GpuCluster) -> ClusterVerdict {
+    let camera = Vec3::from_slice(&view.camera[..3]);
+    let center = instance.relative_point(Vec3::from(cluster.center), camera);
+    let radius = cluster.radius * instance.max_scale;
+    for plane in &view.planes {
+        let plane = Vec4::from(*plane);
+        if plane.truncate().dot(center) + plane.w < -radius {
+            return ClusterVerdict::Frustum;
+        }
+    }
+    if view.flags & VIEW_CONE != 0 && instance.flags & INSTANCE_CONE_SAFE != 0 && cluster.cone_cutoff < 1.0 {
+        let camera = instance.camera_in_mesh_space(camera);
+        if (Vec3::from(cluster.cone_apex) - camera).normalize().dot(Vec3::from(cluster.cone_axis))
+            >= cluster.cone_cutoff + CONE_SLACK
+        {
+            return ClusterVerdict::Cone;
+        }
+    }
+    if view.flags & VIEW_HZB != 0 && hidden_by_hzb(view, hzb, center, radius) {
+        return ClusterVerdict::Hzb;
+    }
+    if view.flags & VIEW_SMALL_CLUSTER != 0 {
+        let clip = view.clip_from_relative() * center.extend(1.0);
+        let pixels = 2.0 * radius * view.focal_pixels / clip.w;
+        if clip.w - radius > view.near && pixels < SMALL_CLUSTER_PIXELS {
+            return ClusterVerdict::Small;
+        }
+    }
+    ClusterVerdict::Keep
+}
+
+fn hidden_by_hzb(view: &GpuView, hzb: &[f32], center: Vec3, extent: f32) -> bool {
+    let matrix = view.clip_from_relative();
+    let size = Vec2::from(view.hzb_size);
+    let (mut lo, mut hi, mut nearest) = (Vec2::splat(3.4e38), Vec2::splat(-3.4e38), 0.0f32);
+    for corner in 0..8 {
+        let sign = Vec3::new(
+            if corner & 1 != 0 { 1.0 } else { -1.0 },
+            if corner & 2 != 0 { 1.0 } else { -1.0 },
+            if corner & 4 != 0 { 1.0 } else { -1.0 },
+        );
+        let clip = matrix * (center + sign * extent).extend(1.0);
+        if clip.w <= view.near {
+            return false;
+        }
+        let inv_w = 1.0 / clip.w;
+        let screen = Vec2::new((clip.x * inv_w * 0.5 + 0.5) * size.x, (0.5 - clip.y * inv_w * 0.5) * size.y);
+        lo = lo.min(screen);
+        hi = hi.max(screen);
+        nearest = nearest.max(inv_w);
+    }
+    let top = size - Vec2::ONE;
+    let lo_texel = (lo - RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
+    let hi_texel = (hi + RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
+    let span = (hi_texel.x - lo_texel.x).max(hi_texel.y - lo_texel.y) + 1;
+    let level_index = (31 - (span.max(1) * 2 - 1).leading_zeros()).min(view.hzb_level_count - 1);
+    let level = view.hzb_levels[level_index as usize];
+    let texel =
+        |x: u32, y: u32| hzb[(level.offset + y.min(level.height - 1) * level.width + x.min(level.width - 1)) as usize];
+    let (a, b) = (lo_texel >> level_index, hi_texel >> level_index);
+    let farthest = texel(a.x, a.y).min(texel(b.x, a.y)).min(texel(a.x, b.y).min(texel(b.x, b.y)));
+    nearest * (1.0 + DEPTH_MARGIN) < farthest
+}

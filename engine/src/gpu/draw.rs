@@ -1,0 +1,284 @@
+//! Draw (`shaders/draw.wgsl`): the culled survivors with one `multi_draw_indexed_indirect_count` (or
+//! `multi_draw_indexed_indirect` where the count feature is missing), or every cluster of every instance with
+//! culling off, through the same shader, into colour, object-ID and depth targets that are read back as an
+//! image. Back faces are culled by the rasterizer; depth follows the camera's convention.
+
+use super::GpuContext;
+use crate::frustum::DepthConvention;
+use wgpu::util::DrawIndexedIndirectArgs;
+
+/// Colour target format.
+const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+/// Object-ID target format: the instance (store slot) per pixel.
+const OBJECT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Object ID of pixels nothing covers.
+pub const NO_OBJECT: u32 = u32::MAX;
+
+/// A rendered frame read back to the CPU, rows from the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderedImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// RGBA8 per pixel.
+    pub color: Vec<[u8; 4]>,
+    /// Instance index per pixel, [`NO_OBJECT`] where none.
+    pub object: Vec<u32>,
+    /// Depth per pixel, in the camera's convention.
+    pub depth: Vec<f32>,
+}
+
+/// The render targets of one size.
+pub struct RenderTargets {
+    width: u32,
+    height: u32,
+    color: wgpu::Texture,
+    object: wgpu::Texture,
+    depth: wgpu::Texture,
+}
+
+impl RenderTargets {
+    /// Targets of `width` x `height`.
+    pub fn new(context: &GpuContext, width: u32, height: u32) -> Self {
+        let texture = |label, format| {
+            context.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                view_formats: &[],
+            })
+        };
+        Self {
+            width,
+            height,
+            color: texture("color", COLOR_FORMAT),
+            object: texture("object id", OBJECT_FORMAT),
+            depth: texture("depth", DEPTH_FORMAT),
+        }
+    }
+
+    /// Width and height.
+    pub fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// Reads all three targets back.
+    pub fn read(&self, context: &GpuContext) -> RenderedImage {
+        let row_bytes = (self.width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let size = u64::from(row_bytes * self.height);
+        let read = |texture: &wgpu::Texture, aspect| {
+            let staging = context.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("target readback"),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let mut encoder = context.device.create_command_encoder(&Default::default());
+            encoder.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo { texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &staging,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(row_bytes),
+                        rows_per_image: None,
+                    },
+                },
+                wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
+            );
+            context.queue.submit([encoder.finish()]);
+            let bytes = context.map_and_read(&staging);
+            let mut out = Vec::with_capacity((self.width * self.height * 4) as usize);
+            for row in bytes.chunks_exact(row_bytes as usize) {
+                out.extend_from_slice(&row[..(self.width * 4) as usize]);
+            }
+            out
+        };
+        let color = read(&self.color, wgpu::TextureAspect::All);
+        let object = read(&self.object, wgpu::TextureAspect::All);
+        let depth = read(&self.depth, wgpu::TextureAspect::DepthOnly);
+        RenderedImage {
+            width: self.width,
+            height: self.height,
+            color: bytemuck::cast_slice(&color).to_vec(),
+            object: bytemuck::cast_slice(&object).to_vec(),
+            depth: bytemuck::cast_slice(&depth).to_vec(),
+        }
+    }
+}
+
+/// Which draws a [`DrawPass`] records.
+pub enum DrawSource<'a> {
+    /// The triangle pass's output: `args` with up to `max_draws` draws, the count at `count_offset` of
+    /// `count`, indices in `indices`.
+    Culled {
+        /// The compacted index buffer.
+        indices: &'a wgpu::Buffer,
+        /// `DrawIndexedIndirectArgs` per draw.
+        args: &'a wgpu::Buffer,
+        /// Buffer holding the draw count.
+        count: &'a wgpu::Buffer,
+        /// Byte offset of the draw count.
+        count_offset: u64,
+        /// Capacity of `args`.
+        max_draws: u32,
+    },
+    /// Every cluster drawn with no culling: `args` holds `draws` draws into the cluster index buffer.
+    Unculled {
+        /// The scene's cluster index buffer.
+        indices: &'a wgpu::Buffer,
+        /// `DrawIndexedIndirectArgs` per cluster of each instance.
+        args: &'a wgpu::Buffer,
+        /// Number of draws.
+        draws: u32,
+    },
+}
+
+/// The draw pipeline.
+pub struct DrawPass {
+    pipelines: [wgpu::RenderPipeline; 2],
+}
+
+impl DrawPass {
+    /// Builds the pipelines (one per depth direction).
+    pub fn new(context: &GpuContext) -> Self {
+        let module = context.shader("draw", include_str!("../../../shaders/draw.wgsl"));
+        let attributes = wgpu::vertex_attr_array![0 => Float32x3];
+        let pipeline = |compare| {
+            context.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("draw"),
+                layout: None,
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: 12,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &attributes,
+                    })],
+                },
+                primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(compare),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(COLOR_FORMAT.into()), Some(OBJECT_FORMAT.into())],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        Self { pipelines: [pipeline(wgpu::CompareFunction::Greater), pipeline(wgpu::CompareFunction::Less)] }
+    }
+
+    /// Records the draw of `source` into `targets`, clearing them first.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        targets: &RenderTargets,
+        depth: DepthConvention,
+        view: &wgpu::Buffer,
+        instances: &wgpu::Buffer,
+        positions: &wgpu::Buffer,
+        source: DrawSource<'_>,
+    ) {
+        let reversed = depth == DepthConvention::Reversed;
+        let pipeline = &self.pipelines[usize::from(!reversed)];
+        let bind_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("draw"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: view.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: instances.as_entire_binding() },
+            ],
+        });
+        let color_view = targets.color.create_view(&Default::default());
+        let object_view = targets.object.create_view(&Default::default());
+        let depth_view = targets.depth.create_view(&Default::default());
+        let clear_object = wgpu::Color { r: f64::from(NO_OBJECT), g: 0.0, b: 0.0, a: 0.0 };
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("draw"),
+            color_attachments: &[
+                Some(wgpu::RenderPassColorAttachment {
+                    view: &color_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                        store: wgpu::StoreOp::Store,
+                    },
+                }),
+                Some(wgpu::RenderPassColorAttachment {
+                    view: &object_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(clear_object), store: wgpu::StoreOp::Store },
+                }),
+            ],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &depth_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(if reversed { 0.0 } else { 1.0 }),
+                    store: wgpu::StoreOp::Store,
+                }),
+                stencil_ops: None,
+            }),
+            ..Default::default()
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.set_vertex_buffer(0, positions.slice(..));
+        match source {
+            DrawSource::Culled { indices, args, count, count_offset, max_draws } => {
+                pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                if context.has_draw_count {
+                    pass.multi_draw_indexed_indirect_count(args, 0, count, count_offset, max_draws);
+                } else {
+                    // Unused slots are zeroed each frame: empty draws.
+                    pass.multi_draw_indexed_indirect(args, 0, max_draws);
+                }
+            }
+            DrawSource::Unculled { indices, args, draws } => {
+                pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.multi_draw_indexed_indirect(args, 0, draws);
+            }
+        }
+    }
+}
+
+/// The draws of every cluster of every instance, for drawing with culling off.
+pub fn unculled_draws(
+    library: &super::clusters::ClusterLibrary,
+    instances: &[super::scene::GpuInstance],
+) -> Vec<DrawIndexedIndirectArgs> {
+    instances
+        .iter()
+        .enumerate()
+        .flat_map(|(slot, instance)| {
+            library.clusters_of(instance.mesh).iter().map(move |cluster| DrawIndexedIndirectArgs {
+                index_count: 3 * cluster.triangle_count,
+                instance_count: 1,
+                first_index: cluster.first_index,
+                base_vertex: 0,
+                first_instance: slot as u32,
+            })
+        })
+        .collect()
+}

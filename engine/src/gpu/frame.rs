@@ -1,0 +1,507 @@
+//! One frame of the GPU pipeline: the view uniform, the HZB build, cluster culling, the dispatch of the
+//! triangle pass, triangle culling and the draw, then the counters read back.
+
+use super::GpuContext;
+use super::cluster_cull::ClusterVerdict;
+use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage, unculled_draws};
+use super::hzb::{Hzb, HzbLevel, MAX_HZB_LEVELS};
+use super::scene::GpuScene;
+use super::triangle_cull::TriangleVerdict;
+use crate::camera::Camera;
+use crate::frustum::DepthConvention;
+use crate::raster::DepthBuffer;
+use bytemuck::{Pod, Zeroable};
+use glam::{Mat4, Vec4};
+use wgpu::util::DeviceExt;
+
+/// View flag: normal-cone test of clusters.
+pub const VIEW_CONE: u32 = 1;
+/// View flag: HZB test of clusters.
+pub const VIEW_HZB: u32 = 2;
+/// View flag: small-cluster test (lossy).
+pub const VIEW_SMALL_CLUSTER: u32 = 4;
+/// View flag: back-face test of triangles.
+pub const VIEW_BACKFACE: u32 = 8;
+/// View flag: small-triangle test (eq. 19.4).
+pub const VIEW_SMALL_TRIANGLE: u32 = 16;
+/// View flag: viewport test of triangles.
+pub const VIEW_TRIANGLE_FRUSTUM: u32 = 32;
+
+/// The per-frame uniform every pass reads (`View` in `shaders/common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct GpuView {
+    /// Clip from camera-relative world space, columns.
+    pub clip_from_relative: [[f32; 4]; 4],
+    /// Camera-relative frustum planes, unit inward normals; unused ones `(0, 0, 0, 1)`.
+    pub planes: [[f32; 4]; 6],
+    /// Camera position in xyz.
+    pub camera: [f32; 4],
+    /// Render-target size in pixels.
+    pub viewport: [f32; 2],
+    /// HZB level-0 size in texels.
+    pub hzb_size: [f32; 2],
+    /// HZB level sizes and offsets.
+    pub hzb_levels: [HzbLevel; MAX_HZB_LEVELS],
+    /// Number of HZB levels.
+    pub hzb_level_count: u32,
+    /// Instances in the visible list.
+    pub visible_count: u32,
+    /// `VIEW_*` flags.
+    pub flags: u32,
+    /// Near-plane distance.
+    pub near: f32,
+    /// 1 when clip z must be mapped from -1..1 to 0..1.
+    pub depth_from_negative_one: u32,
+    /// Pixels per unit at unit distance, vertically.
+    pub focal_pixels: f32,
+    /// Padding.
+    pub _pad: [u32; 2],
+}
+
+impl GpuView {
+    /// `clip_from_relative` as a matrix.
+    pub fn clip_from_relative(&self) -> Mat4 {
+        Mat4::from_cols_array_2d(&self.clip_from_relative)
+    }
+}
+
+/// Which GPU tests run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GpuCullSettings {
+    /// Normal-cone back-face test of clusters (conservative).
+    pub cluster_cone: bool,
+    /// HZB test of clusters against the CPU occluder buffer (conservative when that buffer is).
+    pub cluster_hzb: bool,
+    /// Cull clusters under a pixel across (lossy, off by default).
+    pub small_clusters: bool,
+    /// Back-face test of triangles (conservative).
+    pub triangle_backface: bool,
+    /// Viewport test of triangles (conservative).
+    pub triangle_frustum: bool,
+    /// Small-triangle test, eq. 19.4 (conservative: only triangles that cover no pixel centre).
+    pub small_triangles: bool,
+}
+
+impl Default for GpuCullSettings {
+    /// Every conservative test on; small-cluster culling off.
+    fn default() -> Self {
+        Self {
+            cluster_cone: true,
+            cluster_hzb: true,
+            small_clusters: false,
+            triangle_backface: true,
+            triangle_frustum: true,
+            small_triangles: true,
+        }
+    }
+}
+
+/// Counters of one frame, read back from the GPU.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GpuCounters {
+    /// Instances submitted (the CPU stages' survivors).
+    pub instances: u32,
+    /// Clusters tested.
+    pub clusters_in: u32,
+    /// Clusters culled by the frustum, cone, HZB and small tests.
+    pub clusters_frustum: u32,
+    /// See `clusters_frustum`.
+    pub clusters_cone: u32,
+    /// See `clusters_frustum`.
+    pub clusters_hzb: u32,
+    /// See `clusters_frustum`.
+    pub clusters_small: u32,
+    /// Clusters kept.
+    pub clusters_out: u32,
+    /// Triangles tested.
+    pub triangles_in: u32,
+    /// Triangles culled as degenerate, back-facing, off-screen and small.
+    pub triangles_degenerate: u32,
+    /// See `triangles_degenerate`.
+    pub triangles_backface: u32,
+    /// See `triangles_degenerate`.
+    pub triangles_frustum: u32,
+    /// See `triangles_degenerate`.
+    pub triangles_small: u32,
+    /// Triangles kept.
+    pub triangles_out: u32,
+    /// Indirect draws issued (clusters with surviving triangles), all in one multi-draw.
+    pub draws: u32,
+}
+
+/// Counter slots, as in `shaders/common.wgsl`.
+const COUNTER_COUNT: usize = 16;
+const DRAWS_SLOT: u64 = 12;
+
+impl GpuCounters {
+    fn from_slots(instances: u32, c: &[u32]) -> Self {
+        Self {
+            instances,
+            clusters_in: c[0],
+            clusters_frustum: c[1],
+            clusters_cone: c[2],
+            clusters_hzb: c[3],
+            clusters_small: c[4],
+            clusters_out: c[5],
+            triangles_in: c[6],
+            triangles_degenerate: c[7],
+            triangles_backface: c[8],
+            triangles_frustum: c[9],
+            triangles_small: c[10],
+            triangles_out: c[11],
+            draws: c[12],
+        }
+    }
+
+    /// How many clusters `verdict` accounts for.
+    pub fn clusters(&self, verdict: ClusterVerdict) -> u32 {
+        match verdict {
+            ClusterVerdict::Keep => self.clusters_out,
+            ClusterVerdict::Frustum => self.clusters_frustum,
+            ClusterVerdict::Cone => self.clusters_cone,
+            ClusterVerdict::Hzb => self.clusters_hzb,
+            ClusterVerdict::Small => self.clusters_small,
+        }
+    }
+
+    /// How many triangles `verdict` accounts for.
+    pub fn triangles(&self, verdict: TriangleVerdict) -> u32 {
+        match verdict {
+            TriangleVerdict::Keep => self.triangles_out,
+            TriangleVerdict::Degenerate => self.triangles_degenerate,
+            TriangleVerdict::Backface => self.triangles_backface,
+            TriangleVerdict::Frustum => self.triangles_frustum,
+            TriangleVerdict::Small => self.triangles_small,
+        }
+    }
+}
+
+/// What one frame produced, read back.
+#[derive(Clone, Debug, Default)]
+pub struct GpuFrameOutput {
+    /// The counters.
+    pub counters: GpuCounters,
+    /// Surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order.
+    pub clusters: Vec<(u32, u32)>,
+    /// The compacted index buffer's used part: surviving triangles' global vertex indices.
+    pub indices: Vec<u32>,
+}
+
+/// The GPU pipeline for one scene: passes, per-frame buffers and render targets.
+pub struct GpuCuller {
+    /// The scene buffers.
+    pub scene: GpuScene,
+    /// The HZB.
+    pub hzb: Hzb,
+    cluster_pipeline: wgpu::ComputePipeline,
+    prepare_pipeline: wgpu::ComputePipeline,
+    triangle_pipeline: wgpu::ComputePipeline,
+    draw: DrawPass,
+    /// The render targets.
+    pub targets: RenderTargets,
+    view: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    dispatch: wgpu::Buffer,
+    /// The last frame's view uniform (for the CPU twins in tests).
+    pub last_view: GpuView,
+    frame: Option<FrameBuffers>,
+}
+
+/// Buffers sized for a frame's candidates.
+struct FrameBuffers {
+    visible: wgpu::Buffer,
+    survivors: wgpu::Buffer,
+    draw_indices: wgpu::Buffer,
+    draw_args: wgpu::Buffer,
+    max_clusters: u32,
+    max_indices: u32,
+}
+
+/// A storage buffer of `size` bytes (at least 16).
+fn storage_buffer(context: &GpuContext, label: &str, size: u64, extra: wgpu::BufferUsages) -> wgpu::Buffer {
+    context.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size.max(16).next_multiple_of(4),
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC | extra,
+        mapped_at_creation: false,
+    })
+}
+
+impl GpuCuller {
+    /// The pipeline for `scene`, drawing into `width` x `height` targets, with an HZB for occlusion buffers of
+    /// `hzb_width` x `hzb_height`.
+    pub fn new(
+        context: &GpuContext,
+        scene: GpuScene,
+        width: u32,
+        height: u32,
+        hzb_width: u32,
+        hzb_height: u32,
+    ) -> Self {
+        let compute = |label, source| context.compute_pipeline(label, source);
+        Self {
+            scene,
+            hzb: Hzb::new(context, hzb_width, hzb_height),
+            cluster_pipeline: compute("cluster cull", include_str!("../../../shaders/cluster_cull.wgsl")),
+            prepare_pipeline: compute("prepare triangles", include_str!("../../../shaders/prepare_triangles.wgsl")),
+            triangle_pipeline: compute("triangle cull", include_str!("../../../shaders/triangle_cull.wgsl")),
+            draw: DrawPass::new(context),
+            targets: RenderTargets::new(context, width, height),
+            view: context.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("view"),
+                size: std::mem::size_of::<GpuView>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+            counters: storage_buffer(context, "counters", (COUNTER_COUNT * 4) as u64, wgpu::BufferUsages::INDIRECT),
+            dispatch: storage_buffer(context, "triangle dispatch", 12, wgpu::BufferUsages::INDIRECT),
+            last_view: GpuView::zeroed(),
+            frame: None,
+        }
+    }
+
+    /// The view uniform for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
+    pub fn view_for(&self, camera: &Camera, settings: &GpuCullSettings, visible_count: u32) -> GpuView {
+        let (width, height) = self.targets.size();
+        let matrix = camera.clip_from_relative_f64().as_mat4();
+        let mut planes = [[0.0, 0.0, 0.0, 1.0]; 6];
+        if let Ok(frustum) = camera.frustum() {
+            for (slot, plane) in planes.iter_mut().zip(frustum.planes()) {
+                *slot = Vec4::from((plane.normal, plane.d)).to_array();
+            }
+        }
+        let mut hzb_levels = [HzbLevel::default(); MAX_HZB_LEVELS];
+        hzb_levels[..self.hzb.levels.len()].copy_from_slice(&self.hzb.levels);
+        let flags = [
+            (settings.cluster_cone, VIEW_CONE),
+            (settings.cluster_hzb, VIEW_HZB),
+            (settings.small_clusters, VIEW_SMALL_CLUSTER),
+            (settings.triangle_backface, VIEW_BACKFACE),
+            (settings.small_triangles, VIEW_SMALL_TRIANGLE),
+            (settings.triangle_frustum, VIEW_TRIANGLE_FRUSTUM),
+        ]
+        .iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |flags, (_, bit)| flags | bit);
+        GpuView {
+            clip_from_relative: matrix.to_cols_array_2d(),
+            planes,
+            camera: camera.position.extend(0.0).to_array(),
+            viewport: [width as f32, height as f32],
+            hzb_size: [self.hzb.levels[0].width as f32, self.hzb.levels[0].height as f32],
+            hzb_levels,
+            hzb_level_count: self.hzb.levels.len() as u32,
+            visible_count,
+            flags,
+            near: camera.near,
+            depth_from_negative_one: u32::from(camera.depth == DepthConvention::NegativeOneToOne),
+            focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
+            _pad: [0; 2],
+        }
+    }
+
+    /// Grows the per-frame buffers to hold the candidates of `visible`.
+    fn frame_buffers(&mut self, context: &GpuContext, visible: &[u32]) -> &FrameBuffers {
+        let library = &self.scene.library;
+        let instances = self.scene.instances();
+        let (mut clusters, mut triangles) = (0u32, 0u32);
+        for &slot in visible {
+            for cluster in library.clusters_of(instances[slot as usize].mesh) {
+                clusters += 1;
+                triangles += cluster.triangle_count;
+            }
+        }
+        let fits = self.frame.as_ref().is_some_and(|f| {
+            f.max_clusters >= clusters && f.max_indices >= 3 * triangles && f.visible.size() >= 4 * visible.len() as u64
+        });
+        if !fits {
+            // Grow by half again, so a slowly growing view does not reallocate every frame.
+            let (clusters, indices) = (clusters + clusters / 2 + 64, 3 * (triangles + triangles / 2 + 64));
+            self.frame = Some(FrameBuffers {
+                visible: storage_buffer(
+                    context,
+                    "visible instances",
+                    4 * (visible.len() as u64 * 3 / 2 + 64),
+                    wgpu::BufferUsages::empty(),
+                ),
+                survivors: storage_buffer(
+                    context,
+                    "cluster survivors",
+                    8 * u64::from(clusters),
+                    wgpu::BufferUsages::empty(),
+                ),
+                draw_indices: storage_buffer(
+                    context,
+                    "draw indices",
+                    4 * u64::from(indices),
+                    wgpu::BufferUsages::INDEX,
+                ),
+                draw_args: storage_buffer(context, "draw args", 20 * u64::from(clusters), wgpu::BufferUsages::INDIRECT),
+                max_clusters: clusters,
+                max_indices: indices,
+            });
+        }
+        self.frame.as_ref().expect("just made")
+    }
+
+    /// Culls and draws one frame: `visible` lists the instances (store slots) the CPU stages kept, `depth` is
+    /// the CPU occluder buffer (empty for none). Returns the counters and the survivors.
+    pub fn run(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+    ) -> GpuFrameOutput {
+        if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
+            self.hzb = Hzb::new(context, depth.width(), depth.height());
+        }
+        let view = self.view_for(camera, settings, visible.len() as u32);
+        self.last_view = view;
+        context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
+        self.frame_buffers(context, visible);
+        let frame = self.frame.as_ref().expect("sized above");
+        if !visible.is_empty() {
+            context.queue.write_buffer(&frame.visible, 0, bytemuck::cast_slice(visible));
+        }
+        let mut encoder = context.device.create_command_encoder(&Default::default());
+        encoder.clear_buffer(&self.counters, 0, None);
+        if !context.has_draw_count {
+            encoder.clear_buffer(&frame.draw_args, 0, None);
+        }
+        self.hzb.build(context, depth, &mut encoder);
+        let bind = |pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]| {
+            let entries: Vec<_> = buffers
+                .iter()
+                .enumerate()
+                .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+                .collect();
+            context.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: None,
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            })
+        };
+        let scene = &self.scene;
+        let cluster_group = bind(
+            &self.cluster_pipeline,
+            &[
+                &self.view,
+                &scene.instances,
+                &scene.meshes,
+                &scene.clusters,
+                &frame.visible,
+                &self.hzb.buffer,
+                &self.counters,
+                &frame.survivors,
+            ],
+        );
+        let prepare_group = bind(&self.prepare_pipeline, &[&self.counters, &self.dispatch]);
+        let triangle_group = bind(
+            &self.triangle_pipeline,
+            &[
+                &self.view,
+                &scene.instances,
+                &scene.clusters,
+                &scene.positions,
+                &scene.cluster_indices,
+                &frame.survivors,
+                &self.counters,
+                &frame.draw_indices,
+                &frame.draw_args,
+            ],
+        );
+        {
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("cull"), timestamp_writes: None });
+            if !visible.is_empty() {
+                let n = visible.len() as u32;
+                pass.set_pipeline(&self.cluster_pipeline);
+                pass.set_bind_group(0, &cluster_group, &[]);
+                pass.dispatch_workgroups(n.min(65535), n.div_ceil(65535), 1);
+            }
+            pass.set_pipeline(&self.prepare_pipeline);
+            pass.set_bind_group(0, &prepare_group, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+            pass.set_pipeline(&self.triangle_pipeline);
+            pass.set_bind_group(0, &triangle_group, &[]);
+            pass.dispatch_workgroups_indirect(&self.dispatch, 0);
+        }
+        let source = DrawSource::Culled {
+            indices: &frame.draw_indices,
+            args: &frame.draw_args,
+            count: &self.counters,
+            count_offset: DRAWS_SLOT * 4,
+            max_draws: frame.max_clusters,
+        };
+        self.draw.record(
+            context,
+            &mut encoder,
+            &self.targets,
+            camera.depth,
+            &self.view,
+            &scene.instances,
+            &scene.positions,
+            source,
+        );
+        context.queue.submit([encoder.finish()]);
+
+        let counter_bytes = context.read_buffer(&self.counters, (COUNTER_COUNT * 4) as u64);
+        let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
+        let clusters = if counters.clusters_out > 0 {
+            let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out));
+            bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()
+        } else {
+            Vec::new()
+        };
+        let indices = if counters.triangles_out > 0 {
+            bytemuck::cast_slice(&context.read_buffer(&frame.draw_indices, 12 * u64::from(counters.triangles_out)))
+                .to_vec()
+        } else {
+            Vec::new()
+        };
+        GpuFrameOutput { counters, clusters, indices }
+    }
+
+    /// Draws every cluster of every instance with no culling at all, for comparison; `reversed` draws them in
+    /// the opposite order, which shows where the image depends on draw order (coplanar surfaces of different
+    /// objects at exactly the same depth).
+    pub fn draw_unculled(&self, context: &GpuContext, camera: &Camera, reversed: bool) -> RenderedImage {
+        let view = self.view_for(camera, &GpuCullSettings::default(), 0);
+        context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
+        let mut args = unculled_draws(&self.scene.library, self.scene.instances());
+        if reversed {
+            args.reverse();
+        }
+        let mut encoder = context.device.create_command_encoder(&Default::default());
+        if !args.is_empty() {
+            let bytes: Vec<u8> = args.iter().flat_map(|a| a.as_bytes().to_vec()).collect();
+            let buffer = context.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("unculled draws"),
+                contents: &bytes,
+                usage: wgpu::BufferUsages::INDIRECT,
+            });
+            let source =
+                DrawSource::Unculled { indices: &self.scene.cluster_indices, args: &buffer, draws: args.len() as u32 };
+            self.draw.record(
+                context,
+                &mut encoder,
+                &self.targets,
+                camera.depth,
+                &self.view,
+                &self.scene.instances,
+                &self.scene.positions,
+                source,
+            );
+            context.queue.submit([encoder.finish()]);
+        }
+        self.targets.read(context)
+    }
+
+    /// Reads the render targets of the last frame.
+    pub fn read_image(&self, context: &GpuContext) -> RenderedImage {
+        self.targets.read(context)
+    }
+}

@@ -1,0 +1,123 @@
+//! The GPU hierarchical z-buffer: each frame the CPU occluder depth buffer ([`crate::raster::DepthBuffer`],
+//! `1/w`, 0 where no occluder) is uploaded as level 0, and one compute pass per level (`shaders/hzb_build.wgsl`)
+//! reduces it to the farthest-depth pyramid, ceil-halving so that odd sizes drop no row or column: the same
+//! pyramid as the CPU's [`crate::raster::DepthPyramid`], value for value.
+//!
+//! Only what the CPU buffer proves hidden is culled: the HZB is as conservative as the mode it was rasterized
+//! in (conservative by default). Last frame's depth is not used.
+
+use super::GpuContext;
+use crate::raster::DepthBuffer;
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+/// Most pyramid levels (a 32768-texel side).
+pub const MAX_HZB_LEVELS: usize = 16;
+
+/// One level's size and place in the pyramid buffer (`HzbLevel` in the shaders).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct HzbLevel {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Offset of its first texel in the pyramid buffer, in texels.
+    pub offset: u32,
+    /// Padding.
+    pub _pad: u32,
+}
+
+/// The levels of a `width` x `height` pyramid, level 0 first, down to 1x1.
+pub fn hzb_levels(width: u32, height: u32) -> Vec<HzbLevel> {
+    let mut levels = vec![HzbLevel { width: width.max(1), height: height.max(1), offset: 0, _pad: 0 }];
+    while let Some(&last) = levels.last().filter(|l| (l.width > 1 || l.height > 1) && levels.len() < MAX_HZB_LEVELS) {
+        levels.push(HzbLevel {
+            width: last.width.div_ceil(2),
+            height: last.height.div_ceil(2),
+            offset: last.offset + last.width * last.height,
+            _pad: 0,
+        });
+    }
+    levels
+}
+
+/// The pyramid on the GPU, rebuilt from a CPU depth buffer each frame.
+pub struct Hzb {
+    /// All levels, one after another (`f32` texels).
+    pub buffer: wgpu::Buffer,
+    /// Level sizes and offsets.
+    pub levels: Vec<HzbLevel>,
+    pipeline: wgpu::ComputePipeline,
+    /// One bind group per level above 0, with its (fine, coarse) pair.
+    level_bind_groups: Vec<wgpu::BindGroup>,
+}
+
+impl Hzb {
+    /// A pyramid for buffers of `width` x `height` (an empty buffer gives a 1x1 pyramid holding 0: nothing
+    /// hidden).
+    pub fn new(context: &GpuContext, width: u32, height: u32) -> Self {
+        let device = &context.device;
+        let levels = hzb_levels(width, height);
+        let texels: u32 = levels.iter().map(|l| l.width * l.height).sum();
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("hzb"),
+            size: u64::from(texels) * 4,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let pipeline = context.compute_pipeline("hzb build", include_str!("../../../shaders/hzb_build.wgsl"));
+        let layout = pipeline.get_bind_group_layout(0);
+        let level_bind_groups = levels
+            .windows(2)
+            .map(|pair| {
+                let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("hzb level pair"),
+                    contents: bytemuck::cast_slice(pair),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("hzb level"),
+                    layout: &layout,
+                    entries: &[
+                        wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
+                        wgpu::BindGroupEntry { binding: 1, resource: uniform.as_entire_binding() },
+                    ],
+                })
+            })
+            .collect();
+        Self { buffer, levels, pipeline, level_bind_groups }
+    }
+
+    /// Whether this pyramid fits buffers of `width` x `height`.
+    pub fn fits(&self, width: u32, height: u32) -> bool {
+        self.levels[0].width == width.max(1) && self.levels[0].height == height.max(1)
+    }
+
+    /// Uploads `depth` as level 0 (all zero when it is empty) and records the passes that build the rest.
+    pub fn build(&self, context: &GpuContext, depth: &DepthBuffer, encoder: &mut wgpu::CommandEncoder) {
+        let base = self.levels[0];
+        if depth.width() == base.width && depth.height() == base.height {
+            context.queue.write_buffer(&self.buffer, 0, bytemuck::cast_slice(depth.texels()));
+        } else {
+            encoder.clear_buffer(&self.buffer, 0, Some(u64::from(base.width * base.height) * 4));
+        }
+        let mut pass = encoder
+            .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("hzb build"), timestamp_writes: None });
+        pass.set_pipeline(&self.pipeline);
+        for (level, bind_group) in self.levels[1..].iter().zip(&self.level_bind_groups) {
+            pass.set_bind_group(0, bind_group, &[]);
+            pass.dispatch_workgroups(level.width.div_ceil(8), level.height.div_ceil(8), 1);
+        }
+    }
+
+    /// Reads the whole pyramid back, level by level.
+    pub fn read(&self, context: &GpuContext) -> Vec<Vec<f32>> {
+        let bytes = context.read_buffer(&self.buffer, self.buffer.size());
+        let texels: &[f32] = bytemuck::cast_slice(&bytes);
+        self.levels
+            .iter()
+            .map(|l| texels[l.offset as usize..(l.offset + l.width * l.height) as usize].to_vec())
+            .collect()
+    }
+}

@@ -1,0 +1,170 @@
+//! The GPU half of the pipeline, on `wgpu`: after the CPU stages, the surviving objects' clusters and then
+//! their triangles are culled in compute passes, and the survivors drawn with one multi-draw-indirect.
+//!
+//! 1. [`clusters`]: meshes split into meshlets with bounds and normal cones (meshoptimizer), once at load;
+//! 2. [`scene`]: one set of large buffers for all meshes, and per-instance data written only where it changed;
+//! 3. [`hzb`]: the CPU occluder depth buffer uploaded and reduced to a farthest-depth pyramid;
+//! 4. [`cluster_cull`]: frustum, normal-cone and HZB tests per cluster, survivors appended compactly;
+//! 5. [`triangle_cull`]: degenerate, back-facing, off-screen and small triangles removed, survivors compacted
+//!    into an index buffer with one indirect draw per cluster;
+//! 6. [`draw`]: `multi_draw_indexed_indirect_count` into colour, object-ID and depth targets, read back.
+//!
+//! [`GpuContext`] opens a device without a window; [`frame::GpuCuller`] runs the passes of one frame.
+//! Each compute test has a CPU twin in its module, which the tests compare the GPU against.
+
+pub mod cluster_cull;
+pub mod clusters;
+pub mod draw;
+pub mod frame;
+pub mod hzb;
+pub mod scene;
+pub mod triangle_cull;
+
+use thiserror::Error;
+
+/// Why no GPU pipeline could be made.
+#[derive(Debug, Error)]
+pub enum GpuError {
+    /// No adapter at all (no driver, or none that wgpu supports).
+    #[error("no GPU adapter found: {0}")]
+    NoAdapter(String),
+    /// The adapter lacks something the pipeline needs.
+    #[error("GPU adapter '{adapter}' lacks {missing}")]
+    Unsupported {
+        /// The adapter's name.
+        adapter: String,
+        /// What is missing.
+        missing: String,
+    },
+    /// The device could not be opened.
+    #[error("could not open the GPU device: {0}")]
+    Device(String),
+}
+
+/// A device and queue opened without a window, with the features the pipeline uses.
+pub struct GpuContext {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter's name, backend and type.
+    pub adapter_info: wgpu::AdapterInfo,
+    /// Whether `multi_draw_indexed_indirect_count` is available; without it the draw falls back to
+    /// `multi_draw_indexed_indirect` with a CPU-known maximum count.
+    pub has_draw_count: bool,
+    /// Whether GPU timestamps can be taken.
+    pub has_timestamps: bool,
+}
+
+impl GpuContext {
+    /// Opens the default adapter of the primary backends (Vulkan, Metal, DX12; `WGPU_BACKEND` and the other
+    /// wgpu environment variables override). Requires indirect draws with a first instance: each indirect draw names its instance there.
+    pub fn new() -> Result<Self, GpuError> {
+        futures_lite::future::block_on(Self::new_async())
+    }
+
+    async fn new_async() -> Result<Self, GpuError> {
+        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        if std::env::var_os("WGPU_BACKEND").is_none() {
+            // Vulkan, Metal or DX12 (lavapipe is Vulkan); the GL backend would probe for a display.
+            descriptor.backends = wgpu::Backends::PRIMARY;
+        }
+        let instance = wgpu::Instance::new(descriptor);
+        let adapter = instance
+            .request_adapter(&wgpu::RequestAdapterOptions::default())
+            .await
+            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let adapter_info = adapter.get_info();
+        let available = adapter.features();
+        let required = wgpu::Features::INDIRECT_FIRST_INSTANCE;
+        if !available.contains(required) {
+            return Err(GpuError::Unsupported {
+                adapter: adapter_info.name.clone(),
+                missing: "INDIRECT_FIRST_INSTANCE".into(),
+            });
+        }
+        let optional = wgpu::Features::MULTI_DRAW_INDIRECT_COUNT | wgpu::Features::TIMESTAMP_QUERY;
+        let features = required | (available & optional);
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("cullet"),
+                required_features: features,
+                required_limits: adapter.limits(),
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| GpuError::Device(e.to_string()))?;
+        Ok(Self {
+            device,
+            queue,
+            adapter_info,
+            has_draw_count: features.contains(wgpu::Features::MULTI_DRAW_INDIRECT_COUNT),
+            has_timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
+        })
+    }
+
+    /// A compute pipeline from a stage's WGSL, with the shared declarations prepended.
+    pub(crate) fn compute_pipeline(&self, label: &str, stage_source: &str) -> wgpu::ComputePipeline {
+        let module = self.shader(label, stage_source);
+        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(label),
+            layout: None,
+            module: &module,
+            entry_point: None,
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    }
+
+    /// A shader module from a stage's WGSL, with `shaders/common.wgsl` prepended.
+    pub(crate) fn shader(&self, label: &str, stage_source: &str) -> wgpu::ShaderModule {
+        let source = format!("{}\n{}", include_str!("../../../shaders/common.wgsl"), stage_source);
+        self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        })
+    }
+
+    /// Reads a buffer back (it must have `COPY_SRC`), waiting for the GPU.
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer, size: u64) -> Vec<u8> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        self.map_and_read(&staging)
+    }
+
+    /// Maps a `MAP_READ` buffer after the queue's work is done and copies it out.
+    pub(crate) fn map_and_read(&self, staging: &wgpu::Buffer) -> Vec<u8> {
+        let slice = staging.slice(..);
+        let (sender, receiver) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |result| {
+            let _ = sender.send(result);
+        });
+        self.device.poll(wgpu::PollType::wait_indefinitely()).expect("GPU wait failed");
+        receiver.recv().expect("map callback dropped").expect("buffer map failed");
+        let bytes = slice.get_mapped_range().expect("mapped range").to_vec();
+        staging.unmap();
+        bytes
+    }
+}
+
+/// Opens a [`GpuContext`] for a test, or says why it cannot: with `CULLET_REQUIRE_GPU` set (as CI sets it)
+/// a missing GPU fails the test; otherwise the test is skipped with a visible message.
+pub fn context_for_tests() -> Option<GpuContext> {
+    match GpuContext::new() {
+        Ok(context) => Some(context),
+        Err(error) if std::env::var_os("CULLET_REQUIRE_GPU").is_some() => {
+            panic!("CULLET_REQUIRE_GPU is set but no usable GPU: {error}")
+        }
+        Err(error) => {
+            eprintln!("SKIPPED: GPU test needs a GPU adapter ({error}); install Mesa's lavapipe to run it");
+            None
+        }
+    }
+}

@@ -1,0 +1,165 @@
+//! The scene on the GPU: one vertex buffer, one cluster index buffer and the cluster and mesh tables for all
+//! meshes, uploaded once; and the per-instance buffer, indexed by store slot, of which only changed instances
+//! are written each frame.
+
+use super::GpuContext;
+use super::clusters::{ClusterLibrary, GpuCluster};
+use bytemuck::{Pod, Zeroable};
+use glam::{Affine3A, Vec3};
+use wgpu::util::DeviceExt;
+
+/// Set in [`GpuInstance::flags`] when the transform is invertible and does not mirror: the cone test, run in
+/// mesh space with the camera brought there, is then valid (which side of a plane a point lies on survives
+/// such a transform, non-uniform scale included).
+pub const INSTANCE_CONE_SAFE: u32 = 1;
+
+/// [`GpuInstance::mesh`] of an object with no mesh: it has no clusters and draws nothing.
+pub const NO_MESH: u32 = u32::MAX;
+
+/// The instances of `world`'s culled objects, indexed by store slot: each [`crate::bounds::MeshRef`] with its
+/// [`crate::bounds::ObjectTransform`]; objects without a mesh get [`NO_MESH`].
+pub fn instances_from_world(world: &bevy_ecs::world::World) -> Vec<GpuInstance> {
+    let store = world.resource::<crate::bounds::BoundsStore>();
+    store
+        .entities()
+        .iter()
+        .map(|&entity| {
+            let transform = world.get::<crate::bounds::ObjectTransform>(entity).map_or(Affine3A::IDENTITY, |t| t.0);
+            let mesh = world.get::<crate::bounds::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
+            GpuInstance::new(&transform, mesh)
+        })
+        .collect()
+}
+
+/// One drawn object as the shaders read it (`Instance` in `shaders/common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuInstance {
+    /// Rows of the 3x4 object-to-world matrix, translation in the last column.
+    pub rows: [[f32; 4]; 3],
+    /// Index of its mesh in the [`ClusterLibrary`].
+    pub mesh: u32,
+    /// [`INSTANCE_CONE_SAFE`] or 0.
+    pub flags: u32,
+    /// Largest axis scale of the matrix, to scale bounding spheres.
+    pub max_scale: f32,
+    /// Padding to 64 bytes.
+    pub _pad: u32,
+}
+
+impl GpuInstance {
+    /// The instance of `mesh` placed by `transform`.
+    pub fn new(transform: &Affine3A, mesh: u32) -> Self {
+        let m = transform.matrix3;
+        let t = transform.translation;
+        let rows = [
+            [m.x_axis.x, m.y_axis.x, m.z_axis.x, t.x],
+            [m.x_axis.y, m.y_axis.y, m.z_axis.y, t.y],
+            [m.x_axis.z, m.y_axis.z, m.z_axis.z, t.z],
+        ];
+        let max_scale = m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length());
+        let determinant = m.determinant();
+        let cone_safe = determinant > 0.0 && determinant.is_finite();
+        Self { rows, mesh, flags: if cone_safe { INSTANCE_CONE_SAFE } else { 0 }, max_scale, _pad: 0 }
+    }
+
+    /// A mesh-space point relative to `camera`, computed as the shaders do (`relative_point`).
+    pub fn relative_point(&self, p: Vec3, camera: Vec3) -> Vec3 {
+        let row = |r: &[f32; 4], c: f32| Vec3::new(r[0], r[1], r[2]).dot(p) + (r[3] - c);
+        Vec3::new(row(&self.rows[0], camera.x), row(&self.rows[1], camera.y), row(&self.rows[2], camera.z))
+    }
+
+    /// The camera in mesh space, computed as the shaders do (`camera_in_mesh_space`).
+    pub fn camera_in_mesh_space(&self, camera: Vec3) -> Vec3 {
+        let [a, b, c] = self.rows.map(|r| Vec3::new(r[0], r[1], r[2]));
+        let v = Vec3::new(camera.x - self.rows[0][3], camera.y - self.rows[1][3], camera.z - self.rows[2][3]);
+        (b.cross(c) * v.x + c.cross(a) * v.y + a.cross(b) * v.z) / a.dot(b.cross(c))
+    }
+}
+
+/// The GPU copies of a [`ClusterLibrary`] and of the instances.
+pub struct GpuScene {
+    /// Vertex positions, 3 floats each (vertex and storage buffer).
+    pub positions: wgpu::Buffer,
+    /// Cluster triangles as global vertex indices (index and storage buffer).
+    pub cluster_indices: wgpu::Buffer,
+    /// [`GpuCluster`] table.
+    pub clusters: wgpu::Buffer,
+    /// [`super::clusters::GpuMesh`] table.
+    pub meshes: wgpu::Buffer,
+    /// [`GpuInstance`] per store slot.
+    pub instances: wgpu::Buffer,
+    /// The CPU copy of the instances, to find what changed.
+    instance_data: Vec<GpuInstance>,
+    /// Instances written by the last [`GpuScene::update_instances`].
+    pub instances_written_last_update: usize,
+    /// The cluster library the buffers hold.
+    pub library: ClusterLibrary,
+}
+
+/// Storage buffers may not be empty: pad empty contents with one zero element.
+fn non_empty<T: Pod + Zeroable>(data: &[T]) -> Vec<u8> {
+    if data.is_empty() { vec![0; std::mem::size_of::<T>().max(4)] } else { bytemuck::cast_slice(data).to_vec() }
+}
+
+impl GpuScene {
+    /// Uploads `library` and `instances` (indexed by store slot).
+    pub fn new(context: &GpuContext, library: ClusterLibrary, instances: Vec<GpuInstance>) -> Self {
+        let device = &context.device;
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC;
+        let buffer = |label, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
+        };
+        let flat: Vec<f32> = library.positions.iter().flat_map(|p| p.to_array()).collect();
+        let positions = buffer("positions", &non_empty(&flat), storage | wgpu::BufferUsages::VERTEX);
+        let cluster_indices =
+            buffer("cluster indices", &non_empty(&library.indices), storage | wgpu::BufferUsages::INDEX);
+        let clusters = buffer("clusters", &non_empty::<GpuCluster>(&library.clusters), storage);
+        let meshes = buffer("meshes", &non_empty(&library.meshes), storage);
+        let instances_buffer = buffer("instances", &non_empty(&instances), storage);
+        Self {
+            positions,
+            cluster_indices,
+            clusters,
+            meshes,
+            instances: instances_buffer,
+            instance_data: instances,
+            instances_written_last_update: 0,
+            library,
+        }
+    }
+
+    /// The instances, indexed by store slot.
+    pub fn instances(&self) -> &[GpuInstance] {
+        &self.instance_data
+    }
+
+    /// Brings the GPU instances up to `instances`: only those that differ from the last upload are written
+    /// (runs of neighbouring changes in one write), and the buffer is regrown only when the count grows.
+    pub fn update_instances(&mut self, context: &GpuContext, instances: &[GpuInstance]) {
+        let grown = instances.len() > self.instance_data.len();
+        if grown || (self.instances.size() as usize) < std::mem::size_of_val(instances) {
+            *self = Self::new(context, std::mem::take(&mut self.library), instances.to_vec());
+            self.instances_written_last_update = instances.len();
+            return;
+        }
+        self.instance_data.truncate(instances.len());
+        let mut written = 0;
+        let mut slot = 0;
+        while slot < instances.len() {
+            if instances[slot] == self.instance_data[slot] {
+                slot += 1;
+                continue;
+            }
+            let start = slot;
+            while slot < instances.len() && instances[slot] != self.instance_data[slot] {
+                slot += 1;
+            }
+            let offset = (start * std::mem::size_of::<GpuInstance>()) as u64;
+            context.queue.write_buffer(&self.instances, offset, bytemuck::cast_slice(&instances[start..slot]));
+            self.instance_data[start..slot].copy_from_slice(&instances[start..slot]);
+            written += slot - start;
+        }
+        self.instances_written_last_update = written;
+    }
+}

@@ -1,0 +1,125 @@
+// Cluster culling: one workgroup per instance the CPU stages kept; its threads walk the instance's clusters and
+// append the survivors of the frustum, normal-cone and HZB tests (and the opt-in, lossy small-cluster test)
+// to a compact list. The engine's `cluster_cull::cull_cluster` is the same test on the CPU.
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var<storage, read> instances: array<Instance>;
+@group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
+@group(0) @binding(3) var<storage, read> clusters: array<Cluster>;
+@group(0) @binding(4) var<storage, read> visible: array<u32>;
+@group(0) @binding(5) var<storage, read> hzb: array<f32>;
+@group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;
+@group(0) @binding(7) var<storage, read_write> survivors: array<vec2<u32>>;
+
+// Cone test slack: a cluster is called back-facing only this far past meshoptimizer's cutoff.
+const CONE_SLACK: f32 = 1e-3;
+// HZB rectangle margin in texels and relative depth margin: cover the f32 rounding of the projection.
+const RECT_MARGIN: f32 = 1e-3;
+const DEPTH_MARGIN: f32 = 1e-5;
+// Small-cluster test (lossy): a bounding sphere under this many pixels across is culled.
+const SMALL_CLUSTER_PIXELS: f32 = 1.0;
+
+const KEEP: u32 = 0xffffffffu;
+
+fn hzb_texel(level: HzbLevel, x: u32, y: u32) -> f32 {
+    return hzb[level.offset + min(y, level.height - 1u) * level.width + min(x, level.width - 1u)];
+}
+
+// Whether the box `center ± extent` (camera-relative) lies wholly behind the HZB; see eq. 19.5.
+fn hidden_by_hzb(center: vec3<f32>, extent: f32) -> bool {
+    var lo = vec2<f32>(3.4e38);
+    var hi = vec2<f32>(-3.4e38);
+    var nearest = 0.0;
+    for (var corner = 0u; corner < 8u; corner++) {
+        let sign = vec3<f32>(
+            select(-1.0, 1.0, (corner & 1u) != 0u),
+            select(-1.0, 1.0, (corner & 2u) != 0u),
+            select(-1.0, 1.0, (corner & 4u) != 0u),
+        );
+        let clip = view.clip_from_relative * vec4<f32>(center + sign * extent, 1.0);
+        if (clip.w <= view.near) {
+            return false; // Reaches the near plane: visible.
+        }
+        let inv_w = 1.0 / clip.w;
+        let screen = vec2<f32>(
+            (clip.x * inv_w * 0.5 + 0.5) * view.hzb_size.x,
+            (0.5 - clip.y * inv_w * 0.5) * view.hzb_size.y,
+        );
+        lo = min(lo, screen);
+        hi = max(hi, screen);
+        nearest = max(nearest, inv_w);
+    }
+    let size = view.hzb_size - vec2<f32>(1.0);
+    let lo_texel = vec2<u32>(clamp(floor(lo - RECT_MARGIN), vec2<f32>(0.0), size));
+    let hi_texel = vec2<u32>(clamp(floor(hi + RECT_MARGIN), vec2<f32>(0.0), size));
+    let span = max(hi_texel.x - lo_texel.x, hi_texel.y - lo_texel.y) + 1u;
+    // Eq. 19.5: the lowest level where the rectangle spans at most 2x2 texels.
+    let level_index = min(firstLeadingBit(max(span, 1u) * 2u - 1u), view.hzb_level_count - 1u);
+    let level = view.hzb_levels[level_index];
+    let a = lo_texel >> vec2<u32>(level_index);
+    let b = hi_texel >> vec2<u32>(level_index);
+    let farthest = min(
+        min(hzb_texel(level, a.x, a.y), hzb_texel(level, b.x, a.y)),
+        min(hzb_texel(level, a.x, b.y), hzb_texel(level, b.x, b.y)),
+    );
+    return nearest * (1.0 + DEPTH_MARGIN) < farthest;
+}
+
+// KEEP, or the counter slot of the test that culled the cluster.
+fn cull_cluster(instance: Instance, cluster: Cluster) -> u32 {
+    let center = relative_point(instance, cluster.center, view.camera.xyz);
+    let radius = cluster.radius * instance.max_scale;
+    for (var i = 0u; i < 6u; i++) {
+        let plane = view.planes[i];
+        if (dot(plane.xyz, center) + plane.w < -radius) {
+            return CLUSTERS_FRUSTUM;
+        }
+    }
+    if ((view.flags & VIEW_CONE) != 0u && (instance.flags & INSTANCE_CONE_SAFE) != 0u && cluster.cone_cutoff < 1.0) {
+        // In mesh space, where the cone was made: which side of a plane the camera is on survives any
+        // invertible transform without mirroring, even a non-uniform scale.
+        let camera = camera_in_mesh_space(instance, view.camera.xyz);
+        if (dot(normalize(cluster.cone_apex - camera), cluster.cone_axis) >= cluster.cone_cutoff + CONE_SLACK) {
+            return CLUSTERS_CONE;
+        }
+    }
+    if ((view.flags & VIEW_HZB) != 0u && hidden_by_hzb(center, radius)) {
+        return CLUSTERS_HZB;
+    }
+    if ((view.flags & VIEW_SMALL_CLUSTER) != 0u) {
+        let clip = view.clip_from_relative * vec4<f32>(center, 1.0);
+        let pixels = 2.0 * radius * view.focal_pixels / clip.w;
+        if (clip.w - radius > view.near && pixels < SMALL_CLUSTER_PIXELS) {
+            return CLUSTERS_SMALL;
+        }
+    }
+    return KEEP;
+}
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) thread: u32,
+) {
+    let slot = workgroup.x + workgroup.y * workgroups.x;
+    if (slot >= view.visible_count) {
+        return;
+    }
+    let instance_index = visible[slot];
+    let instance = instances[instance_index];
+    if (instance.mesh >= arrayLength(&meshes)) {
+        return; // No mesh: nothing to draw.
+    }
+    let mesh = meshes[instance.mesh];
+    for (var c = thread; c < mesh.cluster_count; c += 64u) {
+        let cluster_index = mesh.first_cluster + c;
+        atomicAdd(&counters[CLUSTERS_IN], 1u);
+        let verdict = cull_cluster(instance, clusters[cluster_index]);
+        if (verdict == KEEP) {
+            survivors[atomicAdd(&counters[CLUSTERS_OUT], 1u)] = vec2<u32>(instance_index, cluster_index);
+        } else {
+            atomicAdd(&counters[verdict], 1u);
+        }
+    }
+}

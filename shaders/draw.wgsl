@@ -1,0 +1,32 @@
+// Draw: survivors of the culling passes, or every cluster with culling off, through the same shader into
+// colour, object ID and depth. The instance index comes from the indirect draw's first instance.
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var<storage, read> instances: array<Instance>;
+
+struct Varyings {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) @interpolate(flat) instance: u32,
+}
+
+struct Targets {
+    @location(0) color: vec4<f32>,
+    @location(1) object: u32,
+}
+
+@vertex
+fn vs(@location(0) position: vec3<f32>, @builtin(instance_index) instance: u32) -> Varyings {
+    var clip = view.clip_from_relative * vec4<f32>(relative_point(instances[instance], position, view.camera.xyz), 1.0);
+    if (view.depth_from_negative_one != 0u) {
+        clip.z = (clip.z + clip.w) * 0.5;
+    }
+    return Varyings(clip, instance);
+}
+
+@fragment
+fn fs(in: Varyings) -> Targets {
+    // A flat colour per instance, from a hash of its index.
+    let h = in.instance * 0x9e3779b9u;
+    let color = vec3<f32>(f32(h >> 24u), f32((h >> 16u) & 255u), f32((h >> 8u) & 255u)) / 255.0;
+    return Targets(vec4<f32>(color * 0.8 + 0.2, 1.0), in.instance);
+}

@@ -1,0 +1,291 @@
+//! The GPU pipeline on a real device (Mesa's lavapipe in CI): the HZB equals the CPU pyramid, cluster and
+//! triangle culling equal their CPU twins, and the image drawn through all culling equals the image drawn
+//! with none, pixel for pixel. Without an adapter these tests skip with a message, unless
+//! `CULLET_REQUIRE_GPU` is set.
+
+use cullet::Camera;
+use cullet::city::{CityParams, CityScene};
+use cullet::flight::Flight;
+use cullet::gpu::cluster_cull::{ClusterVerdict, cull_cluster};
+use cullet::gpu::clusters::ClusterLibrary;
+use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput, GpuView};
+use cullet::gpu::hzb::Hzb;
+use cullet::gpu::scene::{GpuScene, instances_from_world};
+use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
+use cullet::gpu::{GpuContext, context_for_tests};
+use cullet::pipeline::{OcclusionSettings, OcclusionState};
+use cullet::raster::{DepthBuffer, DepthPyramid};
+use glam::Vec3;
+use std::collections::HashMap;
+
+const WIDTH: u32 = 320;
+const HEIGHT: u32 = 180;
+
+/// A city after one frame of the CPU stages from `camera`, and a GPU pipeline for it.
+struct Setup {
+    flight: Flight,
+    culler: GpuCuller,
+    /// Half the city's side.
+    half: f32,
+}
+
+fn setup(context: &GpuContext, objects: usize) -> Setup {
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let library = ClusterLibrary::build(&city.meshes);
+    let flight =
+        Flight::new(city.flythrough(), WIDTH as f32 / HEIGHT as f32, 10, OcclusionSettings::default(), |world| {
+            city.spawn(world);
+        });
+    let scene = GpuScene::new(context, library, instances_from_world(&flight.world));
+    let culler = GpuCuller::new(context, scene, WIDTH, HEIGHT, 256, 144);
+    Setup { flight, culler, half: city.half_size() }
+}
+
+impl Setup {
+    /// Runs the CPU stages for `camera`, then the GPU passes; returns the GPU output and the CPU inputs.
+    fn run(
+        &mut self,
+        context: &GpuContext,
+        camera: Camera,
+        settings: &GpuCullSettings,
+    ) -> (GpuFrameOutput, Vec<u32>, DepthBuffer) {
+        self.flight.world.insert_resource(camera);
+        self.flight.schedule.run(&mut self.flight.world);
+        let state = self.flight.world.resource::<OcclusionState>();
+        let visible: Vec<u32> = state.visible.iter().map(|s| s as u32).collect();
+        let depth = state.depth.clone();
+        let output = self.culler.run(context, &camera, &visible, &depth, settings);
+        (output, visible, depth)
+    }
+}
+
+/// Cameras that stress the pipeline: the city's benchmark views, one skimming a wall (near plane), one at a
+/// screen edge along a street, and one looking straight down.
+fn cameras(city_half: f32) -> Vec<(&'static str, Camera)> {
+    let street = 40.0;
+    let mut cams = vec![
+        ("street", Camera::looking_at(Vec3::new(street, 1.8, street), Vec3::new(city_half, 2.0, street))),
+        ("roofs", Camera::looking_at(Vec3::new(street, 80.0, street), Vec3::new(city_half, 0.0, city_half))),
+        ("overview", Camera::looking_at(Vec3::new(0.0, city_half, -city_half), Vec3::ZERO)),
+        ("down", Camera { up: Vec3::Z, ..Camera::looking_at(Vec3::new(10.0, 60.0, 10.0), Vec3::new(10.0, 0.0, 10.0)) }),
+    ];
+    // Skimming a building face: buildings stand inside blocks 64 wide around multiples of 80.
+    let mut close = Camera::looking_at(Vec3::new(street - 7.7, 3.0, 5.0), Vec3::new(street - 7.7, 3.0, -60.0));
+    close.near = 0.05;
+    cams.push(("near wall", close));
+    let mut wide = Camera::looking_at(Vec3::new(street, 2.0, -street), Vec3::new(city_half, 20.0, -street + 30.0));
+    wide.fov_y = 100f32.to_radians();
+    wide.far = Some(400.0);
+    cams.push(("wide finite far", wide));
+    cams
+}
+
+#[test]
+fn hzb_equals_the_cpu_pyramid_for_odd_and_even_sizes() {
+    let Some(context) = context_for_tests() else { return };
+    let mut encoder_count = 0;
+    for (width, height) in [(256, 144), (37, 23), (1, 1), (64, 1)] {
+        let mut depth = DepthBuffer::new(width, height);
+        // Deterministic pseudo-random depths, some zero.
+        let texels: Vec<f32> = (0..width * height)
+            .map(|i: u32| (i.wrapping_mul(2654435761) >> 8) as f32 / 16777216.0 * (i % 7).min(1) as f32)
+            .collect();
+        depth.texels_mut().copy_from_slice(&texels);
+        let hzb = Hzb::new(&context, width, height);
+        let mut encoder = context.device.create_command_encoder(&Default::default());
+        hzb.build(&context, &depth, &mut encoder);
+        context.queue.submit([encoder.finish()]);
+        encoder_count += 1;
+        let gpu = hzb.read(&context);
+        let mut cpu = DepthPyramid::default();
+        cpu.build(&depth);
+        assert_eq!(gpu.len(), cpu.level_count(), "{width}x{height}");
+        for (level, texels) in gpu.iter().enumerate() {
+            assert_eq!(texels.as_slice(), cpu.level(level).texels(), "{width}x{height} level {level}");
+        }
+    }
+    assert_eq!(encoder_count, 4);
+}
+
+/// Compares the GPU's survivors with the CPU twin's. Every difference must be borderline: a decision that a
+/// nudge of the camera by 1e-3 units flips on the CPU (GPU and CPU round differently, for instance where the
+/// GPU fuses a multiply and an add). Returns the number of such differences (zero in most runs).
+fn compare_sets<T: Ord + Clone + std::fmt::Debug>(
+    camera: &str,
+    what: &str,
+    gpu: &[T],
+    cpu: &[T],
+    borderline: impl Fn(&T) -> bool,
+) -> usize {
+    let (mut gpu, mut cpu) = (gpu.to_vec(), cpu.to_vec());
+    gpu.sort_unstable();
+    cpu.sort_unstable();
+    let only_gpu: Vec<&T> = gpu.iter().filter(|x| cpu.binary_search(x).is_err()).collect();
+    let only_cpu: Vec<&T> = cpu.iter().filter(|x| gpu.binary_search(x).is_err()).collect();
+    for item in only_gpu.iter().chain(&only_cpu) {
+        assert!(
+            borderline(item),
+            "{camera}: {what} {item:?} kept by one side only (GPU-only {only_gpu:?}, CPU-only {only_cpu:?})"
+        );
+    }
+    if !only_gpu.is_empty() || !only_cpu.is_empty() {
+        println!("{camera}: {what}: {} borderline differences", only_gpu.len() + only_cpu.len());
+    }
+    only_gpu.len() + only_cpu.len()
+}
+
+/// Whether `decide` changes its answer when the camera moves by 1e-3 along some axis.
+fn flips_when_nudged<V: PartialEq>(view: &GpuView, decide: impl Fn(&GpuView) -> V) -> bool {
+    let base = decide(view);
+    [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z].iter().any(|axis| {
+        let mut nudged = *view;
+        for (c, d) in nudged.camera.iter_mut().zip(axis.to_array().map(|a| a * 1e-3)) {
+            *c += d;
+        }
+        decide(&nudged) != base
+    })
+}
+
+/// Every cluster and triangle decision of the GPU equals the CPU twin's on every stress camera, up to
+/// borderline decisions that rounding can flip (see [`compare_sets`]).
+#[test]
+fn cluster_and_triangle_culling_match_the_cpu_exactly() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 5000);
+    let half = setup.half;
+    let settings = GpuCullSettings::default();
+    let mut totals: HashMap<String, u64> = HashMap::new();
+    for (name, camera) in cameras(half) {
+        let (output, visible, _) = setup.run(&context, camera, &settings);
+        let view = setup.culler.last_view;
+        let hzb: Vec<f32> = setup.culler.hzb.read(&context).concat();
+        let library = &setup.culler.scene.library;
+        let instances = setup.culler.scene.instances();
+        // Clusters.
+        let mut expected_clusters = Vec::new();
+        let mut cluster_counts: HashMap<ClusterVerdict, u32> = HashMap::new();
+        let mut unstable_clusters = 0;
+        for &slot in &visible {
+            let instance = &instances[slot as usize];
+            let first = library.meshes.get(instance.mesh as usize).map_or(0, |m| m.first_cluster);
+            for (c, cluster) in library.clusters_of(instance.mesh).iter().enumerate() {
+                let verdict = cull_cluster(&view, &hzb, instance, cluster);
+                *cluster_counts.entry(verdict).or_default() += 1;
+                unstable_clusters +=
+                    usize::from(flips_when_nudged(&view, |v| cull_cluster(v, &hzb, instance, cluster)));
+                if verdict == ClusterVerdict::Keep {
+                    expected_clusters.push((slot, first + c as u32));
+                }
+            }
+        }
+        let borderline_clusters = compare_sets(name, "clusters", &output.clusters, &expected_clusters, |&(slot, c)| {
+            let keep = |view: &GpuView| {
+                cull_cluster(view, &hzb, &instances[slot as usize], &library.clusters[c as usize])
+                    == ClusterVerdict::Keep
+            };
+            flips_when_nudged(&view, keep)
+        });
+        for (verdict, count) in &cluster_counts {
+            let gpu = output.counters.clusters(*verdict);
+            assert!(
+                gpu.abs_diff(*count) as usize <= borderline_clusters + unstable_clusters,
+                "{name}: clusters {verdict:?}: GPU {gpu}, CPU {count}"
+            );
+        }
+        // Triangles of the surviving clusters.
+        let mut expected_triangles = Vec::new();
+        let mut triangle_counts: HashMap<TriangleVerdict, u32> = HashMap::new();
+        let mut unstable_triangles = 0;
+        for &(slot, cluster_index) in &expected_clusters {
+            let cluster = &library.clusters[cluster_index as usize];
+            for t in 0..cluster.triangle_count {
+                let (instance, corners) = (&instances[slot as usize], library.triangle(cluster, t));
+                let verdict = cull_triangle(&view, instance, corners);
+                *triangle_counts.entry(verdict).or_default() += 1;
+                unstable_triangles += usize::from(flips_when_nudged(&view, |v| cull_triangle(v, instance, corners)));
+                if verdict == TriangleVerdict::Keep {
+                    let first = (cluster.first_index + 3 * t) as usize;
+                    expected_triangles.push([
+                        library.indices[first],
+                        library.indices[first + 1],
+                        library.indices[first + 2],
+                    ]);
+                }
+            }
+        }
+        let gpu_triangles: Vec<[u32; 3]> = output.indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let borderline_triangles = compare_sets(name, "triangles", &gpu_triangles, &expected_triangles, |corners| {
+            // Find the triangle's cluster among the survivors to re-judge it.
+            expected_clusters.iter().any(|&(slot, c)| {
+                let cluster = &library.clusters[c as usize];
+                (0..cluster.triangle_count).any(|t| {
+                    let first = (cluster.first_index + 3 * t) as usize;
+                    library.indices[first..first + 3] == corners[..]
+                        && flips_when_nudged(&view, |view| {
+                            cull_triangle(view, &instances[slot as usize], library.triangle(cluster, t))
+                                == TriangleVerdict::Keep
+                        })
+                })
+            })
+        });
+        for (verdict, count) in &triangle_counts {
+            let gpu = output.counters.triangles(*verdict);
+            // A borderline triangle may also change which test culls it.
+            let slack = borderline_triangles + unstable_triangles;
+            assert!(gpu.abs_diff(*count) as usize <= slack, "{name}: triangles {verdict:?}: GPU {gpu}, CPU {count}");
+        }
+        let c = output.counters;
+        println!("{name}: {c:?}");
+        assert_eq!(
+            c.clusters_in,
+            c.clusters_out + c.clusters_frustum + c.clusters_cone + c.clusters_hzb + c.clusters_small
+        );
+        assert_eq!(
+            c.triangles_in,
+            c.triangles_out + c.triangles_degenerate + c.triangles_backface + c.triangles_frustum + c.triangles_small
+        );
+        assert!(c.draws <= c.clusters_out);
+        for (key, value) in [
+            ("hzb", c.clusters_hzb),
+            ("cone", c.clusters_cone),
+            ("backface", c.triangles_backface),
+            ("small", c.triangles_small),
+        ] {
+            *totals.entry(key.into()).or_default() += u64::from(value);
+        }
+    }
+    // Not vacuous: every test removed something on some camera.
+    for (key, value) in &totals {
+        assert!(*value > 0, "no {key} culling on any camera");
+    }
+}
+
+/// The image drawn through the CPU stages and every GPU test equals the image drawn with no culling at all:
+/// depth everywhere, colour and object ID wherever they do not depend on draw order.
+#[test]
+fn culled_image_equals_unculled_image() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 5000);
+    let half = setup.half;
+    for (name, camera) in cameras(half) {
+        let (output, _, _) = setup.run(&context, camera, &GpuCullSettings::default());
+        let culled = setup.culler.read_image(&context);
+        let unculled = setup.culler.draw_unculled(&context, &camera, false);
+        let reversed = setup.culler.draw_unculled(&context, &camera, true);
+        assert_eq!(unculled.depth, reversed.depth, "{name}: depth must not depend on draw order");
+        // Pixels where two objects' surfaces meet at exactly the same depth: which one shows depends on draw order
+        // alone, and the culled draws come in the order the GPU appended them.
+        let tie = |i: usize| unculled.object[i] != reversed.object[i];
+        let ties = (0..unculled.object.len()).filter(|&i| tie(i)).count();
+        let differing = (0..culled.object.len())
+            .filter(|&i| {
+                culled.depth[i] != unculled.depth[i]
+                    || (!tie(i) && (culled.object[i] != unculled.object[i] || culled.color[i] != unculled.color[i]))
+            })
+            .count();
+        let covered = unculled.object.iter().filter(|&&o| o != cullet::gpu::draw::NO_OBJECT).count();
+        println!("{name}: {differing} differing pixels, {covered} covered, {ties} depth ties, {:?}", output.counters);
+        assert!(covered > 0, "{name}: nothing drawn");
+        assert_eq!(differing, 0, "{name}: culling changed {differing} pixels");
+    }
+}
