@@ -186,7 +186,8 @@ impl DrawPass {
         Self { pipelines: [pipeline(wgpu::CompareFunction::Greater), pipeline(wgpu::CompareFunction::Less)] }
     }
 
-    /// Records the draw of `source` into `targets`, clearing them first.
+    /// Records the draw of `source` into `targets`, clearing them first, with `timestamps` at the pass's start
+    /// and end if given.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -198,6 +199,7 @@ impl DrawPass {
         instances: &wgpu::Buffer,
         positions: &wgpu::Buffer,
         source: DrawSource<'_>,
+        timestamps: Option<wgpu::RenderPassTimestampWrites<'_>>,
     ) {
         let reversed = depth == DepthConvention::Reversed;
         let pipeline = &self.pipelines[usize::from(!reversed)];
@@ -240,6 +242,7 @@ impl DrawPass {
                 }),
                 stencil_ops: None,
             }),
+            timestamp_writes: timestamps,
             ..Default::default()
         });
         pass.set_pipeline(pipeline);

@@ -12,6 +12,7 @@ use crate::frustum::DepthConvention;
 use crate::raster::DepthBuffer;
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec4};
+use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
 
 /// View flag: normal-cone test of clusters.
@@ -177,15 +178,86 @@ impl GpuCounters {
     }
 }
 
+/// GPU time of each pass of a frame, from timestamp queries.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GpuPassTimes {
+    /// HZB upload reduction.
+    pub hzb: Duration,
+    /// Cluster culling.
+    pub clusters: Duration,
+    /// Triangle-pass dispatch and triangle culling.
+    pub triangles: Duration,
+    /// The draw.
+    pub draw: Duration,
+}
+
+/// Timestamp queries around each pass, where the adapter has them.
+struct PassTimer {
+    queries: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    /// Nanoseconds per tick.
+    period: f64,
+}
+
+/// Passes timed, two timestamps each.
+const TIMED_PASSES: u32 = 4;
+
+impl PassTimer {
+    fn new(context: &GpuContext) -> Option<Self> {
+        if !context.has_timestamps {
+            return None;
+        }
+        Some(Self {
+            queries: context.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("pass timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2 * TIMED_PASSES,
+            }),
+            resolve: context.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp resolve"),
+                size: 8 * u64::from(2 * TIMED_PASSES),
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            }),
+            period: f64::from(context.queue.get_timestamp_period()),
+        })
+    }
+
+    fn compute(&self, pass: u32) -> wgpu::ComputePassTimestampWrites<'_> {
+        wgpu::ComputePassTimestampWrites {
+            query_set: &self.queries,
+            beginning_of_pass_write_index: Some(2 * pass),
+            end_of_pass_write_index: Some(2 * pass + 1),
+        }
+    }
+
+    fn render(&self, pass: u32) -> wgpu::RenderPassTimestampWrites<'_> {
+        wgpu::RenderPassTimestampWrites {
+            query_set: &self.queries,
+            beginning_of_pass_write_index: Some(2 * pass),
+            end_of_pass_write_index: Some(2 * pass + 1),
+        }
+    }
+
+    fn read(&self, context: &GpuContext) -> GpuPassTimes {
+        let bytes = context.read_buffer(&self.resolve, self.resolve.size());
+        let ticks: &[u64] = bytemuck::cast_slice(&bytes);
+        let span = |pass: usize| {
+            Duration::from_nanos((ticks[2 * pass + 1].saturating_sub(ticks[2 * pass]) as f64 * self.period) as u64)
+        };
+        GpuPassTimes { hzb: span(0), clusters: span(1), triangles: span(2), draw: span(3) }
+    }
+}
+
 /// What one frame produced, read back.
 #[derive(Clone, Debug, Default)]
 pub struct GpuFrameOutput {
     /// The counters.
     pub counters: GpuCounters,
-    /// Surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order.
-    pub clusters: Vec<(u32, u32)>,
-    /// The compacted index buffer's used part: surviving triangles' global vertex indices.
-    pub indices: Vec<u32>,
+    /// GPU time per pass, where the adapter has timestamp queries.
+    pub pass_times: Option<GpuPassTimes>,
+    /// Wall time from submitting the frame until its counters were back on the CPU.
+    pub wall_time: Duration,
 }
 
 /// The GPU pipeline for one scene: passes, per-frame buffers and render targets.
@@ -206,6 +278,8 @@ pub struct GpuCuller {
     /// The last frame's view uniform (for the CPU twins in tests).
     pub last_view: GpuView,
     frame: Option<FrameBuffers>,
+    timer: Option<PassTimer>,
+    last_counters: GpuCounters,
 }
 
 /// Buffers sized for a frame's candidates.
@@ -258,6 +332,8 @@ impl GpuCuller {
             dispatch: storage_buffer(context, "triangle dispatch", 12, wgpu::BufferUsages::INDIRECT),
             last_view: GpuView::zeroed(),
             frame: None,
+            timer: PassTimer::new(context),
+            last_counters: GpuCounters::default(),
         }
     }
 
@@ -346,7 +422,8 @@ impl GpuCuller {
     }
 
     /// Culls and draws one frame: `visible` lists the instances (store slots) the CPU stages kept, `depth` is
-    /// the CPU occluder buffer (empty for none). Returns the counters and the survivors.
+    /// the CPU occluder buffer (empty for none). Returns the counters and timings; the survivors stay on the
+    /// GPU ([`GpuCuller::read_survivors`]).
     pub fn run(
         &mut self,
         context: &GpuContext,
@@ -371,7 +448,8 @@ impl GpuCuller {
         if !context.has_draw_count {
             encoder.clear_buffer(&frame.draw_args, 0, None);
         }
-        self.hzb.build(context, depth, &mut encoder);
+        let timer = self.timer.as_ref();
+        self.hzb.build(context, depth, &mut encoder, timer.map(|t| t.compute(0)));
         let bind = |pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]| {
             let entries: Vec<_> = buffers
                 .iter()
@@ -414,14 +492,22 @@ impl GpuCuller {
             ],
         );
         {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("cull"), timestamp_writes: None });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("cluster cull"),
+                timestamp_writes: timer.map(|t| t.compute(1)),
+            });
             if !visible.is_empty() {
                 let n = visible.len() as u32;
                 pass.set_pipeline(&self.cluster_pipeline);
                 pass.set_bind_group(0, &cluster_group, &[]);
                 pass.dispatch_workgroups(n.min(65535), n.div_ceil(65535), 1);
             }
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("triangle cull"),
+                timestamp_writes: timer.map(|t| t.compute(2)),
+            });
             pass.set_pipeline(&self.prepare_pipeline);
             pass.set_bind_group(0, &prepare_group, &[]);
             pass.dispatch_workgroups(1, 1, 1);
@@ -445,11 +531,25 @@ impl GpuCuller {
             &scene.instances,
             &scene.positions,
             source,
+            timer.map(|t| t.render(3)),
         );
+        if let Some(timer) = timer {
+            encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
+        }
+        let start = Instant::now();
         context.queue.submit([encoder.finish()]);
-
         let counter_bytes = context.read_buffer(&self.counters, (COUNTER_COUNT * 4) as u64);
+        let wall_time = start.elapsed();
         let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
+        self.last_counters = counters;
+        let pass_times = timer.map(|t| t.read(context));
+        GpuFrameOutput { counters, pass_times, wall_time }
+    }
+
+    /// The last frame's surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order, and its
+    /// compacted index buffer (surviving triangles' global vertex indices).
+    pub fn read_survivors(&self, context: &GpuContext) -> (Vec<(u32, u32)>, Vec<u32>) {
+        let (Some(frame), counters) = (self.frame.as_ref(), self.last_counters) else { return Default::default() };
         let clusters = if counters.clusters_out > 0 {
             let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out));
             bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()
@@ -462,7 +562,24 @@ impl GpuCuller {
         } else {
             Vec::new()
         };
-        GpuFrameOutput { counters, clusters, indices }
+        (clusters, indices)
+    }
+
+    /// Runs the GPU passes after the CPU stages of `world`'s frame: instances brought up to date (only changed
+    /// ones written), the occlusion stage's survivors culled and drawn against its depth buffer, from the
+    /// world's [`Camera`].
+    pub fn run_world(
+        &mut self,
+        context: &GpuContext,
+        world: &bevy_ecs::world::World,
+        settings: &GpuCullSettings,
+    ) -> GpuFrameOutput {
+        let instances = super::scene::instances_from_world(world);
+        self.scene.update_instances(context, &instances);
+        let state = world.resource::<crate::pipeline::OcclusionState>();
+        let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
+        let camera = *world.resource::<Camera>();
+        self.run(context, &camera, &visible, &state.depth, settings)
     }
 
     /// Draws every cluster of every instance with no culling at all, for comparison; `reversed` draws them in
@@ -494,6 +611,7 @@ impl GpuCuller {
                 &self.scene.instances,
                 &self.scene.positions,
                 source,
+                None,
             );
             context.queue.submit([encoder.finish()]);
         }

@@ -94,16 +94,25 @@ impl Hzb {
         self.levels[0].width == width.max(1) && self.levels[0].height == height.max(1)
     }
 
-    /// Uploads `depth` as level 0 (all zero when it is empty) and records the passes that build the rest.
-    pub fn build(&self, context: &GpuContext, depth: &DepthBuffer, encoder: &mut wgpu::CommandEncoder) {
+    /// Uploads `depth` as level 0 (all zero when it is empty) and records the passes that build the rest,
+    /// with `timestamps` written at the pass's start and end if given.
+    pub fn build(
+        &self,
+        context: &GpuContext,
+        depth: &DepthBuffer,
+        encoder: &mut wgpu::CommandEncoder,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
         let base = self.levels[0];
         if depth.width() == base.width && depth.height() == base.height {
             context.queue.write_buffer(&self.buffer, 0, bytemuck::cast_slice(depth.texels()));
         } else {
             encoder.clear_buffer(&self.buffer, 0, Some(u64::from(base.width * base.height) * 4));
         }
-        let mut pass = encoder
-            .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("hzb build"), timestamp_writes: None });
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("hzb build"),
+            timestamp_writes: timestamps,
+        });
         pass.set_pipeline(&self.pipeline);
         for (level, bind_group) in self.levels[1..].iter().zip(&self.level_bind_groups) {
             pass.set_bind_group(0, bind_group, &[]);
