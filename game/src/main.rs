@@ -4,6 +4,10 @@
 use clap::Parser;
 use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
+use cullet::gpu::GpuContext;
+use cullet::gpu::clusters::ClusterLibrary;
+use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuPassTimes};
+use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::RasterMode;
 use cullet::{BoundsStore, Camera};
@@ -44,6 +48,10 @@ struct Args {
     /// configuration culled anything visible.
     #[arg(long)]
     validate: bool,
+    /// Run only the CPU stages (bounds, frustum, occlusion), without a GPU adapter: cluster and triangle
+    /// culling and the draw are skipped.
+    #[arg(long)]
+    cpu_only: bool,
 }
 
 fn parse_scene(scene: &str) -> Result<usize, String> {
@@ -102,6 +110,28 @@ fn run(args: &Args) -> Result<(), String> {
         flight.path.duration()
     );
 
+    let mut gpu = if args.cpu_only {
+        println!("--cpu-only: GPU cluster culling, triangle culling and the draw are skipped");
+        None
+    } else {
+        match GpuContext::new() {
+            Ok(context) => {
+                let info = &context.adapter_info;
+                println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+                let scene =
+                    GpuScene::new(&context, ClusterLibrary::build(&city.meshes), instances_from_world(&flight.world));
+                let culler = GpuCuller::new(&context, scene, width, height, occlusion_width, occlusion_height);
+                Some((context, culler))
+            }
+            Err(error) => {
+                println!(
+                    "{error}: running the CPU stages only (cluster and triangle culling and the draw are skipped)"
+                );
+                None
+            }
+        }
+    };
+    let mut gpu_frames: Vec<GpuFrameOutput> = Vec::new();
     let mut per_frame = Vec::with_capacity(args.frames as usize);
     let judge = JudgeSettings {
         reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
@@ -151,6 +181,22 @@ fn run(args: &Args) -> Result<(), String> {
                 micros(stats.occlusion_time),
             );
         }
+        if let Some((context, culler)) = gpu.as_mut() {
+            let output = culler.run_world(context, &flight.world, &GpuCullSettings::default());
+            if !args.quiet {
+                let c = output.counters;
+                println!(
+                    "           GPU: clusters {:7} -> {:7}  triangles {:9} -> {:9}  draws {:6}  in {:8.1} us",
+                    c.clusters_in,
+                    c.clusters_out,
+                    c.triangles_in,
+                    c.triangles_out,
+                    c.draws,
+                    micros(output.wall_time)
+                );
+            }
+            gpu_frames.push(output);
+        }
         per_frame.push(stats);
     }
     let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
@@ -158,6 +204,7 @@ fn run(args: &Args) -> Result<(), String> {
         eprintln!("rejected: {error}");
     }
     print_summary(&per_frame);
+    print_gpu_summary(&gpu_frames);
     if args.validate {
         println!(
             "\nvalidation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \
@@ -179,6 +226,47 @@ fn run(args: &Args) -> Result<(), String> {
 
 fn micros(duration: Duration) -> f64 {
     duration.as_secs_f64() * 1e6
+}
+
+fn print_gpu_summary(frames: &[GpuFrameOutput]) {
+    if frames.is_empty() {
+        return;
+    }
+    let n = frames.len() as f64;
+    let mean = |f: fn(&GpuCounters) -> u32| frames.iter().map(|o| f64::from(f(&o.counters))).sum::<f64>() / n;
+    let mut times: Vec<f64> = frames.iter().map(|o| micros(o.wall_time)).collect();
+    times.sort_by(f64::total_cmp);
+    let wall = times.iter().sum::<f64>() / n;
+    println!(
+        "{:<10} {wall:>12.1} {:>12.1} {:>12.1} {:>12} {:>9.1}%",
+        "clusters",
+        times[times.len() / 2],
+        times[times.len() - 1],
+        format!("{:.0}", mean(|c| c.clusters_out)),
+        100.0 * (1.0 - mean(|c| c.clusters_out) / mean(|c| c.clusters_in).max(1.0))
+    );
+    println!(
+        "{:<10} {:>12} {:>12} {:>12} {:>12} {:>9.1}%",
+        "triangles",
+        "(GPU,",
+        "all passes)",
+        "",
+        format!("{:.0}", mean(|c| c.triangles_out)),
+        100.0 * (1.0 - mean(|c| c.triangles_out) / mean(|c| c.triangles_in).max(1.0))
+    );
+    println!("{:<10} {:>12} {:>12} {:>12} {:>12.0}", "draws", "", "", "", mean(|c| c.draws));
+    if frames.iter().all(|o| o.pass_times.is_some()) {
+        let pass = |f: fn(&GpuPassTimes) -> Duration| {
+            frames.iter().map(|o| micros(f(o.pass_times.as_ref().expect("checked")))).sum::<f64>() / n
+        };
+        println!(
+            "GPU time per pass (mean us): HZB {:.1}, clusters {:.1}, triangles {:.1}, draw {:.1}",
+            pass(|t| t.hzb),
+            pass(|t| t.clusters),
+            pass(|t| t.triangles),
+            pass(|t| t.draw)
+        );
+    }
 }
 
 fn print_summary(frames: &[CullStats]) {
