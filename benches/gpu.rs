@@ -8,7 +8,7 @@ use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
 use cullet::gpu::GpuContext;
 use cullet::gpu::clusters::ClusterLibrary;
-use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput};
+use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuPassTimes};
 use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::pipeline::OcclusionSettings;
 use std::time::Duration;
@@ -55,7 +55,7 @@ fn main() {
     let mut written = 0;
     for frame in 0..frames {
         flight.run_frame(frame);
-        outputs.push(culler.run_world(&context, &flight.world, &settings));
+        outputs.push(culler.run_world(&context, &mut flight.world, &settings));
         written += culler.scene.instances_written_last_update;
     }
     let n = outputs.len() as f64;
@@ -94,17 +94,8 @@ fn main() {
     println!("indirect draws                 {:>10.0} in one multi-draw-indirect-count", sum(|c| c.draws));
     let mean = |f: fn(&GpuFrameOutput) -> Duration| outputs.iter().map(|o| f(o).as_secs_f64() * 1e3).sum::<f64>() / n;
     println!("\nwall time, submit to counters back: {:.3} ms", mean(|o| o.wall_time));
-    if outputs.iter().all(|o| o.pass_times.is_some()) {
-        let pass = |f: fn(&cullet::gpu::frame::GpuPassTimes) -> Duration| {
-            outputs.iter().map(|o| f(o.pass_times.as_ref().unwrap()).as_secs_f64() * 1e3).sum::<f64>() / n
-        };
-        println!(
-            "GPU time per pass (timestamps): HZB {:.3} ms, clusters {:.3} ms, triangles {:.3} ms, draw {:.3} ms",
-            pass(|t| t.hzb),
-            pass(|t| t.clusters),
-            pass(|t| t.triangles),
-            pass(|t| t.draw)
-        );
+    if let Some(times) = GpuPassTimes::mean(&outputs) {
+        println!("GPU time per pass (timestamps, mean): {times}");
     } else {
         println!("no timestamp queries on this adapter: per-pass GPU times not measured");
     }

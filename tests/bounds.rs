@@ -71,6 +71,28 @@ fn only_changed_entities_are_recomputed() {
     assert_store_consistent(&mut world);
 }
 
+/// The store reports which slots it wrote (for consumers that mirror it, like the GPU instances): updates,
+/// and the slot a removal fills with the last object.
+#[test]
+fn written_slots_are_reported_once() {
+    let (mut world, mut schedule) = world_with_schedule();
+    let entities: Vec<Entity> = (0..10).map(|i| spawn_box(&mut world, Vec3::new(i as f32, 0.0, 0.0))).collect();
+    frame(&mut world, &mut schedule);
+    let written = world.resource_mut::<BoundsStore>().take_written_slots();
+    assert_eq!(written, (0..10).collect::<Vec<u32>>());
+    frame(&mut world, &mut schedule);
+    assert!(world.resource_mut::<BoundsStore>().take_written_slots().is_empty(), "a quiet frame writes nothing");
+
+    world.get_mut::<ObjectTransform>(entities[3]).unwrap().0.translation.y = 1.0;
+    frame(&mut world, &mut schedule);
+    world.despawn(entities[5]);
+    let store = world.resource::<BoundsStore>();
+    let (slot_of_3, moved_into) =
+        (store.slot_of(entities[3]).unwrap() as u32, store.slot_of(entities[9]).unwrap() as u32);
+    let written = world.resource_mut::<BoundsStore>().take_written_slots();
+    assert_eq!(written, vec![slot_of_3, moved_into]);
+}
+
 #[test]
 fn removal_swaps_the_last_object_into_the_hole() {
     let (mut world, mut schedule) = world_with_schedule();

@@ -290,3 +290,27 @@ fn culled_image_equals_unculled_image() {
         assert_eq!(differing, 0, "{name}: culling changed {differing} pixels");
     }
 }
+
+/// Per-instance data is written only where the store changed (the moving cars), and the GPU copy always
+/// equals the world.
+#[test]
+fn only_changed_instances_are_uploaded() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 5000);
+    let moving = {
+        let world = &mut setup.flight.world;
+        world.query::<&cullet::city::Velocity>().iter(world).count()
+    };
+    assert!(moving > 0);
+    let settings = GpuCullSettings::default();
+    setup.flight.run_frame(0);
+    setup.culler.run_world(&context, &mut setup.flight.world, &settings);
+    for frame in 1..4 {
+        setup.flight.run_frame(frame);
+        setup.culler.run_world(&context, &mut setup.flight.world, &settings);
+        assert_eq!(setup.culler.scene.instances_written_last_update, moving, "frame {frame}");
+        let expected = instances_from_world(&setup.flight.world);
+        let bytes = context.read_buffer(&setup.culler.scene.instances, (expected.len() * 64) as u64);
+        assert_eq!(bytemuck::cast_slice::<u8, cullet::gpu::scene::GpuInstance>(&bytes), &expected[..], "frame {frame}");
+    }
+}

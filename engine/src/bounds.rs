@@ -300,6 +300,9 @@ pub struct BoundsStore {
     occluders: VisibleSet,
     entities: Vec<Entity>,
     slots: EntityHashMap<u32>,
+    /// Slots written (inserted, updated, or filled by a swap-remove) since the last
+    /// [`BoundsStore::take_written_slots`]: what a consumer mirroring the store (the GPU instances) must copy.
+    written: VisibleSet,
     /// Objects whose bounds were recomputed (inserted or updated) by the last [`sync_bounds`] run.
     pub recomputed_last_sync: usize,
     /// Wall time of the last [`sync_bounds`] run.
@@ -414,6 +417,10 @@ impl BoundsStore {
     }
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
+        if self.written.len() < self.padded_len() {
+            self.written.resize(self.padded_len());
+        }
+        self.written.set(slot, true);
         let group = &mut self.groups[slot / SOA_PADDING];
         if !group.contains(bounds) {
             group.grow(bounds);
@@ -505,6 +512,14 @@ impl BoundsStore {
                 Err(error)
             }
         }
+    }
+
+    /// The slots written since the last call, in order, and forgets them. Slots at or past [`BoundsStore::len`]
+    /// were emptied by removals.
+    pub fn take_written_slots(&mut self) -> Vec<u32> {
+        let slots = self.written.iter().map(|slot| slot as u32).collect();
+        self.written.reset(self.padded_len());
+        slots
     }
 
     /// Drains the rejections recorded since the last call.

@@ -182,7 +182,7 @@ fn run(args: &Args) -> Result<(), String> {
             );
         }
         if let Some((context, culler)) = gpu.as_mut() {
-            let output = culler.run_world(context, &flight.world, &GpuCullSettings::default());
+            let output = culler.run_world(context, &mut flight.world, &GpuCullSettings::default());
             if !args.quiet {
                 let c = output.counters;
                 println!(
@@ -255,17 +255,8 @@ fn print_gpu_summary(frames: &[GpuFrameOutput]) {
         100.0 * (1.0 - mean(|c| c.triangles_out) / mean(|c| c.triangles_in).max(1.0))
     );
     println!("{:<10} {:>12} {:>12} {:>12} {:>12.0}", "draws", "", "", "", mean(|c| c.draws));
-    if frames.iter().all(|o| o.pass_times.is_some()) {
-        let pass = |f: fn(&GpuPassTimes) -> Duration| {
-            frames.iter().map(|o| micros(f(o.pass_times.as_ref().expect("checked")))).sum::<f64>() / n
-        };
-        println!(
-            "GPU time per pass (mean us): HZB {:.1}, clusters {:.1}, triangles {:.1}, draw {:.1}",
-            pass(|t| t.hzb),
-            pass(|t| t.clusters),
-            pass(|t| t.triangles),
-            pass(|t| t.draw)
-        );
+    if let Some(times) = GpuPassTimes::mean(frames) {
+        println!("GPU time per pass (mean): {times}");
     }
 }
 

@@ -191,6 +191,36 @@ pub struct GpuPassTimes {
     pub draw: Duration,
 }
 
+impl GpuPassTimes {
+    /// The mean over `frames`, or `None` unless every frame was timed.
+    pub fn mean(frames: &[GpuFrameOutput]) -> Option<Self> {
+        let times: Option<Vec<&Self>> = frames.iter().map(|f| f.pass_times.as_ref()).collect();
+        let times = times.filter(|t| !t.is_empty())?;
+        let n = times.len() as u32;
+        let sum = |f: fn(&Self) -> Duration| times.iter().map(|t| f(t)).sum::<Duration>() / n;
+        Some(Self {
+            hzb: sum(|t| t.hzb),
+            clusters: sum(|t| t.clusters),
+            triangles: sum(|t| t.triangles),
+            draw: sum(|t| t.draw),
+        })
+    }
+}
+
+impl std::fmt::Display for GpuPassTimes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let us = |d: Duration| d.as_secs_f64() * 1e6;
+        write!(
+            f,
+            "HZB {:.1} us, clusters {:.1} us, triangles {:.1} us, draw {:.1} us",
+            us(self.hzb),
+            us(self.clusters),
+            us(self.triangles),
+            us(self.draw)
+        )
+    }
+}
+
 /// Timestamp queries around each pass, where the adapter has them.
 struct PassTimer {
     queries: wgpu::QuerySet,
@@ -522,17 +552,7 @@ impl GpuCuller {
             count_offset: DRAWS_SLOT * 4,
             max_draws: frame.max_clusters,
         };
-        self.draw.record(
-            context,
-            &mut encoder,
-            &self.targets,
-            camera.depth,
-            &self.view,
-            &scene.instances,
-            &scene.positions,
-            source,
-            timer.map(|t| t.render(3)),
-        );
+        self.record_draw(context, &mut encoder, camera.depth, source, timer.map(|t| t.render(3)));
         if let Some(timer) = timer {
             encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
         }
@@ -565,17 +585,18 @@ impl GpuCuller {
         (clusters, indices)
     }
 
-    /// Runs the GPU passes after the CPU stages of `world`'s frame: instances brought up to date (only changed
-    /// ones written), the occlusion stage's survivors culled and drawn against its depth buffer, from the
-    /// world's [`Camera`].
+    /// Runs the GPU passes after the CPU stages of `world`'s frame: instances brought up to date (only the
+    /// store slots written since the last call are copied), the occlusion stage's survivors culled and drawn
+    /// against its depth buffer, from the world's [`Camera`].
     pub fn run_world(
         &mut self,
         context: &GpuContext,
-        world: &bevy_ecs::world::World,
+        world: &mut bevy_ecs::world::World,
         settings: &GpuCullSettings,
     ) -> GpuFrameOutput {
-        let instances = super::scene::instances_from_world(world);
-        self.scene.update_instances(context, &instances);
+        let written = world.resource_mut::<crate::bounds::BoundsStore>().take_written_slots();
+        let count = world.resource::<crate::bounds::BoundsStore>().len();
+        self.scene.write_instances(context, count, &written, |slot| super::scene::instance_of(world, slot));
         let state = world.resource::<crate::pipeline::OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
@@ -602,20 +623,33 @@ impl GpuCuller {
             });
             let source =
                 DrawSource::Unculled { indices: &self.scene.cluster_indices, args: &buffer, draws: args.len() as u32 };
-            self.draw.record(
-                context,
-                &mut encoder,
-                &self.targets,
-                camera.depth,
-                &self.view,
-                &self.scene.instances,
-                &self.scene.positions,
-                source,
-                None,
-            );
+            self.record_draw(context, &mut encoder, camera.depth, source, None);
             context.queue.submit([encoder.finish()]);
         }
         self.targets.read(context)
+    }
+
+    /// Records the draw of `source` into this culler's targets.
+    fn record_draw(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        depth: DepthConvention,
+        source: DrawSource<'_>,
+        timestamps: Option<wgpu::RenderPassTimestampWrites<'_>>,
+    ) {
+        let scene = &self.scene;
+        self.draw.record(
+            context,
+            encoder,
+            &self.targets,
+            depth,
+            &self.view,
+            &scene.instances,
+            &scene.positions,
+            source,
+            timestamps,
+        );
     }
 
     /// Reads the render targets of the last frame.

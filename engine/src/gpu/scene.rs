@@ -16,19 +16,19 @@ pub const INSTANCE_CONE_SAFE: u32 = 1;
 /// [`GpuInstance::mesh`] of an object with no mesh: it has no clusters and draws nothing.
 pub const NO_MESH: u32 = u32::MAX;
 
-/// The instances of `world`'s culled objects, indexed by store slot: each [`crate::bounds::MeshRef`] with its
-/// [`crate::bounds::ObjectTransform`]; objects without a mesh get [`NO_MESH`].
+/// The instances of `world`'s culled objects, indexed by store slot (see [`instance_of`]).
 pub fn instances_from_world(world: &bevy_ecs::world::World) -> Vec<GpuInstance> {
     let store = world.resource::<crate::bounds::BoundsStore>();
-    store
-        .entities()
-        .iter()
-        .map(|&entity| {
-            let transform = world.get::<crate::bounds::ObjectTransform>(entity).map_or(Affine3A::IDENTITY, |t| t.0);
-            let mesh = world.get::<crate::bounds::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
-            GpuInstance::new(&transform, mesh)
-        })
-        .collect()
+    (0..store.len() as u32).map(|slot| instance_of(world, slot)).collect()
+}
+
+/// The instance in store slot `slot` of `world`: its [`crate::bounds::MeshRef`] with its
+/// [`crate::bounds::ObjectTransform`]; an object without a mesh gets [`NO_MESH`].
+pub fn instance_of(world: &bevy_ecs::world::World, slot: u32) -> GpuInstance {
+    let entity = world.resource::<crate::bounds::BoundsStore>().entities()[slot as usize];
+    let transform = world.get::<crate::bounds::ObjectTransform>(entity).map_or(Affine3A::IDENTITY, |t| t.0);
+    let mesh = world.get::<crate::bounds::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
+    GpuInstance::new(&transform, mesh)
 }
 
 /// One drawn object as the shaders read it (`Instance` in `shaders/common.wgsl`).
@@ -91,7 +91,7 @@ pub struct GpuScene {
     pub instances: wgpu::Buffer,
     /// The CPU copy of the instances, to find what changed.
     instance_data: Vec<GpuInstance>,
-    /// Instances written by the last [`GpuScene::update_instances`].
+    /// Instances written by the last [`GpuScene::write_instances`].
     pub instances_written_last_update: usize,
     /// The cluster library the buffers hold.
     pub library: ClusterLibrary,
@@ -134,32 +134,39 @@ impl GpuScene {
         &self.instance_data
     }
 
-    /// Brings the GPU instances up to `instances`: only those that differ from the last upload are written
-    /// (runs of neighbouring changes in one write), and the buffer is regrown only when the count grows.
-    pub fn update_instances(&mut self, context: &GpuContext, instances: &[GpuInstance]) {
-        let grown = instances.len() > self.instance_data.len();
-        if grown || (self.instances.size() as usize) < std::mem::size_of_val(instances) {
-            *self = Self::new(context, std::mem::take(&mut self.library), instances.to_vec());
-            self.instances_written_last_update = instances.len();
+    /// Brings the GPU instances up to date with a store of `count` objects of which only `written` slots
+    /// changed (see [`crate::bounds::BoundsStore::take_written_slots`]): only those are written, runs of
+    /// neighbouring slots in one write. The buffer is regrown (and everything rewritten) only when `count`
+    /// exceeds its capacity.
+    pub fn write_instances(
+        &mut self,
+        context: &GpuContext,
+        count: usize,
+        written: &[u32],
+        instance_of: impl Fn(u32) -> GpuInstance,
+    ) {
+        let capacity = self.instances.size() as usize / std::mem::size_of::<GpuInstance>();
+        if count > capacity {
+            let all = (0..count as u32).map(&instance_of).collect();
+            *self = Self::new(context, std::mem::take(&mut self.library), all);
+            self.instances_written_last_update = count;
             return;
         }
-        self.instance_data.truncate(instances.len());
-        let mut written = 0;
-        let mut slot = 0;
-        while slot < instances.len() {
-            if instances[slot] == self.instance_data[slot] {
-                slot += 1;
-                continue;
+        self.instance_data.resize(count, GpuInstance { mesh: NO_MESH, ..GpuInstance::default() });
+        let mut slots = written.iter().map(|&s| s as usize).filter(|&s| s < count).peekable();
+        let mut total = 0;
+        while let Some(start) = slots.next() {
+            let mut end = start + 1;
+            while slots.next_if_eq(&end).is_some() {
+                end += 1;
             }
-            let start = slot;
-            while slot < instances.len() && instances[slot] != self.instance_data[slot] {
-                slot += 1;
+            for slot in start..end {
+                self.instance_data[slot] = instance_of(slot as u32);
             }
             let offset = (start * std::mem::size_of::<GpuInstance>()) as u64;
-            context.queue.write_buffer(&self.instances, offset, bytemuck::cast_slice(&instances[start..slot]));
-            self.instance_data[start..slot].copy_from_slice(&instances[start..slot]);
-            written += slot - start;
+            context.queue.write_buffer(&self.instances, offset, bytemuck::cast_slice(&self.instance_data[start..end]));
+            total += end - start;
         }
-        self.instances_written_last_update = written;
+        self.instances_written_last_update = total;
     }
 }
