@@ -127,6 +127,11 @@ impl GpuContext {
 
     /// Reads a buffer back (it must have `COPY_SRC`), waiting for the GPU.
     pub fn read_buffer(&self, buffer: &wgpu::Buffer, size: u64) -> Vec<u8> {
+        self.read_back(size, |encoder, staging| encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size))
+    }
+
+    /// Reads back `size` bytes that `copy` records into a staging buffer, waiting for the GPU.
+    pub(crate) fn read_back(&self, size: u64, copy: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer)) -> Vec<u8> {
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size,
@@ -134,13 +139,13 @@ impl GpuContext {
             mapped_at_creation: false,
         });
         let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
+        copy(&mut encoder, &staging);
         self.queue.submit([encoder.finish()]);
         self.map_and_read(&staging)
     }
 
     /// Maps a `MAP_READ` buffer after the queue's work is done and copies it out.
-    pub(crate) fn map_and_read(&self, staging: &wgpu::Buffer) -> Vec<u8> {
+    fn map_and_read(&self, staging: &wgpu::Buffer) -> Vec<u8> {
         let slice = staging.slice(..);
         let (sender, receiver) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |result| {
