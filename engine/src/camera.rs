@@ -120,7 +120,8 @@ impl Camera {
 }
 
 /// One key of a camera path.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CameraKey {
     /// Time of the key in seconds.
     pub t: f32,
@@ -131,7 +132,11 @@ pub struct CameraKey {
 }
 
 /// A timed camera path: Catmull-Rom interpolation of positions and look-at points between keys.
-#[derive(Clone, Debug, PartialEq)]
+///
+/// As JSON ([`CameraPath::from_json`]): `{"fov_y_deg": 60, "near": 0.1, "far": null, "keys": [{"t": 0.0,
+/// "position": [x, y, z], "look_at": [x, y, z]}, ...]}`, `far: null` meaning an infinite far plane.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CameraPath {
     /// Vertical field of view in degrees.
     pub fov_y_deg: f32,
@@ -143,7 +148,49 @@ pub struct CameraPath {
     pub keys: Vec<CameraKey>,
 }
 
+/// Why a camera path was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraPathError {
+    /// Not valid JSON, or not the documented shape.
+    #[error("camera path is not valid: {0}")]
+    Json(#[from] serde_json::Error),
+    /// Valid JSON that describes no usable camera.
+    #[error("camera path is not usable: {0}")]
+    Invalid(String),
+}
+
 impl CameraPath {
+    /// Parses and checks a camera path: at least one key, times strictly increasing, every number finite,
+    /// field of view in (0, 180) degrees, near > 0, far (if any) beyond near, never looking at the eye.
+    pub fn from_json(json: &str) -> Result<Self, CameraPathError> {
+        let path: Self = serde_json::from_str(json)?;
+        let invalid = |why: String| Err(CameraPathError::Invalid(why));
+        if path.keys.is_empty() {
+            return invalid("no keys".into());
+        }
+        if !(path.fov_y_deg > 0.0 && path.fov_y_deg < 180.0) {
+            return invalid(format!("fov_y_deg {} is not in (0, 180)", path.fov_y_deg));
+        }
+        if !(path.near > 0.0 && path.near.is_finite()) {
+            return invalid(format!("near {} is not a positive number", path.near));
+        }
+        if let Some(far) = path.far.filter(|&far| !(far > path.near && far.is_finite())) {
+            return invalid(format!("far {far} is not beyond near {}", path.near));
+        }
+        for (i, key) in path.keys.iter().enumerate() {
+            if !key.t.is_finite() || !key.position.is_finite() || !key.look_at.is_finite() {
+                return invalid(format!("key {i} has a non-finite number"));
+            }
+            if key.position == key.look_at {
+                return invalid(format!("key {i} looks at its own position"));
+            }
+            if i > 0 && key.t <= path.keys[i - 1].t {
+                return invalid(format!("key {i} time {} does not follow {}", key.t, path.keys[i - 1].t));
+            }
+        }
+        Ok(path)
+    }
+
     /// Duration from the first to the last key.
     pub fn duration(&self) -> f32 {
         match (self.keys.first(), self.keys.last()) {
@@ -197,6 +244,44 @@ fn catmull_rom(p0: Vec3, p1: Vec3, p2: Vec3, p3: Vec3, u: f32) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn camera_paths_parse_from_the_documented_json_and_bad_ones_are_refused() {
+        let json = r#"{"fov_y_deg": 60, "near": 0.1, "far": null,
+            "keys": [{"t": 0.0, "position": [0, 2, 10], "look_at": [0, 0, 0]},
+                     {"t": 5.0, "position": [10, 2, 0], "look_at": [0, 0, 0]}]}"#;
+        let path = CameraPath::from_json(json).unwrap();
+        assert_eq!(path.far, None);
+        assert_eq!(path.keys[1].position, Vec3::new(10.0, 2.0, 0.0));
+        assert_eq!(path.duration(), 5.0);
+        for (bad, why) in [
+            (r#"{"fov_y_deg": 60, "near": 0.1, "far": null, "keys": []}"#, "no keys"),
+            (
+                r#"{"fov_y_deg": 190, "near": 0.1, "far": null, "keys": [{"t": 0, "position": [0,0,1], "look_at": [0,0,0]}]}"#,
+                "fov",
+            ),
+            (
+                r#"{"fov_y_deg": 60, "near": 0.1, "far": 0.05, "keys": [{"t": 0, "position": [0,0,1], "look_at": [0,0,0]}]}"#,
+                "far",
+            ),
+            (
+                r#"{"fov_y_deg": 60, "near": 0.1, "far": null, "keys": [{"t": 1, "position": [0,0,1], "look_at": [0,0,0]}, {"t": 1, "position": [0,0,2], "look_at": [0,0,0]}]}"#,
+                "follow",
+            ),
+            (
+                r#"{"fov_y_deg": 60, "near": 0.1, "far": null, "keys": [{"t": 0, "position": [0,0,0], "look_at": [0,0,0]}]}"#,
+                "own position",
+            ),
+            (
+                r#"{"fov_y_deg": 60, "near": 0.1, "keys": [{"t": 0, "position": [0,0,1], "look_at": [0,0,0]}], "extra": 1}"#,
+                "unknown field",
+            ),
+            ("not json", "expected"),
+        ] {
+            let error = CameraPath::from_json(bad).unwrap_err().to_string();
+            assert!(error.contains(why), "{bad}: {error}");
+        }
+    }
 
     #[test]
     fn path_passes_through_its_keys() {

@@ -10,7 +10,7 @@ use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput
 use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::RasterMode;
-use cullet::{BoundsStore, Camera};
+use cullet::{BoundsStore, Camera, CameraPath};
 use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -52,7 +52,28 @@ struct Args {
     /// culling and the draw are skipped.
     #[arg(long)]
     cpu_only: bool,
+    /// Camera path to fly instead of the scene's built-in one (JSON, see the README).
+    #[arg(long, value_name = "FILE.json")]
+    camera_path: Option<std::path::PathBuf>,
+    /// Write one CSV row per frame: counts and each stage's time in microseconds (plus accuracy with
+    /// --validate).
+    #[arg(long, value_name = "FILE.csv")]
+    stats: Option<std::path::PathBuf>,
+    /// Save the drawn frame as PNG into this folder every --every frames (needs a GPU adapter).
+    #[arg(long, value_name = "DIR")]
+    screenshots: Option<std::path::PathBuf>,
+    /// Frames between screenshots.
+    #[arg(long, default_value_t = 30)]
+    every: u32,
+    /// Run without a window (the only mode this build has; accepted for scripts).
+    #[arg(long)]
+    headless: bool,
 }
+
+/// The stats CSV's columns.
+const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters_in,clusters_out,triangles_in,\
+triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
+image_error_pixels";
 
 fn parse_scene(scene: &str) -> Result<usize, String> {
     match scene.split_once(':') {
@@ -99,7 +120,14 @@ fn run(args: &Args) -> Result<(), String> {
 
     let start = Instant::now();
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let mut flight = Flight::new(city.flythrough(), aspect, args.frames, occlusion, |world| {
+    let path = match &args.camera_path {
+        Some(file) => {
+            let json = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+            CameraPath::from_json(&json).map_err(|e| format!("{}: {e}", file.display()))?
+        }
+        None => city.flythrough(),
+    };
+    let mut flight = Flight::new(path, aspect, args.frames, occlusion, |world| {
         city.spawn(world);
     });
     println!(
@@ -138,10 +166,28 @@ fn run(args: &Args) -> Result<(), String> {
         occlusion_ideal: false,
     };
     let mut accuracy = PathMetrics::default();
+    let mut csv = String::from(STATS_HEADER);
+    csv.push('\n');
+    if let Some(dir) = &args.screenshots {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        if gpu.is_none() {
+            println!("--screenshots: no GPU adapter, so nothing is drawn and no screenshot is saved");
+        }
+    }
+    let progress = args.quiet.then(|| indicatif::ProgressBar::new(u64::from(args.frames)));
     for frame in 0..args.frames {
+        if let Some(bar) = &progress {
+            bar.inc(1);
+        }
         let stats = flight.run_frame(frame);
+        let mut frame_accuracy = None;
         if args.validate {
             let metrics = judge_frame(&flight.world, &city.meshes, &judge).metrics;
+            frame_accuracy = Some((
+                metrics.false_negatives.len(),
+                metrics.stages.last().map_or(0, |s| s.false_positives),
+                metrics.image_error_pixels,
+            ));
             if !args.quiet || !metrics.false_negatives.is_empty() {
                 println!(
                     "frame {frame:4}  visible {:6}  false negatives {:4}  false positives {:7}  image error {:6} px",
@@ -181,8 +227,19 @@ fn run(args: &Args) -> Result<(), String> {
                 micros(stats.occlusion_time),
             );
         }
+        let mut gpu_output = None;
         if let Some((context, culler)) = gpu.as_mut() {
             let output = culler.run_world(context, &mut flight.world, &GpuCullSettings::default());
+            if let Some(dir) = args.screenshots.as_ref().filter(|_| frame % args.every.max(1) == 0) {
+                let image = culler.read_image(context);
+                let pixels: Vec<u8> = image.color.iter().flatten().copied().collect();
+                let file = dir.join(format!("frame_{frame:05}.png"));
+                image::RgbaImage::from_raw(image.width, image.height, pixels)
+                    .ok_or("screenshot size mismatch")?
+                    .save(&file)
+                    .map_err(|e| format!("{}: {e}", file.display()))?;
+            }
+            gpu_output = Some(output.counters);
             if !args.quiet {
                 let c = output.counters;
                 println!(
@@ -197,11 +254,41 @@ fn run(args: &Args) -> Result<(), String> {
             }
             gpu_frames.push(output);
         }
+        if args.stats.is_some() {
+            let c = gpu_output.unwrap_or_default();
+            let gpu_us = gpu_frames.last().filter(|_| gpu_output.is_some()).map_or(0.0, |o| micros(o.wall_time));
+            let (false_negatives, false_positives, image_error) = frame_accuracy
+                .map_or((String::new(), String::new(), String::new()), |(a, b, c)| {
+                    (a.to_string(), b.to_string(), c.to_string())
+                });
+            csv.push_str(&format!(
+                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error}\n",
+                stats.objects,
+                stats.after_frustum,
+                stats.after_occlusion,
+                c.clusters_in,
+                c.clusters_out,
+                c.triangles_in,
+                c.triangles_out,
+                c.draws,
+                micros(stats.bounds_time),
+                micros(stats.frustum_time),
+                micros(stats.raster_time),
+                micros(stats.occlusion_time),
+            ));
+        }
         per_frame.push(stats);
     }
     let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
     for error in &errors {
         eprintln!("rejected: {error}");
+    }
+    if let Some(bar) = progress {
+        bar.finish_and_clear();
+    }
+    if let Some(file) = &args.stats {
+        std::fs::write(file, csv).map_err(|e| format!("{}: {e}", file.display()))?;
+        println!("per-frame statistics written to {}", file.display());
     }
     print_summary(&per_frame);
     print_gpu_summary(&gpu_frames);
