@@ -97,6 +97,15 @@ pub struct GpuScene {
     pub library: ClusterLibrary,
 }
 
+/// The instance buffer holding `instances`.
+fn instance_buffer(context: &GpuContext, instances: &[GpuInstance]) -> wgpu::Buffer {
+    context.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("instances"),
+        contents: &non_empty(instances),
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+    })
+}
+
 /// Storage buffers may not be empty: pad empty contents with one zero element.
 fn non_empty<T: Pod + Zeroable>(data: &[T]) -> Vec<u8> {
     if data.is_empty() { vec![0; std::mem::size_of::<T>().max(4)] } else { bytemuck::cast_slice(data).to_vec() }
@@ -116,7 +125,7 @@ impl GpuScene {
             buffer("cluster indices", &non_empty(&library.indices), storage | wgpu::BufferUsages::INDEX);
         let clusters = buffer("clusters", &non_empty::<GpuCluster>(&library.clusters), storage);
         let meshes = buffer("meshes", &non_empty(&library.meshes), storage);
-        let instances_buffer = buffer("instances", &non_empty(&instances), storage);
+        let instances_buffer = instance_buffer(context, &instances);
         Self {
             positions,
             cluster_indices,
@@ -136,8 +145,8 @@ impl GpuScene {
 
     /// Brings the GPU instances up to date with a store of `count` objects of which only `written` slots
     /// changed (see [`crate::bounds::BoundsStore::take_written_slots`]): only those are written, runs of
-    /// neighbouring slots in one write. The buffer is regrown (and everything rewritten) only when `count`
-    /// exceeds its capacity.
+    /// neighbouring slots in one write. The instance buffer is regrown (and every instance rewritten) only when
+    /// `count` exceeds its capacity.
     pub fn write_instances(
         &mut self,
         context: &GpuContext,
@@ -147,8 +156,9 @@ impl GpuScene {
     ) {
         let capacity = self.instances.size() as usize / std::mem::size_of::<GpuInstance>();
         if count > capacity {
-            let all = (0..count as u32).map(&instance_of).collect();
-            *self = Self::new(context, std::mem::take(&mut self.library), all);
+            // Only the instance buffer grows; the mesh buffers stay as they are.
+            self.instance_data = (0..count as u32).map(&instance_of).collect();
+            self.instances = instance_buffer(context, &self.instance_data);
             self.instances_written_last_update = count;
             return;
         }
