@@ -7,9 +7,11 @@
 use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
 use cullet::gpu::GpuContext;
+use cullet::gpu::cluster_cull::ClusterVerdict;
 use cullet::gpu::clusters::ClusterLibrary;
 use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuPassTimes};
 use cullet::gpu::scene::{GpuScene, instances_from_world};
+use cullet::gpu::triangle_cull::TriangleVerdict;
 use cullet::pipeline::OcclusionSettings;
 use std::time::Duration;
 
@@ -68,23 +70,26 @@ fn main() {
     );
     println!("instances from the CPU stages  {:>10.0}", sum(|c| c.instances));
     println!("clusters in                    {clusters_in:>10.0}");
-    for (name, f) in [
-        ("  culled by frustum", (|c: &GpuCounters| c.clusters_frustum) as fn(&GpuCounters) -> u32),
-        ("  culled by normal cone", |c| c.clusters_cone),
-        ("  culled by HZB", |c| c.clusters_hzb),
-        ("  culled as small", |c| c.clusters_small),
+    let culled = |name: &str, count: f64, whole: f64| println!("  {name:<29}{count:>10.0} ({:.1}%)", pct(count, whole));
+    for (name, verdict) in [
+        ("culled by frustum", ClusterVerdict::Frustum),
+        ("culled by normal cone", ClusterVerdict::Cone),
+        ("culled by HZB", ClusterVerdict::Hzb),
+        ("culled as small", ClusterVerdict::Small),
     ] {
-        println!("{name:<31}{:>10.0} ({:.1}%)", sum(f), pct(sum(f), clusters_in));
+        let count = outputs.iter().map(|o| f64::from(o.counters.clusters(verdict))).sum::<f64>() / n;
+        culled(name, count, clusters_in);
     }
     println!("clusters out                   {:>10.0}", sum(|c| c.clusters_out));
     println!("triangles in                   {triangles_in:>10.0}");
-    for (name, f) in [
-        ("  culled as degenerate", (|c: &GpuCounters| c.triangles_degenerate) as fn(&GpuCounters) -> u32),
-        ("  culled as back-facing", |c| c.triangles_backface),
-        ("  culled off screen", |c| c.triangles_frustum),
-        ("  culled as small (eq. 19.4)", |c| c.triangles_small),
+    for (name, verdict) in [
+        ("culled as degenerate", TriangleVerdict::Degenerate),
+        ("culled as back-facing", TriangleVerdict::Backface),
+        ("culled off screen", TriangleVerdict::Frustum),
+        ("culled as small (eq. 19.4)", TriangleVerdict::Small),
     ] {
-        println!("{name:<31}{:>10.0} ({:.1}%)", sum(f), pct(sum(f), triangles_in));
+        let count = outputs.iter().map(|o| f64::from(o.counters.triangles(verdict))).sum::<f64>() / n;
+        culled(name, count, triangles_in);
     }
     println!(
         "triangles out                  {:>10.0} ({:.1}% kept)",
