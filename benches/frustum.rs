@@ -7,8 +7,8 @@ use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum};
 use bevy_shape::ViewFrustum;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use cullet::bounds::WorldBounds;
-use cullet::city::{CityParams, CityScene};
 use cullet::frustum::{SimdBackend, cull_frustum_with};
+use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Frustum, VisibleSet};
 use rayon::prelude::*;
 use std::hint::black_box;
@@ -30,8 +30,8 @@ fn fixture(objects: usize) -> Fixture {
     let city = CityScene::generate(CityParams::with_objects(objects));
     let mut store = BoundsStore::default();
     let mut bevy_objects = Vec::with_capacity(objects);
-    for (i, object) in city.objects.iter().enumerate() {
-        let local = city.mesh_bounds[object.mesh as usize];
+    for (i, object) in city.scene.objects.iter().enumerate() {
+        let local = city.scene.mesh_bounds[object.mesh as usize];
         let entity = bevy_ecs_entity(i);
         store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
         let aabb = Aabb {

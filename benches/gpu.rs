@@ -4,7 +4,6 @@
 //! `cargo bench -p cullet-benches --bench gpu`; `CULLET_GPU_OBJECTS` (default 100000) and `CULLET_GPU_FRAMES`
 //! (default 100) size the run. On a software adapter (lavapipe) times mean little: read the counts and ratios.
 
-use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
 use cullet::gpu::GpuContext;
 use cullet::gpu::cluster_cull::ClusterVerdict;
@@ -13,6 +12,7 @@ use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput
 use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::gpu::triangle_cull::TriangleVerdict;
 use cullet::pipeline::OcclusionSettings;
+use cullet::scene::city::{CityParams, CityScene};
 use std::time::Duration;
 
 fn env_or(name: &str, default: usize) -> usize {
@@ -39,7 +39,7 @@ fn main() {
     let frames = env_or("CULLET_GPU_FRAMES", 100) as u32;
     let (width, height) = (1920, 1080);
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let library = ClusterLibrary::build(&city.meshes);
+    let library = ClusterLibrary::build(&city.scene.meshes);
     println!(
         "{objects}-object city, {frames} frames at {width}x{height}; clusters of at most 64 vertices / 124 triangles: {} \
          clusters for {} triangles in the mesh library",

@@ -7,11 +7,11 @@
 use bevy_ecs::entity::Entity;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use cullet::bounds::{Occluder, WorldBounds};
-use cullet::city::{CityParams, CityScene};
 use cullet::frustum::cull_frustum;
 use cullet::occluder::select_occluders;
 use cullet::occlusion::test_occlusion;
 use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Camera, VisibleSet};
 use std::hint::black_box;
 use std::time::Duration;
@@ -29,9 +29,9 @@ fn fixture(objects: usize) -> Fixture {
     let city = CityScene::generate(CityParams::with_objects(objects));
     let mut store = BoundsStore::default();
     let mut occluders = std::collections::HashMap::new();
-    for (i, object) in city.objects.iter().enumerate() {
+    for (i, object) in city.scene.objects.iter().enumerate() {
         let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
-        let local = city.mesh_bounds[object.mesh as usize];
+        let local = city.scene.mesh_bounds[object.mesh as usize];
         let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
         if let Some(occluder) = &object.occluder {
             store.set_occluder(slot, true);

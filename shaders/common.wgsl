@@ -10,7 +10,8 @@ struct Instance {
     flags: u32,
     // Largest axis scale of the matrix: scales bounding-sphere radii.
     max_scale: f32,
-    _pad: u32,
+    // Flat colour, RGBA8 (red in the low byte); 0: pick one from the instance index.
+    color: u32,
 }
 
 // A meshlet: bounding sphere and normal cone in mesh space (meshoptimizer's), and its triangles.

@@ -25,7 +25,11 @@ fn vs(@location(0) position: vec3<f32>, @builtin(instance_index) instance: u32) 
 
 @fragment
 fn fs(in: Varyings) -> Targets {
-    // A flat colour per instance, from a hash of its index.
+    // The instance's flat colour, or one from a hash of its index.
+    let packed = instances[in.instance].color;
+    if (packed != 0u) {
+        return Targets(vec4<f32>(unpack4x8unorm(packed).rgb, 1.0), in.instance);
+    }
     let h = in.instance * 0x9e3779b9u;
     let color = vec3<f32>(f32(h >> 24u), f32((h >> 16u) & 255u), f32((h >> 8u) & 255u)) / 255.0;
     return Targets(vec4<f32>(color * 0.8 + 0.2, 1.0), in.instance);

@@ -4,7 +4,6 @@
 //! `CULLET_REQUIRE_GPU` is set.
 
 use cullet::Camera;
-use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
 use cullet::gpu::cluster_cull::{ClusterVerdict, cull_cluster};
 use cullet::gpu::clusters::ClusterLibrary;
@@ -15,6 +14,7 @@ use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::{GpuContext, context_for_tests};
 use cullet::pipeline::{OcclusionSettings, OcclusionState};
 use cullet::raster::{DepthBuffer, DepthPyramid};
+use cullet::scene::city::{CityParams, CityScene};
 use glam::Vec3;
 use std::collections::HashMap;
 
@@ -31,7 +31,7 @@ struct Setup {
 
 fn setup(context: &GpuContext, objects: usize) -> Setup {
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let library = ClusterLibrary::build(&city.meshes);
+    let library = ClusterLibrary::build(&city.scene.meshes);
     let flight =
         Flight::new(city.flythrough(), WIDTH as f32 / HEIGHT as f32, 10, OcclusionSettings::default(), |world| {
             city.spawn(world);
@@ -299,7 +299,7 @@ fn only_changed_instances_are_uploaded() {
     let mut setup = setup(&context, 5000);
     let moving = {
         let world = &mut setup.flight.world;
-        world.query::<&cullet::city::Velocity>().iter(world).count()
+        world.query::<&cullet::scene::Velocity>().iter(world).count()
     };
     assert!(moving > 0);
     let settings = GpuCullSettings::default();

@@ -1,9 +1,9 @@
 //! The whole CPU pipeline against the exact ground truth over the city's camera path: no conservative stage
 //! ever culls an object that owns a pixel of the full-resolution (1920x1080) reference rendering.
 
-use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
 use cullet::pipeline::OcclusionSettings;
+use cullet::scene::city::{CityParams, CityScene};
 use cullet_truth::{JudgeSettings, PathMetrics, judge_frame};
 
 /// Flies `frames` frames through a city of `objects` objects with `occlusion`, judging every frame.
@@ -16,7 +16,7 @@ fn fly_and_judge(objects: usize, frames: u32, occlusion: OcclusionSettings) -> P
     let mut path = PathMetrics::default();
     for frame in 0..frames {
         flight.run_frame(frame);
-        let judgement = judge_frame(&flight.world, &city.meshes, &settings);
+        let judgement = judge_frame(&flight.world, &city.scene.meshes, &settings);
         if let Some(missed) = judgement.metrics.false_negatives.first() {
             let entity = flight.world.resource::<cullet::BoundsStore>().entities()[missed.object];
             panic!(

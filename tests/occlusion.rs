@@ -261,8 +261,8 @@ fn the_random_scenes_do_occlude() {
 #[test]
 fn city_street_view_is_occluded_conservatively() {
     use bevy_ecs::prelude::*;
-    use cullet::city::{CityParams, CityScene};
     use cullet::pipeline::{self, CullStats, OcclusionState};
+    use cullet::scene::city::{CityParams, CityScene};
 
     let city = CityScene::generate(CityParams::with_objects(20_000));
     let mut world = World::new();
@@ -276,6 +276,7 @@ fn city_street_view_is_occluded_conservatively() {
     let stats = *world.resource::<CullStats>();
 
     let occluders: Vec<Occluder> = city
+        .scene
         .objects
         .iter()
         .filter_map(|o| o.occluder.as_ref().map(|occ| (occ.triangles.to_vec(), o.transform)))

@@ -1,16 +1,16 @@
 //! Prints how the frustum stage's groups of 64 classify for the city's benchmark cameras.
 use cullet::BoundsStore;
 use cullet::bounds::WorldBounds;
-use cullet::city::{CityParams, CityScene};
 use cullet::frustum::GroupClass;
+use cullet::scene::city::{CityParams, CityScene};
 use std::time::Instant;
 
 fn main() {
     let city = CityScene::generate(CityParams::with_objects(1_000_000));
     let mut store = BoundsStore::default();
-    for (i, object) in city.objects.iter().enumerate() {
+    for (i, object) in city.scene.objects.iter().enumerate() {
         let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
-        let local = city.mesh_bounds[object.mesh as usize];
+        let local = city.scene.mesh_bounds[object.mesh as usize];
         store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
     }
     let mut visible = cullet::VisibleSet::default();

@@ -3,11 +3,11 @@
 //! `cargo run --release -p cullet --example occlusion_profile [objects]`
 use cullet::BoundsStore;
 use cullet::bounds::WorldBounds;
-use cullet::city::{CityParams, CityScene};
 use cullet::frustum::cull_frustum;
 use cullet::occluder::select_occluders;
 use cullet::occlusion::test_occlusion;
 use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use cullet::scene::city::{CityParams, CityScene};
 use std::time::Instant;
 
 fn main() {
@@ -15,9 +15,9 @@ fn main() {
     let city = CityScene::generate(CityParams::with_objects(objects));
     let mut store = BoundsStore::default();
     let mut occluders = Vec::new();
-    for (i, object) in city.objects.iter().enumerate() {
+    for (i, object) in city.scene.objects.iter().enumerate() {
         let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
-        let local = city.mesh_bounds[object.mesh as usize];
+        let local = city.scene.mesh_bounds[object.mesh as usize];
         let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
         if let Some(occluder) = &object.occluder {
             store.set_occluder(slot, true);

@@ -3,8 +3,8 @@
 
 use crate::bounds::ObjectTransform;
 use crate::camera::CameraPath;
-use crate::city::Velocity;
 use crate::pipeline::{self, CullStage, CullStats, OcclusionSettings};
+use crate::scene::Velocity;
 use bevy_ecs::prelude::*;
 
 /// Seconds simulated by the current frame.
@@ -63,8 +63,15 @@ impl Flight {
     /// Places the camera for frame `frame`, moves objects by one frame (none on frame 0) and culls.
     pub fn run_frame(&mut self, frame: u32) -> CullStats {
         let delta = self.frame_delta();
-        self.world.insert_resource(self.path.camera_at(frame as f32 * delta, self.aspect));
-        self.world.resource_mut::<FrameDelta>().0 = if frame == 0 { 0.0 } else { delta };
+        let camera = self.path.camera_at(frame as f32 * delta, self.aspect);
+        self.run_with_camera(camera, if frame == 0 { 0.0 } else { delta })
+    }
+
+    /// Culls for `camera` after moving objects by `delta` seconds: one frame of a camera not on the path (the
+    /// game's free flight).
+    pub fn run_with_camera(&mut self, camera: crate::camera::Camera, delta: f32) -> CullStats {
+        self.world.insert_resource(camera);
+        self.world.resource_mut::<FrameDelta>().0 = delta;
         self.schedule.run(&mut self.world);
         self.world.clear_trackers();
         *self.world.resource::<CullStats>()

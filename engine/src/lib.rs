@@ -12,7 +12,8 @@
 //! 5. [`gpu`]: on the GPU, the survivors' clusters and triangles culled against the frustum, normal cones and
 //!    an HZB primed from the occluder buffer, compacted, and drawn with one multi-draw-indirect.
 //!
-//! [`pipeline`] wires the stages into a `bevy_ecs` schedule; [`city`] generates the built-in test scene;
+//! [`scene`] is the input: meshes and the objects placing them, from the built-in city or a glTF file;
+//! [`pipeline`] wires the stages into a `bevy_ecs` schedule;
 //! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw; [`flight`] flies a
 //! camera through a world, frame by frame.
 //!
@@ -22,7 +23,6 @@
 
 pub mod bounds;
 pub mod camera;
-pub mod city;
 pub mod flight;
 pub mod frustum;
 pub mod gpu;
@@ -31,6 +31,7 @@ pub mod occluder;
 pub mod occlusion;
 pub mod pipeline;
 pub mod raster;
+pub mod scene;
 pub mod visible;
 
 pub use bounds::{BoundsError, BoundsStore, LocalBounds, MeshRef, ObjectTransform, Occluder, Static, WorldBounds};

@@ -56,6 +56,19 @@ pub struct CullStats {
     pub occlusion_time: Duration,
 }
 
+/// Settings of the frustum stage.
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrustumSettings {
+    /// Whether the stage culls; when off, every object stays visible (for comparison and debugging).
+    pub enabled: bool,
+}
+
+impl Default for FrustumSettings {
+    fn default() -> Self {
+        Self { enabled: true }
+    }
+}
+
 /// Settings of the software occlusion stage.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct OcclusionSettings {
@@ -101,6 +114,7 @@ pub fn init_world(world: &mut World) {
     world.init_resource::<BoundsStore>();
     world.init_resource::<FrustumVisible>();
     world.init_resource::<CullStats>();
+    world.init_resource::<FrustumSettings>();
     world.init_resource::<OcclusionSettings>();
     world.init_resource::<OcclusionState>();
     world.add_observer(on_bounds_inserted);
@@ -120,10 +134,12 @@ pub fn add_systems(schedule: &mut Schedule) {
 }
 
 /// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`]. A camera that gives no valid
-/// frustum culls nothing (everything stays visible) and reports the error in [`CullStats`].
+/// frustum culls nothing (everything stays visible) and reports the error in [`CullStats`]; so does a stage
+/// turned off in [`FrustumSettings`].
 pub fn frustum_stage(
     store: Res<BoundsStore>,
     camera: Res<Camera>,
+    settings: Res<FrustumSettings>,
     mut visible: ResMut<FrustumVisible>,
     mut stats: ResMut<CullStats>,
 ) {
@@ -132,6 +148,11 @@ pub fn frustum_stage(
     stats.bounds_recomputed = store.recomputed_last_sync;
     stats.bounds_time = store.last_sync_time;
     match camera.frustum() {
+        Ok(_) if !settings.enabled => {
+            visible.0 = VisibleSet::all(store.len());
+            stats.after_frustum = store.len();
+            stats.frustum_error = None;
+        }
         Ok(frustum) => {
             stats.after_frustum = cull_frustum(&store, &frustum, &mut visible.0);
             stats.frustum_error = None;

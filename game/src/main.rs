@@ -2,7 +2,6 @@
 //! statistics of each stage.
 
 use clap::Parser;
-use cullet::city::{CityParams, CityScene};
 use cullet::flight::Flight;
 use cullet::gpu::GpuContext;
 use cullet::gpu::clusters::ClusterLibrary;
@@ -10,6 +9,10 @@ use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput
 use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::RasterMode;
+use cullet::scene::Scene;
+use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
+use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::gltf_import::load_gltf;
 use cullet::{BoundsStore, Camera, CameraPath};
 use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 use std::process::ExitCode;
@@ -19,9 +22,14 @@ use std::time::{Duration, Instant};
 #[derive(Parser, Debug)]
 #[command(version, about)]
 struct Args {
-    /// Scene to load: `city` or `city:N` for the built-in procedural city of N objects.
+    /// Scene to load: `city` or `city:N` for the built-in procedural city of N objects, or a glTF file
+    /// (`.gltf` or `.glb`).
     #[arg(long, default_value = "city:100000")]
     scene: String,
+    /// Give large meshes without an artist occluder one made of their own largest triangles (conservative:
+    /// those triangles are the drawn surface).
+    #[arg(long)]
+    auto_occluders: bool,
     /// Number of frames along the camera path.
     #[arg(long, default_value_t = 300)]
     frames: u32,
@@ -75,12 +83,59 @@ const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters
 triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
 image_error_pixels";
 
-fn parse_scene(scene: &str) -> Result<usize, String> {
-    match scene.split_once(':') {
-        None if scene == "city" => Ok(100_000),
-        Some(("city", count)) => count.parse().map_err(|_| format!("bad object count in --scene {scene}")),
-        _ => Err(format!("unknown scene '{scene}': this build knows only the built-in `city[:N]`")),
+/// A loaded scene and the camera path it is flown along without `--camera-path`.
+struct LoadedScene {
+    scene: Scene,
+    path: CameraPath,
+    description: String,
+}
+
+/// The scene `--scene` names: the built-in city, or a glTF file (warnings printed, errors returned).
+fn load_scene(args: &Args) -> Result<LoadedScene, String> {
+    let city_objects = match args.scene.split_once(':') {
+        None if args.scene == "city" => Some(Ok(100_000)),
+        Some(("city", count)) => Some(count.parse().map_err(|_| format!("bad object count in --scene {}", args.scene))),
+        _ => None,
+    };
+    let mut loaded = match city_objects {
+        Some(objects) => {
+            let city = CityScene::generate(CityParams::with_objects(objects?));
+            let path = city.flythrough();
+            LoadedScene {
+                description: format!("city of {} objects", city.scene.objects.len()),
+                scene: city.scene,
+                path,
+            }
+        }
+        None => {
+            let file = std::path::Path::new(&args.scene);
+            let extension = file.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+            if !matches!(extension.as_deref(), Some("gltf" | "glb")) {
+                return Err(format!("unknown scene '{}': expected city, city:N or a .gltf/.glb file", args.scene));
+            }
+            let gltf = load_gltf(file).map_err(|e| e.to_string())?;
+            for warning in &gltf.warnings {
+                eprintln!("warning: {}: {warning}", args.scene);
+            }
+            let path = gltf.scene.orbit_path();
+            LoadedScene {
+                description: format!(
+                    "{}: {} objects, {} triangles, {} artist occluder nodes",
+                    args.scene,
+                    gltf.scene.objects.len(),
+                    gltf.scene.triangle_count(),
+                    gltf.occluder_nodes
+                ),
+                scene: gltf.scene,
+                path,
+            }
+        }
+    };
+    if args.auto_occluders {
+        let added = add_auto_occluders(&mut loaded.scene, &AutoOccluderSettings::default());
+        loaded.description.push_str(&format!(", {added} automatic occluders"));
     }
+    Ok(loaded)
 }
 
 fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
@@ -106,7 +161,6 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args) -> Result<(), String> {
-    let objects = parse_scene(&args.scene)?;
     let (width, height) = parse_resolution(&args.resolution)?;
     let aspect = width as f32 / height as f32;
     let (occlusion_width, occlusion_height) = parse_resolution(&args.occlusion_resolution)?;
@@ -119,20 +173,19 @@ fn run(args: &Args) -> Result<(), String> {
     };
 
     let start = Instant::now();
-    let city = CityScene::generate(CityParams::with_objects(objects));
+    let LoadedScene { scene, path, description } = load_scene(args)?;
     let path = match &args.camera_path {
         Some(file) => {
             let json = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
             CameraPath::from_json(&json).map_err(|e| format!("{}: {e}", file.display()))?
         }
-        None => city.flythrough(),
+        None => path,
     };
     let mut flight = Flight::new(path, aspect, args.frames, occlusion, |world| {
-        city.spawn(world);
+        scene.spawn(world);
     });
     println!(
-        "city of {} objects generated and spawned in {:.0} ms; {} frames along a {:.0} s path",
-        city.objects.len(),
+        "{description}; loaded and spawned in {:.0} ms; {} frames along a {:.0} s path",
         start.elapsed().as_secs_f64() * 1e3,
         args.frames,
         flight.path.duration()
@@ -147,7 +200,7 @@ fn run(args: &Args) -> Result<(), String> {
                 let info = &context.adapter_info;
                 println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
                 let scene =
-                    GpuScene::new(&context, ClusterLibrary::build(&city.meshes), instances_from_world(&flight.world));
+                    GpuScene::new(&context, ClusterLibrary::build(&scene.meshes), instances_from_world(&flight.world));
                 let culler = GpuCuller::new(&context, scene, width, height, occlusion_width, occlusion_height);
                 Some((context, culler))
             }
@@ -182,7 +235,7 @@ fn run(args: &Args) -> Result<(), String> {
         let stats = flight.run_frame(frame);
         let mut frame_accuracy = None;
         if args.validate {
-            let metrics = judge_frame(&flight.world, &city.meshes, &judge).metrics;
+            let metrics = judge_frame(&flight.world, &scene.meshes, &judge).metrics;
             frame_accuracy = Some((
                 metrics.false_negatives.len(),
                 metrics.stages.last().map_or(0, |s| s.false_positives),

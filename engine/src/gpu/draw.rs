@@ -50,7 +50,9 @@ impl RenderTargets {
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
                 format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::COPY_SRC
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
                 view_formats: &[],
             })
         };
@@ -66,6 +68,11 @@ impl RenderTargets {
     /// Width and height.
     pub fn size(&self) -> (u32, u32) {
         (self.width, self.height)
+    }
+
+    /// A view of the colour target (RGBA8), for showing it in a window.
+    pub fn color_view(&self) -> wgpu::TextureView {
+        self.color.create_view(&wgpu::TextureViewDescriptor::default())
     }
 
     /// Reads all three targets back.

@@ -303,6 +303,8 @@ pub struct GpuCuller {
     /// The render targets.
     pub targets: RenderTargets,
     view: wgpu::Buffer,
+    /// The view the draw pass renders from: the culling view, or another camera's (see [`GpuCuller::run_from`]).
+    draw_view: wgpu::Buffer,
     counters: wgpu::Buffer,
     dispatch: wgpu::Buffer,
     /// The last frame's view uniform (for the CPU twins in tests).
@@ -332,6 +334,16 @@ fn storage_buffer(context: &GpuContext, label: &str, size: u64, extra: wgpu::Buf
     })
 }
 
+/// A uniform buffer for one [`GpuView`].
+fn view_buffer(context: &GpuContext, label: &str) -> wgpu::Buffer {
+    context.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: std::mem::size_of::<GpuView>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
 impl GpuCuller {
     /// The pipeline for `scene`, drawing into `width` x `height` targets, with an HZB for occlusion buffers of
     /// `hzb_width` x `hzb_height`.
@@ -352,12 +364,8 @@ impl GpuCuller {
             triangle_pipeline: compute("triangle cull", include_str!("../../../shaders/triangle_cull.wgsl")),
             draw: DrawPass::new(context),
             targets: RenderTargets::new(context, width, height),
-            view: context.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("view"),
-                size: std::mem::size_of::<GpuView>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
+            view: view_buffer(context, "view"),
+            draw_view: view_buffer(context, "draw view"),
             counters: storage_buffer(context, "counters", (COUNTER_COUNT * 4) as u64, wgpu::BufferUsages::INDIRECT),
             dispatch: storage_buffer(context, "triangle dispatch", 12, wgpu::BufferUsages::INDIRECT),
             last_view: GpuView::zeroed(),
@@ -462,12 +470,28 @@ impl GpuCuller {
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
     ) -> GpuFrameOutput {
+        self.run_from(context, camera, camera, visible, depth, settings)
+    }
+
+    /// [`GpuCuller::run`] culling for `camera` but drawing the survivors as `draw_camera` sees them: with
+    /// culling frozen at one camera, flying another shows what was culled.
+    pub fn run_from(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+    ) -> GpuFrameOutput {
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
         let view = self.view_for(camera, settings, visible.len() as u32);
         self.last_view = view;
         context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
+        let draw_view = if draw_camera == camera { view } else { self.view_for(draw_camera, settings, 0) };
+        context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&draw_view));
         self.frame_buffers(context, visible);
         let frame = self.frame.as_ref().expect("sized above");
         if !visible.is_empty() {
@@ -594,21 +618,39 @@ impl GpuCuller {
         world: &mut bevy_ecs::world::World,
         settings: &GpuCullSettings,
     ) -> GpuFrameOutput {
+        let camera = *world.resource::<Camera>();
+        self.run_world_from(context, world, &camera, settings)
+    }
+
+    /// [`GpuCuller::run_world`] drawing from `draw_camera` (see [`GpuCuller::run_from`]).
+    pub fn run_world_from(
+        &mut self,
+        context: &GpuContext,
+        world: &mut bevy_ecs::world::World,
+        draw_camera: &Camera,
+        settings: &GpuCullSettings,
+    ) -> GpuFrameOutput {
         let written = world.resource_mut::<crate::bounds::BoundsStore>().take_written_slots();
         let count = world.resource::<crate::bounds::BoundsStore>().len();
         self.scene.write_instances(context, count, &written, |slot| super::scene::instance_of(world, slot));
         let state = world.resource::<crate::pipeline::OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
-        self.run(context, &camera, &visible, &state.depth, settings)
+        self.run_from(context, &camera, draw_camera, &visible, &state.depth, settings)
     }
 
     /// Draws every cluster of every instance with no culling at all, for comparison; `reversed` draws them in
     /// the opposite order, which shows where the image depends on draw order (coplanar surfaces of different
     /// objects at exactly the same depth).
     pub fn draw_unculled(&self, context: &GpuContext, camera: &Camera, reversed: bool) -> RenderedImage {
+        self.draw_all(context, camera, reversed);
+        self.targets.read(context)
+    }
+
+    /// Draws every cluster of every instance into the targets with no culling, in store order or `reversed`.
+    pub fn draw_all(&self, context: &GpuContext, camera: &Camera, reversed: bool) {
         let view = self.view_for(camera, &GpuCullSettings::default(), 0);
-        context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
+        context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&view));
         let mut args = unculled_draws(&self.scene.library, self.scene.instances());
         if reversed {
             args.reverse();
@@ -626,7 +668,6 @@ impl GpuCuller {
             self.record_draw(context, &mut encoder, camera.depth, source, None);
             context.queue.submit([encoder.finish()]);
         }
-        self.targets.read(context)
     }
 
     /// Records the draw of `source` into this culler's targets.
@@ -644,7 +685,7 @@ impl GpuCuller {
             encoder,
             &self.targets,
             depth,
-            &self.view,
+            &self.draw_view,
             &scene.instances,
             &scene.positions,
             source,

@@ -47,6 +47,8 @@ pub struct GpuContext {
     pub device: wgpu::Device,
     /// Its queue.
     pub queue: wgpu::Queue,
+    /// The adapter the device was opened on.
+    pub adapter: wgpu::Adapter,
     /// The adapter's name, backend and type.
     pub adapter_info: wgpu::AdapterInfo,
     /// Whether `multi_draw_indexed_indirect_count` is available; without it the draw falls back to
@@ -64,16 +66,27 @@ impl GpuContext {
     }
 
     async fn new_async() -> Result<Self, GpuError> {
-        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        Self::open(&Self::instance(wgpu::InstanceDescriptor::new_without_display_handle_from_env()), None).await
+    }
+
+    /// An instance of `descriptor` limited to the primary backends unless `WGPU_BACKEND` says otherwise.
+    pub fn instance(mut descriptor: wgpu::InstanceDescriptor) -> wgpu::Instance {
         if std::env::var_os("WGPU_BACKEND").is_none() {
             // Vulkan, Metal or DX12 (lavapipe is Vulkan); the GL backend would probe for a display.
             descriptor.backends = wgpu::Backends::PRIMARY;
         }
-        let instance = wgpu::Instance::new(descriptor);
-        let adapter = instance
-            .request_adapter(&wgpu::RequestAdapterOptions::default())
-            .await
-            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        wgpu::Instance::new(descriptor)
+    }
+
+    /// Opens the default adapter of `instance` that can present to `surface` (for a window; see
+    /// [`GpuContext::instance`]), with the same requirements as [`GpuContext::new`].
+    pub fn for_surface(instance: &wgpu::Instance, surface: &wgpu::Surface<'_>) -> Result<Self, GpuError> {
+        futures_lite::future::block_on(Self::open(instance, Some(surface)))
+    }
+
+    async fn open(instance: &wgpu::Instance, surface: Option<&wgpu::Surface<'_>>) -> Result<Self, GpuError> {
+        let options = wgpu::RequestAdapterOptions { compatible_surface: surface, ..Default::default() };
+        let adapter = instance.request_adapter(&options).await.map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let adapter_info = adapter.get_info();
         let available = adapter.features();
         let required = wgpu::Features::INDIRECT_FIRST_INSTANCE;
@@ -97,6 +110,7 @@ impl GpuContext {
         Ok(Self {
             device,
             queue,
+            adapter,
             adapter_info,
             has_draw_count: features.contains(wgpu::Features::MULTI_DRAW_INDIRECT_COUNT),
             has_timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),

@@ -28,7 +28,8 @@ pub fn instance_of(world: &bevy_ecs::world::World, slot: u32) -> GpuInstance {
     let entity = world.resource::<crate::bounds::BoundsStore>().entities()[slot as usize];
     let transform = world.get::<crate::bounds::ObjectTransform>(entity).map_or(Affine3A::IDENTITY, |t| t.0);
     let mesh = world.get::<crate::bounds::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
-    GpuInstance::new(&transform, mesh)
+    let color = world.get::<crate::scene::ObjectColor>(entity).map(|c| c.0);
+    GpuInstance::new(&transform, mesh).with_color(color)
 }
 
 /// One drawn object as the shaders read it (`Instance` in `shaders/common.wgsl`).
@@ -43,8 +44,9 @@ pub struct GpuInstance {
     pub flags: u32,
     /// Largest axis scale of the matrix, to scale bounding spheres.
     pub max_scale: f32,
-    /// Padding to 64 bytes.
-    pub _pad: u32,
+    /// Flat colour, RGBA8 packed little-endian (red in the low byte); 0 lets the draw pass pick one from the
+    /// instance index.
+    pub color: u32,
 }
 
 impl GpuInstance {
@@ -60,7 +62,12 @@ impl GpuInstance {
         let max_scale = m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length());
         let determinant = m.determinant();
         let cone_safe = determinant > 0.0 && determinant.is_finite();
-        Self { rows, mesh, flags: if cone_safe { INSTANCE_CONE_SAFE } else { 0 }, max_scale, _pad: 0 }
+        Self { rows, mesh, flags: if cone_safe { INSTANCE_CONE_SAFE } else { 0 }, max_scale, color: 0 }
+    }
+
+    /// The same instance drawn in `color` (RGBA8), or in a colour picked from its index for `None`.
+    pub fn with_color(self, color: Option<[u8; 4]>) -> Self {
+        Self { color: color.map_or(0, |c| u32::from_le_bytes([c[0], c[1], c[2], 255])), ..self }
     }
 
     /// A mesh-space point relative to `camera`, computed as the shaders do (`relative_point`).

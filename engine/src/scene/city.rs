@@ -4,7 +4,8 @@
 //! Objects are generated block by block, so neighbours in the store are neighbours in space: SIMD blocks of
 //! the frustum stage then tend to be all-in or all-out.
 
-use crate::bounds::{LocalBounds, MeshRef, ObjectTransform, Occluder, Static};
+use super::{Scene, SceneObject};
+use crate::bounds::Occluder;
 use crate::camera::{Camera, CameraKey, CameraPath};
 use crate::mesh::Mesh;
 use bevy_ecs::prelude::*;
@@ -19,35 +20,31 @@ const BLOCK_SIZE: f32 = 64.0;
 /// occluder must lie strictly inside the rendered surface.
 const OCCLUDER_INSET: f32 = 0.02;
 
-/// What a city object is.
+/// What a city object is; it picks the object's colour.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ObjectKind {
-    /// The pavement slab of a block.
+enum ObjectKind {
     Ground,
-    /// A building; it carries an occluder.
     Building,
-    /// A car, parked or driving.
     Car,
-    /// A street lamp.
     Lamp,
-    /// A crate on the pavement.
     Crate,
 }
 
-/// One object of a generated scene.
-#[derive(Clone, Debug)]
-pub struct SceneObject {
-    /// What it is.
-    pub kind: ObjectKind,
-    /// Index into [`CityScene::meshes`].
-    pub mesh: u32,
-    /// Placement in the world.
-    pub transform: Affine3A,
-    /// Occluder in local space, shared between objects of the same shape.
-    pub occluder: Option<Occluder>,
-    /// Velocity in units per second for moving objects; `None` for static ones.
-    pub velocity: Option<Vec3>,
+impl ObjectKind {
+    fn color(self) -> [u8; 4] {
+        match self {
+            Self::Ground => [120, 120, 126, 255],
+            Self::Building => [214, 196, 160, 255],
+            Self::Car => [196, 60, 52, 255],
+            Self::Lamp => [60, 64, 72, 255],
+            Self::Crate => [150, 104, 60, 255],
+        }
+    }
 }
+
+/// Object count of the glTF test scene the project ships (`tests/scenes/city_small.gltf`, written by the
+/// `write_test_scene` example).
+pub const TEST_SCENE_OBJECTS: usize = 600;
 
 /// Parameters of the generator.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -67,15 +64,11 @@ impl CityParams {
     }
 }
 
-/// A generated city: a mesh library and the objects that reference it.
+/// A generated city: a scene whose objects come block by block, and the size of its grid.
 #[derive(Clone, Debug)]
 pub struct CityScene {
-    /// Shared meshes, indexed by [`SceneObject::mesh`].
-    pub meshes: Vec<Mesh>,
-    /// Local bounds of each mesh.
-    pub mesh_bounds: Vec<LocalBounds>,
-    /// The objects, block by block.
-    pub objects: Vec<SceneObject>,
+    /// Meshes and objects; buildings carry occluders, 2% of cars (by default) a [`super::Velocity`].
+    pub scene: Scene,
     /// Number of blocks along each side of the (square) grid.
     pub blocks_per_side: u32,
 }
@@ -106,7 +99,6 @@ impl CityScene {
     /// Generates exactly `params.objects` objects, deterministically from `params.seed`.
     pub fn generate(params: CityParams) -> Self {
         let meshes = mesh_library();
-        let mesh_bounds = meshes.iter().map(|m| m.local_bounds().expect("library meshes are not empty")).collect();
         let occluder = Occluder::new(
             Mesh::unit_cube(1).scaled(Vec3::splat(1.0 - 2.0 * OCCLUDER_INSET), Vec3::ZERO).triangle_soup(),
         );
@@ -126,7 +118,7 @@ impl CityScene {
                 objects.push(object);
             }
         }
-        Self { meshes, mesh_bounds, objects, blocks_per_side }
+        Self { scene: Scene::new(meshes, objects), blocks_per_side }
     }
 
     /// Half the side length of the city's square footprint.
@@ -134,27 +126,9 @@ impl CityScene {
         self.blocks_per_side as f32 * BLOCK_PITCH * 0.5
     }
 
-    /// Spawns every object as an entity with [`LocalBounds`], [`ObjectTransform`], [`MeshRef`], and
-    /// [`Static`] or [`Velocity`], plus [`Occluder`] for buildings. Returns the entities in object order.
+    /// Spawns the city's objects (see [`Scene::spawn`]); returns the entities in object order.
     pub fn spawn(&self, world: &mut World) -> Vec<Entity> {
-        self.objects
-            .iter()
-            .map(|object| {
-                let mut entity = world.spawn((
-                    self.mesh_bounds[object.mesh as usize],
-                    ObjectTransform(object.transform),
-                    MeshRef(object.mesh),
-                ));
-                match object.velocity {
-                    Some(velocity) => entity.insert(Velocity(velocity)),
-                    None => entity.insert(Static),
-                };
-                if let Some(occluder) = &object.occluder {
-                    entity.insert(occluder.clone());
-                }
-                entity.id()
-            })
-            .collect()
+        self.scene.spawn(world)
     }
 
     /// The built-in fly-through: down a street at eye height, up over the roofs, and back down across the city
@@ -193,10 +167,6 @@ impl CityScene {
     }
 }
 
-/// Velocity of a moving object, in units per second.
-#[derive(Component, Clone, Copy, Debug, PartialEq)]
-pub struct Velocity(pub Vec3);
-
 /// Block coordinates in square rings of growing distance from the centre, each ring walked around its
 /// perimeter: any object count gives a compact city, and consecutive blocks are neighbours, so consecutive
 /// store slots stay close in space.
@@ -220,7 +190,13 @@ fn generate_block(
     moving_fraction: f32,
     out: &mut Vec<SceneObject>,
 ) {
-    let place = |kind, mesh, transform| SceneObject { kind, mesh, transform, occluder: None, velocity: None };
+    let place = |kind: ObjectKind, mesh, transform| SceneObject {
+        mesh,
+        transform,
+        occluder: None,
+        velocity: None,
+        color: kind.color(),
+    };
     out.push(place(
         ObjectKind::Ground,
         meshes::GROUND,
@@ -316,19 +292,20 @@ mod tests {
     fn generation_is_deterministic_and_exact() {
         let a = CityScene::generate(CityParams::with_objects(5_000));
         let b = CityScene::generate(CityParams::with_objects(5_000));
-        assert_eq!(a.objects.len(), 5_000);
-        assert!(a.objects.iter().zip(&b.objects).all(|(x, y)| x.transform == y.transform && x.mesh == y.mesh));
-        let buildings = a.objects.iter().filter(|o| o.kind == ObjectKind::Building).count();
+        let (a, b) = (&a.scene.objects, &b.scene.objects);
+        assert_eq!(a.len(), 5_000);
+        assert!(a.iter().zip(b).all(|(x, y)| x.transform == y.transform && x.mesh == y.mesh));
+        let buildings = a.iter().filter(|o| o.mesh == meshes::BUILDING).count();
         assert!(buildings > 300, "{buildings} buildings");
-        assert!(a.objects.iter().filter(|o| o.kind == ObjectKind::Building).all(|o| o.occluder.is_some()));
-        assert!(a.objects.iter().any(|o| o.velocity.is_some()));
+        assert!(a.iter().all(|o| o.occluder.is_some() == (o.mesh == meshes::BUILDING)));
+        assert!(a.iter().any(|o| o.velocity.is_some()));
     }
 
     #[test]
     fn occluders_lie_inside_their_buildings() {
         let city = CityScene::generate(CityParams::with_objects(200));
-        let building = &city.mesh_bounds[meshes::BUILDING as usize];
-        let object = city.objects.iter().find(|o| o.kind == ObjectKind::Building).unwrap();
+        let building = &city.scene.mesh_bounds[meshes::BUILDING as usize];
+        let object = city.scene.objects.iter().find(|o| o.mesh == meshes::BUILDING).unwrap();
         for &p in object.occluder.as_ref().unwrap().triangles.iter() {
             assert!(((p - building.center).abs() - building.half_extent).max_element() < 0.0);
         }

@@ -1,0 +1,456 @@
+//! glTF 2.0 scenes (`.gltf` with external or embedded buffers, or `.glb`), read with the `gltf` crate.
+//!
+//! What is read: the default scene's node hierarchy and transforms; every triangle primitive (lists, strips
+//! and fans) as one object drawing one [`Mesh`], shared by every node that uses the same glTF mesh; the
+//! material's base colour factor as a flat colour; double-sided materials get each triangle twice, once per
+//! winding, since the draw pass and the ground truth cull back faces. Textures are not used.
+//!
+//! Artist occluders: a node whose name ends in `_occluder`, or whose `extras` holds `"occluder": true`,
+//! supplies its mesh's triangles as an [`Occluder`] and is not drawn. The occluder belongs to the object drawn
+//! by the node's parent (its first primitive), in that object's local space, so the occlusion stage skips it
+//! when the camera is inside that object; an occluder node whose parent draws nothing is carried by an object
+//! of its own that has the occluder's vertices for bounds and no triangles.
+//!
+//! Malformed files are refused with a [`GltfError`] naming the file and the problem: unreadable or invalid
+//! JSON, missing or short buffers, compressed geometry (Draco, meshopt), unsupported required extensions,
+//! accessors outside their buffers, indices out of range, non-finite positions or transforms, cyclic node
+//! graphs. Problems that leave the geometry usable (missing images, points and lines, primitives without
+//! positions) are returned as warnings. Nothing in here panics on any input.
+
+use super::{Scene, SceneObject};
+use crate::bounds::Occluder;
+use crate::mesh::Mesh;
+use base64::Engine as _;
+use glam::{Affine3A, Mat4, Vec3};
+use std::path::{Path, PathBuf};
+
+/// Suffix of a node name that marks an artist occluder.
+pub const OCCLUDER_SUFFIX: &str = "_occluder";
+
+/// A glTF file that could not be loaded.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {problem}")]
+pub struct GltfError {
+    /// The file, as given.
+    pub file: String,
+    /// What is wrong with it.
+    pub problem: GltfProblem,
+}
+
+/// What is wrong with a glTF file.
+#[derive(Debug, thiserror::Error)]
+pub enum GltfProblem {
+    /// The file or one of its buffers could not be read.
+    #[error("cannot read {what}: {error}")]
+    Io {
+        /// The file that failed.
+        what: String,
+        /// The reason.
+        error: std::io::Error,
+    },
+    /// Not glTF, or glTF that breaks the specification (reported by the `gltf` crate's validation).
+    #[error("not a valid glTF file: {0}")]
+    Invalid(String),
+    /// An extension the file requires that the loader does not implement.
+    #[error("requires the unsupported extension {0}{hint}", hint = compression_hint(.0))]
+    UnsupportedExtension(String),
+    /// A buffer's bytes are missing or shorter than declared.
+    #[error("buffer {index}: {why}")]
+    Buffer {
+        /// Index of the buffer.
+        index: usize,
+        /// What is wrong.
+        why: String,
+    },
+    /// A mesh primitive's data is unusable.
+    #[error("mesh {mesh} ('{name}') primitive {primitive}: {why}")]
+    Primitive {
+        /// Index of the mesh.
+        mesh: usize,
+        /// Its name, or empty.
+        name: String,
+        /// Index of the primitive in the mesh.
+        primitive: usize,
+        /// What is wrong.
+        why: String,
+    },
+    /// A node is unusable.
+    #[error("node {node} ('{name}'): {why}")]
+    Node {
+        /// Index of the node.
+        node: usize,
+        /// Its name, or empty.
+        name: String,
+        /// What is wrong.
+        why: String,
+    },
+    /// The file has no scene to show.
+    #[error("has no scene")]
+    NoScene,
+}
+
+fn compression_hint(extension: &str) -> &'static str {
+    match extension {
+        "KHR_draco_mesh_compression" | "EXT_meshopt_compression" | "KHR_mesh_quantization" => {
+            " (compressed or quantized geometry is not supported; export the scene uncompressed)"
+        }
+        _ => "",
+    }
+}
+
+/// A scene loaded from glTF, with what was skipped.
+#[derive(Clone, Debug, Default)]
+pub struct GltfScene {
+    /// The scene.
+    pub scene: Scene,
+    /// Problems that left the geometry usable, one line each.
+    pub warnings: Vec<String>,
+    /// Number of artist occluder nodes found.
+    pub occluder_nodes: usize,
+}
+
+/// Loads a `.gltf` or `.glb` file; external buffers and images are looked up next to it.
+pub fn load_gltf(path: &Path) -> Result<GltfScene, GltfError> {
+    let file = path.display().to_string();
+    let error = |problem| GltfError { file: file.clone(), problem };
+    let bytes = std::fs::read(path).map_err(|e| error(GltfProblem::Io { what: "the file".into(), error: e }))?;
+    parse_gltf(&bytes, path.parent(), &file)
+}
+
+/// Loads glTF from `bytes` (JSON or GLB); external buffers and images are looked up in `base_dir` (none may
+/// be referenced without one). `file` names the source in errors.
+pub fn parse_gltf(bytes: &[u8], base_dir: Option<&Path>, file: &str) -> Result<GltfScene, GltfError> {
+    Loader::new(bytes, base_dir).and_then(Loader::load).map_err(|problem| GltfError { file: file.into(), problem })
+}
+
+/// Extensions that change nothing the loader reads.
+const HARMLESS_EXTENSIONS: [&str; 4] =
+    ["KHR_materials_unlit", "KHR_texture_transform", "KHR_materials_emissive_strength", "KHR_lights_punctual"];
+
+struct Loader {
+    document: gltf::Document,
+    geometry: Geometry,
+}
+
+/// The file's buffers, read into meshes; collects warnings on the way.
+struct Geometry {
+    buffers: Vec<Vec<u8>>,
+    warnings: Vec<String>,
+}
+
+/// Objects drawn for one glTF mesh: (engine mesh, colour) per triangle primitive.
+type MeshObjects = Vec<(u32, [u8; 4])>;
+
+impl Loader {
+    fn new(bytes: &[u8], base_dir: Option<&Path>) -> Result<Self, GltfProblem> {
+        let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| GltfProblem::Invalid(e.to_string()))?;
+        for extension in gltf.document.extensions_required() {
+            if !HARMLESS_EXTENSIONS.contains(&extension) {
+                return Err(GltfProblem::UnsupportedExtension(extension.into()));
+            }
+        }
+        for extension in gltf.document.extensions_used() {
+            if !compression_hint(extension).is_empty() {
+                return Err(GltfProblem::UnsupportedExtension(extension.into()));
+            }
+        }
+        let mut warnings = Vec::new();
+        let mut buffers = Vec::new();
+        for buffer in gltf.document.buffers() {
+            let index = buffer.index();
+            let data = match buffer.source() {
+                gltf::buffer::Source::Bin => gltf
+                    .blob
+                    .clone()
+                    .ok_or_else(|| GltfProblem::Buffer { index, why: "the GLB binary chunk is missing".into() })?,
+                gltf::buffer::Source::Uri(uri) => read_uri(uri, base_dir)
+                    .map_err(|why| GltfProblem::Buffer { index, why: format!("'{}': {why}", short(uri)) })?,
+            };
+            if data.len() < buffer.length() {
+                return Err(GltfProblem::Buffer {
+                    index,
+                    why: format!("holds {} bytes, {} declared", data.len(), buffer.length()),
+                });
+            }
+            buffers.push(data);
+        }
+        for image in gltf.document.images() {
+            if let gltf::image::Source::Uri { uri, .. } = image.source()
+                && !uri.starts_with("data:")
+            {
+                let found = base_dir.map(|dir| dir.join(percent_decode(uri))).is_some_and(|p| p.is_file());
+                if !found {
+                    warnings.push(format!("image {} '{}' not found (textures are not used)", image.index(), uri));
+                }
+            }
+        }
+        Ok(Self { document: gltf.document, geometry: Geometry { buffers, warnings } })
+    }
+
+    fn load(self) -> Result<GltfScene, GltfProblem> {
+        let Self { document, mut geometry } = self;
+        let mut meshes = Vec::new();
+        let mut drawn: Vec<Option<MeshObjects>> = vec![None; document.meshes().len()];
+        let mut objects = Vec::new();
+        let mut occluder_nodes = 0;
+        let scene = document.default_scene().or_else(|| document.scenes().next()).ok_or(GltfProblem::NoScene)?;
+
+        // Depth-first over the hierarchy: (node, parent's world transform, first object drawn by the parent).
+        let mut visited = vec![false; document.nodes().len()];
+        let mut stack: Vec<(gltf::Node, Affine3A, Option<usize>)> =
+            scene.nodes().map(|node| (node, Affine3A::IDENTITY, None)).collect();
+        stack.reverse();
+        while let Some((node, parent_world, parent_object)) = stack.pop() {
+            let node_problem = |why: String| GltfProblem::Node {
+                node: node.index(),
+                name: node.name().unwrap_or_default().into(),
+                why,
+            };
+            if std::mem::replace(&mut visited[node.index()], true) {
+                return Err(node_problem("reached twice: the node graph has a cycle or a shared child".into()));
+            }
+            let local = Affine3A::from_mat4(Mat4::from_cols_array_2d(&node.transform().matrix()));
+            if !local.is_finite() {
+                return Err(node_problem("non-finite transform".into()));
+            }
+            let world = parent_world * local;
+            if !world.is_finite() {
+                return Err(node_problem("its world transform overflows".into()));
+            }
+            let mut first_object = None;
+            if let Some(mesh) = node.mesh() {
+                if is_occluder(&node) {
+                    occluder_nodes += 1;
+                    let triangles = geometry.triangles_of(&mesh)?;
+                    match parent_object {
+                        Some(owner) => {
+                            let owner: &mut SceneObject = &mut objects[owner];
+                            let soup: Vec<Vec3> = triangles.iter().map(|&p| local.transform_point3(p)).collect();
+                            owner.occluder = Some(merge_occluder(owner.occluder.take(), soup));
+                        }
+                        None => {
+                            meshes.push(Mesh { positions: triangles.clone(), indices: Vec::new() });
+                            objects.push(SceneObject {
+                                mesh: meshes.len() as u32 - 1,
+                                transform: world,
+                                occluder: Some(Occluder::new(triangles)),
+                                velocity: None,
+                                color: [0; 4],
+                            });
+                        }
+                    }
+                } else {
+                    let index = mesh.index();
+                    if drawn[index].is_none() {
+                        drawn[index] = Some(geometry.meshes_of(&mesh, &mut meshes)?);
+                    }
+                    for &(mesh, color) in drawn[index].iter().flatten() {
+                        first_object.get_or_insert(objects.len());
+                        objects.push(SceneObject { mesh, transform: world, occluder: None, velocity: None, color });
+                    }
+                }
+            }
+            for child in node.children().collect::<Vec<_>>().into_iter().rev() {
+                stack.push((child, world, first_object));
+            }
+        }
+        Ok(GltfScene { scene: Scene::new(meshes, objects), warnings: geometry.warnings, occluder_nodes })
+    }
+}
+
+impl Geometry {
+    /// The engine meshes of `mesh`'s triangle primitives, appended to `meshes`, with their colours.
+    fn meshes_of(&mut self, mesh: &gltf::Mesh, meshes: &mut Vec<Mesh>) -> Result<MeshObjects, GltfProblem> {
+        let mut out = Vec::new();
+        for primitive in mesh.primitives() {
+            let Some(read) = self.read_primitive(mesh, &primitive)? else { continue };
+            let material = primitive.material();
+            let factor = material.pbr_metallic_roughness().base_color_factor();
+            let color = factor.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8);
+            let mut triangles = read;
+            if material.double_sided() {
+                let back: Vec<u32> = triangles.indices.chunks_exact(3).flat_map(|t| [t[0], t[2], t[1]]).collect();
+                triangles.indices.extend(back);
+            }
+            meshes.push(triangles);
+            out.push((meshes.len() as u32 - 1, color));
+        }
+        Ok(out)
+    }
+
+    /// Every triangle of `mesh`'s primitives as a triangle soup (for occluders).
+    fn triangles_of(&mut self, mesh: &gltf::Mesh) -> Result<Vec<Vec3>, GltfProblem> {
+        let mut soup = Vec::new();
+        for primitive in mesh.primitives() {
+            if let Some(read) = self.read_primitive(mesh, &primitive)? {
+                soup.extend(read.triangle_soup());
+            }
+        }
+        Ok(soup)
+    }
+
+    /// A primitive as an indexed triangle list; `None` (with a warning) for points, lines or no positions.
+    fn read_primitive(&mut self, mesh: &gltf::Mesh, primitive: &gltf::Primitive) -> Result<Option<Mesh>, GltfProblem> {
+        let problem = |why: String| GltfProblem::Primitive {
+            mesh: mesh.index(),
+            name: mesh.name().unwrap_or_default().into(),
+            primitive: primitive.index(),
+            why,
+        };
+        let label =
+            format!("mesh {} ('{}') primitive {}", mesh.index(), mesh.name().unwrap_or_default(), primitive.index());
+        use gltf::mesh::Mode;
+        let mode = primitive.mode();
+        if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+            self.warnings.push(format!("{label}: {mode:?} are not drawn"));
+            return Ok(None);
+        }
+        let Some(positions) = primitive.get(&gltf::Semantic::Positions) else {
+            self.warnings.push(format!("{label}: no POSITION attribute, not drawn"));
+            return Ok(None);
+        };
+        check_accessor(&positions, &self.buffers, gltf::accessor::DataType::F32, gltf::accessor::Dimensions::Vec3)
+            .map_err(|why| problem(format!("POSITION {why}")))?;
+        if let Some(indices) = primitive.indices() {
+            check_accessor(&indices, &self.buffers, indices.data_type(), gltf::accessor::Dimensions::Scalar)
+                .map_err(|why| problem(format!("indices {why}")))?;
+            if indices.data_type() == gltf::accessor::DataType::F32
+                || matches!(indices.data_type(), gltf::accessor::DataType::I8 | gltf::accessor::DataType::I16)
+            {
+                return Err(problem(format!("indices of type {:?}", indices.data_type())));
+            }
+        }
+        let buffers = &self.buffers;
+        let reader = primitive.reader(|buffer| buffers.get(buffer.index()).map(Vec::as_slice));
+        let positions: Vec<Vec3> = reader
+            .read_positions()
+            .ok_or_else(|| problem("POSITION cannot be read".into()))?
+            .map(Vec3::from_array)
+            .collect();
+        if let Some(bad) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(problem(format!("vertex {bad} has a non-finite position")));
+        }
+        let raw: Vec<u32> = match reader.read_indices() {
+            Some(indices) => indices.into_u32().collect(),
+            None => (0..positions.len() as u32).collect(),
+        };
+        if let Some(&bad) = raw.iter().find(|&&i| i as usize >= positions.len()) {
+            return Err(problem(format!("index {bad} is out of range ({} vertices)", positions.len())));
+        }
+        let indices = match mode {
+            Mode::TriangleStrip => (2..raw.len())
+                .flat_map(
+                    |i| if i % 2 == 0 { [raw[i - 2], raw[i - 1], raw[i]] } else { [raw[i - 1], raw[i - 2], raw[i]] },
+                )
+                .collect(),
+            Mode::TriangleFan => (2..raw.len()).flat_map(|i| [raw[0], raw[i - 1], raw[i]]).collect(),
+            _ => {
+                if !raw.len().is_multiple_of(3) {
+                    self.warnings
+                        .push(format!("{label}: {} indices, not a multiple of 3; the rest dropped", raw.len()));
+                }
+                raw[..raw.len() / 3 * 3].to_vec()
+            }
+        };
+        Ok(Some(Mesh { positions, indices }))
+    }
+}
+
+/// Whether `node` is an artist occluder: its name ends in [`OCCLUDER_SUFFIX`] or its extras say
+/// `"occluder": true`.
+fn is_occluder(node: &gltf::Node) -> bool {
+    let named = node.name().is_some_and(|n| n.ends_with(OCCLUDER_SUFFIX));
+    let flagged = node.extras().as_ref().is_some_and(|raw| {
+        serde_json::from_str::<serde_json::Value>(raw.get())
+            .is_ok_and(|v| v.get("occluder") == Some(&serde_json::Value::Bool(true)))
+    });
+    named || flagged
+}
+
+/// An occluder of `soup`'s triangles added to `existing`'s.
+fn merge_occluder(existing: Option<Occluder>, soup: Vec<Vec3>) -> Occluder {
+    match existing {
+        Some(occluder) => Occluder::new([&occluder.triangles[..], &soup[..]].concat()),
+        None => Occluder::new(soup),
+    }
+}
+
+/// Checks that every element `accessor` reads lies inside its buffer view and buffer, and that it has the
+/// expected type, so reading it cannot fail half-way.
+fn check_accessor(
+    accessor: &gltf::Accessor,
+    buffers: &[Vec<u8>],
+    data_type: gltf::accessor::DataType,
+    dimensions: gltf::accessor::Dimensions,
+) -> Result<(), String> {
+    if accessor.data_type() != data_type || accessor.dimensions() != dimensions {
+        return Err(format!("has type {:?} {:?}", accessor.data_type(), accessor.dimensions()));
+    }
+    if accessor.sparse().is_some() {
+        return Err("is sparse (not supported)".into());
+    }
+    let Some(view) = accessor.view() else {
+        return Err("has no buffer view".into());
+    };
+    let element = accessor.size();
+    let stride = view.stride().unwrap_or(element);
+    let count = accessor.count();
+    let needed = match count {
+        0 => Some(0),
+        n => (n - 1).checked_mul(stride).and_then(|s| s.checked_add(element)),
+    }
+    .and_then(|n| n.checked_add(accessor.offset()))
+    .ok_or("size overflows")?;
+    if needed > view.length() || stride < element {
+        return Err(format!("reads {needed} bytes from a {}-byte buffer view", view.length()));
+    }
+    let buffer = buffers.get(view.buffer().index()).ok_or("names a missing buffer")?;
+    let end = view.offset().checked_add(view.length()).ok_or("size overflows")?;
+    if end > buffer.len() {
+        return Err(format!("buffer view ends at byte {end} of a {}-byte buffer", buffer.len()));
+    }
+    Ok(())
+}
+
+/// The bytes a buffer URI names: a base64 `data:` URI, or a file relative to `base_dir`.
+fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, String> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (_, data) = rest.split_once(";base64,").ok_or("a data URI that is not base64")?;
+        return base64::engine::general_purpose::STANDARD.decode(data).map_err(|e| format!("bad base64: {e}"));
+    }
+    if uri.contains("://") {
+        return Err("only files next to the glTF and data URIs are read".into());
+    }
+    let dir = base_dir.ok_or("an external file, and no folder to look in")?;
+    let path: PathBuf = dir.join(percent_decode(uri));
+    std::fs::read(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))
+}
+
+/// A URI path with `%XX` escapes decoded (glTF URIs are percent-encoded); bad escapes are kept as they are.
+fn percent_decode(uri: &str) -> String {
+    let bytes = uri.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let hex = bytes
+            .get(i + 1..i + 3)
+            .and_then(|h| std::str::from_utf8(h).ok())
+            .and_then(|h| u8::from_str_radix(h, 16).ok());
+        match (bytes[i], hex) {
+            (b'%', Some(byte)) => {
+                out.push(byte);
+                i += 3;
+            }
+            (byte, _) => {
+                out.push(byte);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// A URI cut to a readable length for messages (data URIs are long).
+fn short(uri: &str) -> String {
+    if uri.len() > 60 { format!("{}...", &uri[..uri.floor_char_boundary(60)]) } else { uri.into() }
+}

@@ -1,0 +1,247 @@
+//! glTF scenes: the shipped test scene round-trips through the exporter and loader, the third-party scenes in
+//! `../shared/scenes` load with their documented counts, malformed files are refused with a clear error and
+//! never panic, and culling stays conservative on all of them against the exact ground truth.
+
+use cullet::camera::CameraPath;
+use cullet::flight::Flight;
+use cullet::mesh::Mesh;
+use cullet::pipeline::OcclusionSettings;
+use cullet::scene::Scene;
+use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
+use cullet::scene::city::{CityParams, CityScene, TEST_SCENE_OBJECTS};
+use cullet::scene::gltf_export::write_gltf;
+use cullet::scene::gltf_import::{GltfError, GltfScene, load_gltf, parse_gltf};
+use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
+use std::path::{Path, PathBuf};
+
+fn repo_file(relative: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
+}
+
+/// A third-party scene of `../shared/scenes`, or `None` (with a visible message) where that folder is absent.
+fn shared_scene(relative: &str) -> Option<GltfScene> {
+    let path = repo_file("../shared/scenes").join(relative);
+    if !path.exists() {
+        eprintln!("SKIPPED: {} not found (the shared scenes sit beside the repository)", path.display());
+        return None;
+    }
+    Some(load_gltf(&path).unwrap_or_else(|e| panic!("{e}")))
+}
+
+fn parse(json: &str) -> Result<GltfScene, GltfError> {
+    parse_gltf(json.as_bytes(), None, "test.gltf")
+}
+
+/// Flies `frames` frames along `path` through `scene` with the default (conservative) pipeline and judges each
+/// against the exact rendering at 640x360; panics on a false negative.
+fn fly_and_judge(scene: &Scene, path: CameraPath, frames: u32) -> PathMetrics {
+    let mut flight = Flight::new(path, 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
+        scene.spawn(world);
+    });
+    let settings = JudgeSettings {
+        reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
+        occlusion_ideal: false,
+    };
+    let mut metrics = PathMetrics::default();
+    for frame in 0..frames {
+        flight.run_frame(frame);
+        let judgement = judge_frame(&flight.world, &scene.meshes, &settings);
+        if let Some(missed) = judgement.metrics.false_negatives.first() {
+            panic!("frame {frame}: object {} is visible but {} culled it", missed.object, missed.stage);
+        }
+        metrics.add(&judgement.metrics);
+    }
+    metrics
+}
+
+#[test]
+fn shipped_test_scene_is_what_the_generator_writes() {
+    let city = CityScene::generate(CityParams::with_objects(TEST_SCENE_OBJECTS));
+    let shipped = std::fs::read_to_string(repo_file("tests/scenes/city_small.gltf")).unwrap();
+    assert!(
+        shipped == write_gltf(&city.scene, "object"),
+        "tests/scenes/city_small.gltf is stale: run `cargo run -p cullet --example write_test_scene`"
+    );
+}
+
+#[test]
+fn test_scene_round_trips_with_its_artist_occluders() {
+    let city = CityScene::generate(CityParams::with_objects(TEST_SCENE_OBJECTS));
+    let loaded = load_gltf(&repo_file("tests/scenes/city_small.gltf")).unwrap();
+    assert!(loaded.warnings.is_empty(), "{:?}", loaded.warnings);
+    let scene = &loaded.scene;
+    assert_eq!(scene.objects.len(), city.scene.objects.len());
+    assert_eq!(loaded.occluder_nodes, city.scene.occluder_count());
+    for (read, written) in scene.objects.iter().zip(&city.scene.objects) {
+        assert!(read.transform.abs_diff_eq(written.transform, 0.0));
+        assert_eq!(read.color, written.color);
+        let (read_mesh, written_mesh) = (&scene.meshes[read.mesh as usize], &city.scene.meshes[written.mesh as usize]);
+        assert_eq!(read_mesh, written_mesh);
+        assert_eq!(
+            read.occluder.as_ref().map(|o| o.triangles.to_vec()),
+            written.occluder.as_ref().map(|o| o.triangles.to_vec())
+        );
+    }
+}
+
+#[test]
+fn test_scene_culls_conservatively_along_its_orbit() {
+    let scene = load_gltf(&repo_file("tests/scenes/city_small.gltf")).unwrap().scene;
+    let city = CityScene::generate(CityParams::with_objects(TEST_SCENE_OBJECTS));
+    let metrics = fly_and_judge(&scene, city.flythrough(), 40);
+    assert_eq!((metrics.false_negatives, metrics.image_error_pixels), (0, 0));
+    assert!(metrics.efficiency(1) > metrics.efficiency(0), "occlusion culled nothing: {metrics:?}");
+}
+
+#[test]
+fn truck_town_loads_with_its_documented_counts_and_culls_conservatively() {
+    let Some(mut town) = shared_scene("truck_town/town_model.gltf") else { return };
+    // 20 drawn nodes with 60 primitives (one object each) and 30 477 triangles; the 15 collision meshes are
+    // referenced only by a physics extension, never drawn.
+    assert_eq!(town.scene.objects.len(), 60);
+    assert_eq!(town.scene.triangle_count(), 30_477);
+    assert_eq!(town.occluder_nodes, 0);
+    let added = add_auto_occluders(&mut town.scene, &AutoOccluderSettings::default());
+    assert!(added > 0);
+    let path = town.scene.orbit_path();
+    let metrics = fly_and_judge(&town.scene, path, 24);
+    assert_eq!((metrics.false_negatives, metrics.image_error_pixels), (0, 0));
+    println!("truck_town: {added} automatic occluders; {metrics:?}");
+}
+
+#[test]
+fn zdm2_loads_as_one_mesh() {
+    let Some(map) = shared_scene("zdm2/zdm2.glb") else { return };
+    assert_eq!(map.scene.objects.len(), 1);
+    assert_eq!(map.scene.meshes[0].triangle_count(), 58_772);
+}
+
+/// A one-triangle glTF with its buffer embedded; `patch` edits the JSON before it is parsed.
+fn triangle_gltf(patch: impl FnOnce(&mut serde_json::Value)) -> String {
+    let mesh = Mesh { positions: vec![glam::Vec3::ZERO, glam::Vec3::X, glam::Vec3::Y], indices: vec![0, 1, 2] };
+    let scene = Scene::new(
+        vec![mesh],
+        vec![cullet::scene::SceneObject {
+            mesh: 0,
+            transform: glam::Affine3A::IDENTITY,
+            occluder: None,
+            velocity: None,
+            color: [10, 20, 30, 255],
+        }],
+    );
+    let mut json: serde_json::Value = serde_json::from_str(&write_gltf(&scene, "t")).unwrap();
+    patch(&mut json);
+    json.to_string()
+}
+
+/// Edits the bytes of the embedded buffer of a glTF written by [`triangle_gltf`].
+fn patch_buffer(json: &mut serde_json::Value, edit: impl FnOnce(&mut Vec<u8>)) {
+    use base64::Engine as _;
+    let engine = base64::engine::general_purpose::STANDARD;
+    let uri = json["buffers"][0]["uri"].as_str().unwrap().to_string();
+    let (head, data) = uri.split_once(";base64,").unwrap();
+    let mut bytes = engine.decode(data).unwrap();
+    edit(&mut bytes);
+    json["buffers"][0]["uri"] = format!("{head};base64,{}", engine.encode(bytes)).into();
+}
+
+#[test]
+fn malformed_files_get_an_error_naming_the_file_and_the_problem() {
+    type Patch = Box<dyn FnOnce(&mut serde_json::Value)>;
+    let cases: Vec<(&str, Patch)> = vec![
+        ("buffer 0", Box::new(|j| j["buffers"][0]["uri"] = "missing.bin".into())),
+        ("holds", Box::new(|j| j["buffers"][0]["byteLength"] = 4096.into())),
+        (
+            "KHR_draco_mesh_compression",
+            Box::new(|j| j["extensionsUsed"] = serde_json::json!(["KHR_draco_mesh_compression"])),
+        ),
+        (
+            "EXT_meshopt_compression",
+            Box::new(|j| {
+                j["extensionsUsed"] = serde_json::json!(["EXT_meshopt_compression"]);
+                j["extensionsRequired"] = serde_json::json!(["EXT_meshopt_compression"]);
+            }),
+        ),
+        // The buffer holds the positions (36 bytes), then the indices.
+        ("index 7 is out of range", Box::new(|j| patch_buffer(j, |bytes| bytes[36] = 7))),
+        (
+            "non-finite position",
+            Box::new(|j| patch_buffer(j, |bytes| bytes[0..4].copy_from_slice(&f32::NAN.to_le_bytes()))),
+        ),
+        ("non-finite transform", Box::new(|j| j["nodes"][0]["matrix"][12] = serde_json::json!(1e39))),
+        ("reads", Box::new(|j| j["accessors"][1]["count"] = 3000.into())),
+        ("not a valid glTF", Box::new(|j| j["nodes"][0]["mesh"] = 5.into())),
+        (
+            "has no scene",
+            Box::new(|j| {
+                j.as_object_mut().unwrap().remove("scene");
+                j["scenes"] = serde_json::json!([]);
+            }),
+        ),
+    ];
+    for (expected, patch) in cases {
+        let error = parse(&triangle_gltf(patch)).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(error.starts_with("test.gltf: ") && error.contains(expected), "expected '{expected}', got '{error}'");
+    }
+    let missing = load_gltf(Path::new("no/such/file.glb")).unwrap_err().to_string();
+    assert!(missing.contains("no/such/file.glb") && missing.contains("cannot read"), "{missing}");
+    assert!(parse("{not json").unwrap_err().to_string().contains("not a valid glTF"));
+}
+
+#[test]
+fn usable_geometry_loads_with_warnings() {
+    let loaded = parse(&triangle_gltf(|j| {
+        j["images"] = serde_json::json!([{"uri": "gone.png"}]);
+        let primitive = j["meshes"][0]["primitives"][0].clone();
+        j["meshes"][0]["primitives"] = serde_json::json!([primitive.clone(), primitive]);
+        j["meshes"][0]["primitives"][1]["mode"] = 1.into();
+    }))
+    .unwrap();
+    assert_eq!(loaded.scene.objects.len(), 1);
+    assert_eq!(loaded.scene.objects[0].color, [10, 20, 30, 255]);
+    let warnings = loaded.warnings.join("\n");
+    assert!(warnings.contains("gone.png") && warnings.contains("Lines"), "{warnings}");
+}
+
+#[test]
+fn double_sided_materials_draw_both_windings_and_occluder_nodes_are_not_drawn() {
+    let loaded = parse(&triangle_gltf(|j| {
+        j["materials"][0]["doubleSided"] = true.into();
+        // A second node using the same mesh, flagged as occluder through extras, with no drawn parent.
+        j["nodes"].as_array_mut().unwrap().push(serde_json::json!({"mesh": 0, "extras": {"occluder": true}}));
+        j["scenes"][0]["nodes"] = serde_json::json!([0, 1]);
+    }))
+    .unwrap();
+    assert_eq!(loaded.occluder_nodes, 1);
+    let scene = &loaded.scene;
+    assert_eq!(scene.objects.len(), 2);
+    assert_eq!(scene.meshes[scene.objects[0].mesh as usize].indices, vec![0, 1, 2, 0, 2, 1]);
+    let carrier = &scene.objects[1];
+    assert_eq!(scene.meshes[carrier.mesh as usize].triangle_count(), 0);
+    assert_eq!(carrier.occluder.as_ref().unwrap().triangle_count(), 1);
+}
+
+/// Mutated and truncated files (bytes flipped, cut short, JSON values replaced) never panic the loader.
+#[test]
+fn hostile_files_never_panic() {
+    use proptest::prelude::*;
+    let gltf = triangle_gltf(|_| {});
+    let glb = std::fs::read(repo_file("../shared/scenes/zdm2/zdm2.glb")).ok();
+    let mut runner = proptest::test_runner::TestRunner::new(ProptestConfig { cases: 256, ..ProptestConfig::default() });
+    let sources: Vec<Vec<u8>> =
+        std::iter::once(gltf.into_bytes()).chain(glb.map(|b| b[..b.len().min(4096)].to_vec())).collect();
+    for source in sources {
+        let len = source.len();
+        runner
+            .run(&(proptest::collection::vec((0..len, any::<u8>()), 0..8), 0..=len), |(flips, cut)| {
+                let mut bytes = source.clone();
+                for (at, value) in flips {
+                    bytes[at] = value;
+                }
+                bytes.truncate(cut.max(1));
+                let _ = parse_gltf(&bytes, None, "fuzz.gltf");
+                Ok(())
+            })
+            .unwrap();
+    }
+}
