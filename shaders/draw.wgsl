@@ -7,6 +7,8 @@
 struct Varyings {
     @builtin(position) clip: vec4<f32>,
     @location(0) @interpolate(flat) instance: u32,
+    // Camera-relative world position, for the face normal.
+    @location(1) relative: vec3<f32>,
 }
 
 struct Targets {
@@ -16,21 +18,26 @@ struct Targets {
 
 @vertex
 fn vs(@location(0) position: vec3<f32>, @builtin(instance_index) instance: u32) -> Varyings {
-    var clip = view.clip_from_relative * vec4<f32>(relative_point(instances[instance], position, view.camera.xyz), 1.0);
+    let relative = relative_point(instances[instance], position, view.camera.xyz);
+    var clip = view.clip_from_relative * vec4<f32>(relative, 1.0);
     if (view.depth_from_negative_one != 0u) {
         clip.z = (clip.z + clip.w) * 0.5;
     }
-    return Varyings(clip, instance);
+    return Varyings(clip, instance, relative);
 }
 
 @fragment
 fn fs(in: Varyings) -> Targets {
     // The instance's flat colour, or one from a hash of its index.
     let packed = instances[in.instance].color;
-    if (packed != 0u) {
-        return Targets(vec4<f32>(unpack4x8unorm(packed).rgb, 1.0), in.instance);
+    var color = unpack4x8unorm(packed).rgb;
+    if (packed == 0u) {
+        let h = in.instance * 0x9e3779b9u;
+        color = vec3<f32>(f32(h >> 24u), f32((h >> 16u) & 255u), f32((h >> 8u) & 255u)) / 255.0 * 0.8 + 0.2;
     }
-    let h = in.instance * 0x9e3779b9u;
-    let color = vec3<f32>(f32(h >> 24u), f32((h >> 16u) & 255u), f32((h >> 8u) & 255u)) / 255.0;
-    return Targets(vec4<f32>(color * 0.8 + 0.2, 1.0), in.instance);
+    // Lit by a fixed sun through the face normal, so neighbouring faces of one colour stay apart.
+    let normal = normalize(cross(dpdx(in.relative), dpdy(in.relative)));
+    let sun = normalize(vec3<f32>(0.4, 0.8, 0.3));
+    let light = 0.45 + 0.55 * abs(dot(normal, sun));
+    return Targets(vec4<f32>(color * light, 1.0), in.instance);
 }

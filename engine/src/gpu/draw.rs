@@ -12,6 +12,8 @@ const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// Object-ID target format: the instance (store slot) per pixel.
 const OBJECT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Colour of pixels nothing covers.
+const SKY: wgpu::Color = wgpu::Color { r: 0.55, g: 0.7, b: 0.9, a: 1.0 };
 /// Object ID of pixels nothing covers.
 pub const NO_OBJECT: u32 = u32::MAX;
 
@@ -222,10 +224,7 @@ impl DrawPass {
                     view: &color_view,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                        store: wgpu::StoreOp::Store,
-                    },
+                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(SKY), store: wgpu::StoreOp::Store },
                 }),
                 Some(wgpu::RenderPassColorAttachment {
                     view: &object_view,

@@ -201,7 +201,8 @@ fn generate_block(
         ObjectKind::Ground,
         meshes::GROUND,
         Affine3A::from_scale_rotation_translation(
-            Vec3::new(BLOCK_SIZE, 0.2, BLOCK_SIZE),
+            // The slab reaches the middle of the streets around the block, so streets have a surface too.
+            Vec3::new(BLOCK_PITCH, 0.2, BLOCK_PITCH),
             Quat::IDENTITY,
             origin + Vec3::new(0.0, -0.1, 0.0),
         ),

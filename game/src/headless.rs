@@ -1,0 +1,189 @@
+//! The headless run: the camera path flown frame by frame, with statistics, validation and screenshots.
+
+use crate::report::{STATS_HEADER, micros, print_gpu_summary, print_summary};
+use crate::{Args, Prepared};
+use cullet::gpu::GpuContext;
+use cullet::gpu::clusters::ClusterLibrary;
+use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
+use cullet::gpu::scene::{GpuScene, instances_from_world};
+use cullet::raster::RasterMode;
+use cullet::{BoundsStore, Camera};
+use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
+
+/// Flies the camera path frame by frame without a window: per-frame lines (or a progress bar), the stats CSV,
+/// screenshots, validation against the ground truth, and the summary.
+pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
+    let Prepared { scene, mut flight, occlusion, resolution: (width, height) } = prepared;
+    let (occlusion_width, occlusion_height) = (occlusion.width, occlusion.height);
+    let mut gpu = if args.cpu_only {
+        println!("--cpu-only: GPU cluster culling, triangle culling and the draw are skipped");
+        None
+    } else {
+        match GpuContext::new() {
+            Ok(context) => {
+                let info = &context.adapter_info;
+                println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
+                let scene =
+                    GpuScene::new(&context, ClusterLibrary::build(&scene.meshes), instances_from_world(&flight.world));
+                let culler = GpuCuller::new(&context, scene, width, height, occlusion_width, occlusion_height);
+                Some((context, culler))
+            }
+            Err(error) => {
+                println!(
+                    "{error}: running the CPU stages only (cluster and triangle culling and the draw are skipped)"
+                );
+                None
+            }
+        }
+    };
+    let mut gpu_frames: Vec<GpuFrameOutput> = Vec::new();
+    let mut per_frame = Vec::with_capacity(args.frames as usize);
+    let judge = JudgeSettings {
+        reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
+        occlusion_ideal: false,
+    };
+    let mut accuracy = PathMetrics::default();
+    let mut csv = String::from(STATS_HEADER);
+    csv.push('\n');
+    if let Some(dir) = &args.screenshots {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        if gpu.is_none() {
+            println!("--screenshots: no GPU adapter, so nothing is drawn and no screenshot is saved");
+        }
+    }
+    let progress = args.quiet.then(|| indicatif::ProgressBar::new(u64::from(args.frames)));
+    for frame in 0..args.frames {
+        if let Some(bar) = &progress {
+            bar.inc(1);
+        }
+        let stats = flight.run_frame(frame);
+        let mut frame_accuracy = None;
+        if args.validate {
+            let metrics = judge_frame(&flight.world, &scene.meshes, &judge).metrics;
+            frame_accuracy = Some((
+                metrics.false_negatives.len(),
+                metrics.stages.last().map_or(0, |s| s.false_positives),
+                metrics.image_error_pixels,
+            ));
+            if !args.quiet || !metrics.false_negatives.is_empty() {
+                println!(
+                    "frame {frame:4}  visible {:6}  false negatives {:4}  false positives {:7}  image error {:6} px",
+                    metrics.visible,
+                    metrics.false_negatives.len(),
+                    metrics.stages.last().map_or(0, |s| s.false_positives),
+                    metrics.image_error_pixels
+                );
+            }
+            for missed in &metrics.false_negatives {
+                let entity = flight.world.resource::<BoundsStore>().entities()[missed.object];
+                println!("  false negative: {entity:?} (store slot {}) culled by {}", missed.object, missed.stage);
+            }
+            accuracy.add(&metrics);
+        }
+        if let Some(error) = stats.frustum_error {
+            return Err(format!("frame {frame}: {error}"));
+        }
+        if !args.quiet {
+            let camera = flight.world.resource::<Camera>();
+            println!(
+                "frame {frame:4}  camera ({:8.1} {:6.1} {:8.1})  objects {:8}  bounds updated {:6} in {:7.1} us  \
+                 after frustum {:8} in {:7.1} us  occluders {:5} ({:6} tris) in {:7.1} us  \
+                 after occlusion {:8} in {:7.1} us",
+                camera.position.x,
+                camera.position.y,
+                camera.position.z,
+                stats.objects,
+                stats.bounds_recomputed,
+                micros(stats.bounds_time),
+                stats.after_frustum,
+                micros(stats.frustum_time),
+                stats.occluders,
+                stats.occluder_triangles,
+                micros(stats.raster_time),
+                stats.after_occlusion,
+                micros(stats.occlusion_time),
+            );
+        }
+        let mut gpu_output = None;
+        if let Some((context, culler)) = gpu.as_mut() {
+            let output = culler.run_world(context, &mut flight.world, &GpuCullSettings::default());
+            if let Some(dir) = args.screenshots.as_ref().filter(|_| frame % args.every.max(1) == 0) {
+                let image = culler.read_image(context);
+                let pixels: Vec<u8> = image.color.iter().flatten().copied().collect();
+                let file = dir.join(format!("frame_{frame:05}.png"));
+                image::RgbaImage::from_raw(image.width, image.height, pixels)
+                    .ok_or("screenshot size mismatch")?
+                    .save(&file)
+                    .map_err(|e| format!("{}: {e}", file.display()))?;
+            }
+            gpu_output = Some(output.counters);
+            if !args.quiet {
+                let c = output.counters;
+                println!(
+                    "           GPU: clusters {:7} -> {:7}  triangles {:9} -> {:9}  draws {:6}  in {:8.1} us",
+                    c.clusters_in,
+                    c.clusters_out,
+                    c.triangles_in,
+                    c.triangles_out,
+                    c.draws,
+                    micros(output.wall_time)
+                );
+            }
+            gpu_frames.push(output);
+        }
+        if args.stats.is_some() {
+            let c = gpu_output.unwrap_or_default();
+            let gpu_us = gpu_frames.last().filter(|_| gpu_output.is_some()).map_or(0.0, |o| micros(o.wall_time));
+            let (false_negatives, false_positives, image_error) = frame_accuracy
+                .map_or((String::new(), String::new(), String::new()), |(a, b, c)| {
+                    (a.to_string(), b.to_string(), c.to_string())
+                });
+            csv.push_str(&format!(
+                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error}\n",
+                stats.objects,
+                stats.after_frustum,
+                stats.after_occlusion,
+                c.clusters_in,
+                c.clusters_out,
+                c.triangles_in,
+                c.triangles_out,
+                c.draws,
+                micros(stats.bounds_time),
+                micros(stats.frustum_time),
+                micros(stats.raster_time),
+                micros(stats.occlusion_time),
+            ));
+        }
+        per_frame.push(stats);
+    }
+    let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
+    for error in &errors {
+        eprintln!("rejected: {error}");
+    }
+    if let Some(bar) = progress {
+        bar.finish_and_clear();
+    }
+    if let Some(file) = &args.stats {
+        std::fs::write(file, csv).map_err(|e| format!("{}: {e}", file.display()))?;
+        println!("per-frame statistics written to {}", file.display());
+    }
+    print_summary(&per_frame);
+    print_gpu_summary(&gpu_frames);
+    if args.validate {
+        println!(
+            "\nvalidation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \
+             + occlusion {:.1}%, image error {} pixels in all",
+            accuracy.frames,
+            accuracy.false_negatives,
+            accuracy.frames_with_false_negatives,
+            100.0 * accuracy.efficiency(0),
+            100.0 * accuracy.efficiency(1),
+            accuracy.image_error_pixels
+        );
+        let conservative = occlusion.mode == RasterMode::Conservative || !occlusion.enabled;
+        if conservative && accuracy.false_negatives > 0 {
+            return Err("validation failed: a conservative configuration culled visible objects".into());
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,90 @@
+//! Statistics printed after a run, and the stats CSV's columns.
+
+use cullet::gpu::frame::{GpuCounters, GpuFrameOutput, GpuPassTimes};
+use cullet::pipeline::CullStats;
+use std::time::Duration;
+
+/// The stats CSV's columns.
+pub const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters_in,clusters_out,triangles_in,\
+triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
+image_error_pixels";
+
+/// Microseconds of `duration`.
+pub fn micros(duration: Duration) -> f64 {
+    duration.as_secs_f64() * 1e6
+}
+
+/// Prints the GPU stages' means over `frames`.
+pub fn print_gpu_summary(frames: &[GpuFrameOutput]) {
+    if frames.is_empty() {
+        return;
+    }
+    let n = frames.len() as f64;
+    let mean = |f: fn(&GpuCounters) -> u32| frames.iter().map(|o| f64::from(f(&o.counters))).sum::<f64>() / n;
+    let mut times: Vec<f64> = frames.iter().map(|o| micros(o.wall_time)).collect();
+    times.sort_by(f64::total_cmp);
+    let wall = times.iter().sum::<f64>() / n;
+    println!(
+        "{:<10} {wall:>12.1} {:>12.1} {:>12.1} {:>12} {:>9.1}%",
+        "clusters",
+        times[times.len() / 2],
+        times[times.len() - 1],
+        format!("{:.0}", mean(|c| c.clusters_out)),
+        100.0 * (1.0 - mean(|c| c.clusters_out) / mean(|c| c.clusters_in).max(1.0))
+    );
+    println!(
+        "{:<10} {:>12} {:>12} {:>12} {:>12} {:>9.1}%",
+        "triangles",
+        "(GPU,",
+        "all passes)",
+        "",
+        format!("{:.0}", mean(|c| c.triangles_out)),
+        100.0 * (1.0 - mean(|c| c.triangles_out) / mean(|c| c.triangles_in).max(1.0))
+    );
+    println!("{:<10} {:>12} {:>12} {:>12} {:>12.0}", "draws", "", "", "", mean(|c| c.draws));
+    if let Some(times) = GpuPassTimes::mean(frames) {
+        println!("GPU time per pass (mean): {times}");
+    }
+}
+
+/// Prints each CPU stage's mean, median and worst time and what it kept over `frames`.
+pub fn print_summary(frames: &[CullStats]) {
+    if frames.is_empty() {
+        return;
+    }
+    let n = frames.len() as f64;
+    let summarize = |times: Vec<f64>| {
+        let mut sorted = times;
+        sorted.sort_by(f64::total_cmp);
+        let mean = sorted.iter().sum::<f64>() / n;
+        (mean, sorted[sorted.len() / 2], sorted[sorted.len() - 1])
+    };
+    let objects = frames[0].objects as f64;
+    let kept = frames.iter().map(|f| f.after_frustum as f64).sum::<f64>() / n;
+    println!("\nsummary over {} frames, {} objects", frames.len(), frames[0].objects);
+    println!("{:<10} {:>12} {:>12} {:>12} {:>12} {:>10}", "stage", "mean us", "median us", "max us", "kept", "culled");
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.bounds_time)).collect());
+    let updated = frames.iter().map(|f| f.bounds_recomputed as f64).sum::<f64>() / n;
+    println!("{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {:>12} {:>10}", "bounds", format!("{updated:.0} upd"), "");
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.frustum_time)).collect());
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {kept:>12.0} {:>9.1}%",
+        "frustum",
+        100.0 * (1.0 - kept / objects.max(1.0))
+    );
+    let triangles = frames.iter().map(|f| f.occluder_triangles as f64).sum::<f64>() / n;
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.raster_time)).collect());
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {:>12} {:>10}",
+        "raster",
+        format!("{triangles:.0} tris"),
+        ""
+    );
+    let after = frames.iter().map(|f| f.after_occlusion as f64).sum::<f64>() / n;
+    let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.occlusion_time)).collect());
+    println!(
+        "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {after:>12.0} {:>9.1}%",
+        "occlusion",
+        100.0 * (1.0 - after / kept.max(1.0))
+    );
+}
