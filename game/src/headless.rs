@@ -37,7 +37,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         }
     };
     let mut gpu_frames: Vec<GpuFrameOutput> = Vec::new();
-    let mut per_frame = Vec::with_capacity(args.frames as usize);
+    let mut per_frame = Vec::with_capacity(args.headless_frames() as usize);
     let judge = JudgeSettings {
         reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
         occlusion_ideal: false,
@@ -51,8 +51,8 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             println!("--screenshots: no GPU adapter, so nothing is drawn and no screenshot is saved");
         }
     }
-    let progress = args.quiet.then(|| indicatif::ProgressBar::new(u64::from(args.frames)));
-    for frame in 0..args.frames {
+    let progress = args.quiet.then(|| indicatif::ProgressBar::new(u64::from(args.headless_frames())));
+    for frame in 0..args.headless_frames() {
         if let Some(bar) = &progress {
             bar.inc(1);
         }

@@ -31,9 +31,10 @@ struct Args {
     /// those triangles are the drawn surface).
     #[arg(long)]
     auto_occluders: bool,
-    /// Number of frames along the camera path.
-    #[arg(long, default_value_t = 300)]
-    frames: u32,
+    /// Number of frames: headless, spread along the camera path (default 300); in a window, close after this
+    /// many (default: run until closed).
+    #[arg(long)]
+    frames: Option<u32>,
     /// Viewport size, `WIDTHxHEIGHT` (sets the aspect ratio of the camera).
     #[arg(long, default_value = "1920x1080")]
     resolution: String,
@@ -77,6 +78,13 @@ struct Args {
     /// Run without a window along the camera path (the default where no display exists).
     #[arg(long)]
     headless: bool,
+}
+
+impl Args {
+    /// Frames of a headless run.
+    fn headless_frames(&self) -> u32 {
+        self.frames.unwrap_or(300)
+    }
 }
 
 /// A loaded scene and the camera path it is flown along without `--camera-path`.
@@ -149,7 +157,7 @@ fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         return headless::run(args, prepared);
     }
     match window::open_event_loop() {
-        Ok(event_loop) => window::run(prepared, event_loop),
+        Ok(event_loop) => window::run(prepared, event_loop, args.frames),
         Err(why) => {
             println!("no window ({why}): running headless");
             headless::run(args, prepared)
@@ -205,13 +213,12 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         }
         None => path,
     };
-    let flight = Flight::new(path, aspect, args.frames, occlusion, |world| {
+    let flight = Flight::new(path, aspect, args.headless_frames(), occlusion, |world| {
         scene.spawn(world);
     });
     println!(
-        "{description}; loaded and spawned in {:.0} ms; {} frames along a {:.0} s path",
+        "{description}; loaded and spawned in {:.0} ms; camera path of {:.0} s",
         start.elapsed().as_secs_f64() * 1e3,
-        args.frames,
         flight.path.duration()
     );
     Ok(Prepared { scene, flight, occlusion, resolution: (width, height) })

@@ -81,8 +81,8 @@ pub fn open_event_loop() -> Result<EventLoop<()>, String> {
     }
 }
 
-/// Runs the game in a window until it is closed, then prints the summary.
-pub fn run(prepared: Prepared, event_loop: EventLoop<()>) -> Result<(), String> {
+/// Runs the game in a window until it is closed (or after `frames` frames), then prints the summary.
+pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -> Result<(), String> {
     event_loop.set_control_flow(ControlFlow::Poll);
     let (yaw, pitch) = yaw_pitch(prepared.flight.path.camera_at(0.0, 1.0).forward);
     let radius = prepared.scene.bounds().map_or(100.0, |(min, max)| (max - min).length() * 0.5);
@@ -108,6 +108,7 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>) -> Result<(), String> 
         gpu_frames: Vec::new(),
         tinted_last_frame: false,
         fps: 0.0,
+        frame_limit: frames.map(|n| n as usize),
     };
     game.size = {
         let (w, h) = game.prepared.resolution;
@@ -160,6 +161,8 @@ struct Game {
     tinted_last_frame: bool,
     /// Frames per second, smoothed.
     fps: f32,
+    /// Close after this many frames.
+    frame_limit: Option<usize>,
 }
 
 /// Yaw (around +y, 0 looking down -z) and pitch of a direction.
@@ -187,6 +190,7 @@ impl Game {
         println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
         let size = window.inner_size();
         self.size = (size.width.max(1), size.height.max(1));
+        println!("window opened: {}x{}", self.size.0, self.size.1);
         let mut config = surface
             .get_default_config(&context.adapter, self.size.0, self.size.1)
             .ok_or("the GPU cannot present to this window")?;
@@ -471,6 +475,9 @@ impl ApplicationHandler for Game {
             WindowEvent::Focused(false) => self.keys.clear(),
             WindowEvent::RedrawRequested => {
                 self.frame();
+                if self.frame_limit.is_some_and(|limit| self.frames.len() >= limit) {
+                    event_loop.exit();
+                }
                 if let Some(graphics) = &self.graphics {
                     graphics.window.request_redraw();
                 }
