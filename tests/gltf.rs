@@ -245,3 +245,53 @@ fn hostile_files_never_panic() {
             .unwrap();
     }
 }
+
+/// JSON pointers of every number and string in `value`.
+fn leaf_pointers(value: &serde_json::Value, at: String, out: &mut Vec<String>) {
+    match value {
+        serde_json::Value::Object(map) => map.iter().for_each(|(k, v)| leaf_pointers(v, format!("{at}/{k}"), out)),
+        serde_json::Value::Array(items) => {
+            items.iter().enumerate().for_each(|(i, v)| leaf_pointers(v, format!("{at}/{i}"), out))
+        }
+        _ => out.push(at),
+    }
+}
+
+/// Structure-aware fuzzing: valid glTF (the one-triangle file with an occluder child and a second node) with
+/// up to four of its numbers or strings replaced by hostile values (out-of-range indices, huge counts and
+/// offsets, negative numbers, wrong types): a typed error or a scene, never a panic.
+#[test]
+fn hostile_field_values_never_panic() {
+    use proptest::prelude::*;
+    let source: serde_json::Value = serde_json::from_str(&triangle_gltf(|j| {
+        j["nodes"].as_array_mut().unwrap().push(serde_json::json!({"mesh": 0, "name": "t0_occluder"}));
+        j["nodes"][0]["children"] = serde_json::json!([1]);
+        j["meshes"][0]["primitives"][0]["mode"] = 4.into();
+    }))
+    .unwrap();
+    let mut pointers = Vec::new();
+    leaf_pointers(&source, String::new(), &mut pointers);
+    let hostile = prop_oneof![
+        (0i64..8).prop_map(serde_json::Value::from),
+        (-3i64..0).prop_map(serde_json::Value::from),
+        Just(serde_json::Value::from(u32::MAX)),
+        Just(serde_json::Value::from(u64::MAX)),
+        Just(serde_json::Value::from(1e300)),
+        Just(serde_json::Value::from("x")),
+        Just(serde_json::Value::Null),
+    ];
+    let mut runner =
+        proptest::test_runner::TestRunner::new(ProptestConfig { cases: 4096, ..ProptestConfig::default() });
+    runner
+        .run(&proptest::collection::vec((0..pointers.len(), hostile), 1..5), |edits| {
+            let mut json = source.clone();
+            for (pointer, value) in edits {
+                if let Some(slot) = json.pointer_mut(&pointers[pointer]) {
+                    *slot = value;
+                }
+            }
+            let _ = parse_gltf(json.to_string().as_bytes(), None, "fuzz.gltf");
+            Ok(())
+        })
+        .unwrap();
+}

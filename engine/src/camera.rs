@@ -191,6 +191,16 @@ impl CameraPath {
         Ok(path)
     }
 
+    /// The same path moved by `offset` (positions and look-at points alike).
+    pub fn translated(&self, offset: Vec3) -> Self {
+        let keys = self
+            .keys
+            .iter()
+            .map(|k| CameraKey { position: k.position + offset, look_at: k.look_at + offset, ..*k })
+            .collect();
+        Self { keys, ..self.clone() }
+    }
+
     /// Duration from the first to the last key.
     pub fn duration(&self) -> f32 {
         match (self.keys.first(), self.keys.last()) {
@@ -201,34 +211,42 @@ impl CameraPath {
 
     /// Position and look-at point at time `t`, clamped to the path.
     pub fn sample(&self, t: f32) -> (Vec3, Vec3) {
+        let (origin, position, look_at) = self.sample_relative(t);
+        (origin + position, origin + look_at)
+    }
+
+    /// [`CameraPath::sample`] relative to the first key's position, returned first: interpolating small
+    /// numbers keeps the view direction exact however far the path lies from the world origin.
+    fn sample_relative(&self, t: f32) -> (Vec3, Vec3, Vec3) {
         let keys = &self.keys;
+        let origin = keys.first().map_or(Vec3::ZERO, |k| k.position);
+        let relative = |k: &CameraKey| (k.position - origin, k.look_at - origin);
         match keys.len() {
-            0 => (Vec3::ZERO, Vec3::NEG_Z),
-            1 => (keys[0].position, keys[0].look_at),
+            0 => (Vec3::ZERO, Vec3::ZERO, Vec3::NEG_Z),
+            1 => (origin, Vec3::ZERO, keys[0].look_at - origin),
             n => {
                 let t = t.clamp(keys[0].t, keys[n - 1].t);
                 let i = keys.partition_point(|k| k.t <= t).clamp(1, n - 1) - 1;
-                let (k1, k2) = (keys[i], keys[i + 1]);
-                let (k0, k3) = (keys[i.saturating_sub(1)], keys[(i + 2).min(n - 1)]);
-                let span = k2.t - k1.t;
-                let u = if span > 0.0 { (t - k1.t) / span } else { 0.0 };
-                (
-                    catmull_rom(k0.position, k1.position, k2.position, k3.position, u),
-                    catmull_rom(k0.look_at, k1.look_at, k2.look_at, k3.look_at, u),
-                )
+                let (k1, k2) = (relative(&keys[i]), relative(&keys[i + 1]));
+                let (k0, k3) = (relative(&keys[i.saturating_sub(1)]), relative(&keys[(i + 2).min(n - 1)]));
+                let span = keys[i + 1].t - keys[i].t;
+                let u = if span > 0.0 { (t - keys[i].t) / span } else { 0.0 };
+                (origin, catmull_rom(k0.0, k1.0, k2.0, k3.0, u), catmull_rom(k0.1, k1.1, k2.1, k3.1, u))
             }
         }
     }
 
-    /// The camera at time `t` for a viewport of `aspect`, reversed depth.
+    /// The camera at time `t` for a viewport of `aspect`, reversed depth. Its direction comes from the path's
+    /// relative samples, so it stays exact far from the origin.
     pub fn camera_at(&self, t: f32, aspect: f32) -> Camera {
-        let (position, look_at) = self.sample(t);
+        let (origin, position, look_at) = self.sample_relative(t);
         Camera {
             fov_y: self.fov_y_deg.to_radians(),
             aspect,
             near: self.near,
             far: self.far,
-            ..Camera::looking_at(position, look_at)
+            forward: look_at - position,
+            ..Camera::looking_at(origin + position, origin + look_at)
         }
     }
 }

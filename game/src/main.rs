@@ -31,6 +31,10 @@ struct Args {
     /// those triangles are the drawn surface).
     #[arg(long)]
     auto_occluders: bool,
+    /// Move the scene and the camera path together by `X,Y,Z` world units (precision test: the world is
+    /// stored in f32 that far from its origin).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    world_offset: Option<String>,
     /// Number of frames: headless, spread along the camera path (default 300); in a window, close after this
     /// many (default: run until closed).
     #[arg(long)]
@@ -142,6 +146,14 @@ fn load_scene(args: &Args) -> Result<LoadedScene, String> {
     Ok(loaded)
 }
 
+fn parse_offset(offset: &str) -> Result<glam::Vec3, String> {
+    let parts: Vec<Option<f32>> = offset.split(',').map(|p| p.trim().parse().ok()).collect();
+    match parts[..] {
+        [Some(x), Some(y), Some(z)] if x.is_finite() && y.is_finite() && z.is_finite() => Ok(glam::Vec3::new(x, y, z)),
+        _ => Err(format!("bad --world-offset '{offset}', expected X,Y,Z")),
+    }
+}
+
 fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
     let parsed = resolution.split_once('x').and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)));
     match parsed {
@@ -205,14 +217,20 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
     };
 
     let start = Instant::now();
-    let LoadedScene { scene, path, description } = load_scene(args)?;
-    let path = match &args.camera_path {
+    let LoadedScene { mut scene, path, mut description } = load_scene(args)?;
+    let mut path = match &args.camera_path {
         Some(file) => {
             let json = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
             CameraPath::from_json(&json).map_err(|e| format!("{}: {e}", file.display()))?
         }
         None => path,
     };
+    if let Some(offset) = &args.world_offset {
+        let offset = parse_offset(offset)?;
+        scene.translate(offset);
+        path = path.translated(offset);
+        description.push_str(&format!(", moved by {offset}"));
+    }
     let flight = Flight::new(path, aspect, args.headless_frames(), occlusion, |world| {
         scene.spawn(world);
     });

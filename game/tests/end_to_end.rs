@@ -87,6 +87,13 @@ fn built_in_city_validates_with_zero_false_negatives() {
 }
 
 #[test]
+fn city_far_from_the_origin_validates_with_zero_false_negatives() {
+    let (text, rows) = run_validated("offset", &["--scene", "city:2000", "--world-offset", "1e7,0,-1e7"], 12);
+    check("offset", &text, &rows);
+    assert!(text.contains("moved by"), "{text}");
+}
+
+#[test]
 fn shipped_gltf_scene_validates_with_zero_false_negatives() {
     let scene = workspace_file("tests/scenes/city_small.gltf");
     let (text, rows) = run_validated("gltf", &["--scene", scene.to_str().unwrap()], 24);

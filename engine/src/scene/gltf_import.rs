@@ -143,7 +143,16 @@ type MeshObjects = Vec<(u32, [u8; 4])>;
 
 impl Loader {
     fn new(bytes: &[u8], base_dir: Option<&Path>) -> Result<Self, GltfProblem> {
-        let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| GltfProblem::Invalid(e.to_string()))?;
+        let invalid = |e: gltf::Error| GltfProblem::Invalid(e.to_string());
+        let unvalidated = gltf::Gltf::from_slice_without_validation(bytes).map_err(invalid)?;
+        let root = unvalidated.document.into_json();
+        check_validator_preconditions(&root)?;
+        // The `gltf` crate's validator indexes some arrays unchecked; what the check above does not catch
+        // still becomes an error here, not a crash.
+        let document = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| gltf::Document::from_json(root)))
+            .map_err(|_| GltfProblem::Invalid("the glTF validator failed on malformed indices".into()))?
+            .map_err(invalid)?;
+        let gltf = gltf::Gltf { document, blob: unvalidated.blob };
         for extension in gltf.document.extensions_required() {
             if !HARMLESS_EXTENSIONS.contains(&extension) {
                 return Err(GltfProblem::UnsupportedExtension(extension.into()));
@@ -356,6 +365,26 @@ impl Geometry {
     }
 }
 
+/// Indices that the `gltf` crate's validator dereferences before checking them (gltf-json 1.4: a primitive's
+/// POSITION accessor), checked first so that such files get a clear error.
+fn check_validator_preconditions(root: &gltf::json::Root) -> Result<(), GltfProblem> {
+    use gltf::json::validation::Checked;
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            let position = primitive.attributes.get(&Checked::Valid(gltf::json::mesh::Semantic::Positions));
+            if let Some(accessor) = position.filter(|a| a.value() >= root.accessors.len()) {
+                return Err(GltfProblem::Primitive {
+                    mesh: m,
+                    name: mesh.name.clone().unwrap_or_default(),
+                    primitive: p,
+                    why: format!("POSITION names accessor {}, which does not exist", accessor.value()),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Whether `node` is an artist occluder: its name ends in [`OCCLUDER_SUFFIX`] or its extras say
 /// `"occluder": true`.
 fn is_occluder(node: &gltf::Node) -> bool {
@@ -396,7 +425,8 @@ fn check_accessor(
     let stride = view.stride().unwrap_or(element);
     let count = accessor.count();
     let needed = match count {
-        0 => Some(0),
+        // The specification asks for at least one element, and the `gltf` reader assumes it.
+        0 => return Err("has no elements".into()),
         n => (n - 1).checked_mul(stride).and_then(|s| s.checked_add(element)),
     }
     .and_then(|n| n.checked_add(accessor.offset()))

@@ -89,6 +89,13 @@ impl Scene {
             .collect()
     }
 
+    /// Moves every object by `offset` (in f32, as a world that far from its origin would store it).
+    pub fn translate(&mut self, offset: Vec3) {
+        for object in &mut self.objects {
+            object.transform.translation += glam::Vec3A::from(offset);
+        }
+    }
+
     /// Number of triangles drawn by all objects.
     pub fn triangle_count(&self) -> usize {
         self.objects.iter().map(|o| self.meshes[o.mesh as usize].triangle_count()).sum()
