@@ -309,6 +309,8 @@ pub struct BoundsStore {
     pub last_sync_time: Duration,
     /// Every rejection since the last [`BoundsStore::take_errors`].
     pub errors: Vec<BoundsError>,
+    /// Counts every change of the stored bounds or occluder marks: equal generations mean equal contents.
+    generation: u64,
 }
 
 impl BoundsStore {
@@ -348,6 +350,7 @@ impl BoundsStore {
 
     /// Marks whether the object in `slot` carries an occluder.
     pub fn set_occluder(&mut self, slot: usize, has_occluder: bool) {
+        self.generation += 1;
         self.occluders.set(slot, has_occluder);
     }
 
@@ -417,6 +420,7 @@ impl BoundsStore {
     }
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
+        self.generation += 1;
         if self.written.len() < self.padded_len() {
             self.written.resize(self.padded_len());
         }
@@ -465,6 +469,7 @@ impl BoundsStore {
     /// Removes `entity` by moving the last object into its slot. Returns whether it was stored. O(1).
     pub fn remove(&mut self, entity: Entity) -> bool {
         let Some(slot) = self.slots.remove(&entity) else { return false };
+        self.generation += 1;
         let slot = slot as usize;
         let last = self.entities.len() - 1;
         self.entities.swap_remove(slot);
@@ -512,6 +517,12 @@ impl BoundsStore {
                 Err(error)
             }
         }
+    }
+
+    /// Changes so far: two equal generations mean no bounds or occluder mark changed in between (the stages
+    /// may then reuse their last result).
+    pub fn generation(&self) -> u64 {
+        self.generation
     }
 
     /// The slots written since the last call, in order, and forgets them. Slots at or past [`BoundsStore::len`]

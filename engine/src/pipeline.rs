@@ -54,6 +54,82 @@ pub struct CullStats {
     pub raster_time: Duration,
     /// Time spent testing occludees.
     pub occlusion_time: Duration,
+    /// Nothing moved and neither the camera nor a setting changed: the frustum and occlusion stages kept last
+    /// frame's result without running ([`AdaptiveSettings::reuse_unchanged`]).
+    pub reused: bool,
+    /// The occlusion stage was skipped because it had removed too little lately
+    /// ([`AdaptiveSettings::min_occlusion_benefit`]); everything the frustum kept stays visible.
+    pub occlusion_gated: bool,
+}
+
+impl CullStats {
+    /// Objects the frustum stage removed this frame.
+    pub fn frustum_removed(&self) -> usize {
+        self.objects - self.after_frustum
+    }
+
+    /// Objects the occlusion stage removed this frame.
+    pub fn occlusion_removed(&self) -> usize {
+        self.after_frustum - self.after_occlusion
+    }
+}
+
+/// How the pipeline skips work a scene does not need. Gating only ever skips a stage (keeping everything that
+/// stage would have tested) or reuses a result whose inputs did not change, so it cannot add false negatives.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct AdaptiveSettings {
+    /// Reuse last frame's frustum and occlusion results when no bounds changed, the camera is the same and so
+    /// are the settings.
+    pub reuse_unchanged: bool,
+    /// The occlusion stage is skipped once it has removed less than this fraction of the frustum survivors for
+    /// [`AdaptiveSettings::low_benefit_frames`] frames in a row (an open field), then run again to re-probe
+    /// every [`AdaptiveSettings::reprobe_every`] frames. 0 never skips.
+    pub min_occlusion_benefit: f32,
+    /// See `min_occlusion_benefit`.
+    pub low_benefit_frames: u32,
+    /// See `min_occlusion_benefit`.
+    pub reprobe_every: u32,
+    /// Occluders whose object the occlusion stage hid last frame are not selected: they would most likely be
+    /// hidden again, and the triangle budget goes to the ones in front (temporal coherence).
+    pub skip_hidden_occluders: bool,
+}
+
+impl Default for AdaptiveSettings {
+    /// Everything on: reuse, occlusion skipped after 8 frames under 1% removed and re-probed every 30 frames,
+    /// last frame's hidden occluders skipped.
+    fn default() -> Self {
+        Self {
+            reuse_unchanged: true,
+            min_occlusion_benefit: 0.01,
+            low_benefit_frames: 8,
+            reprobe_every: 30,
+            skip_hidden_occluders: true,
+        }
+    }
+}
+
+impl AdaptiveSettings {
+    /// No gating at all: every stage runs every frame (the fixed pipeline, for comparison).
+    pub fn fixed() -> Self {
+        Self {
+            reuse_unchanged: false,
+            min_occlusion_benefit: 0.0,
+            low_benefit_frames: u32::MAX,
+            reprobe_every: 0,
+            skip_hidden_occluders: false,
+        }
+    }
+}
+
+/// What the gating remembers between frames.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct AdaptiveState {
+    /// The inputs of the last frame that ran: camera, store generation and settings.
+    last_inputs: Option<(Camera, u64, FrustumSettings, OcclusionSettings)>,
+    /// Consecutive frames in which occlusion removed less than the threshold.
+    low_occlusion_frames: u32,
+    /// Frames left to skip occlusion before re-probing it.
+    occlusion_skip_left: u32,
 }
 
 /// Settings of the frustum stage.
@@ -115,6 +191,8 @@ pub fn init_world(world: &mut World) {
     world.init_resource::<FrustumVisible>();
     world.init_resource::<CullStats>();
     world.init_resource::<FrustumSettings>();
+    world.init_resource::<AdaptiveSettings>();
+    world.init_resource::<AdaptiveState>();
     world.init_resource::<OcclusionSettings>();
     world.init_resource::<OcclusionState>();
     world.add_observer(on_bounds_inserted);
@@ -136,17 +214,31 @@ pub fn add_systems(schedule: &mut Schedule) {
 /// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`]. A camera that gives no valid
 /// frustum culls nothing (everything stays visible) and reports the error in [`CullStats`]; so does a stage
 /// turned off in [`FrustumSettings`].
+#[allow(clippy::too_many_arguments)]
 pub fn frustum_stage(
     store: Res<BoundsStore>,
     camera: Res<Camera>,
     settings: Res<FrustumSettings>,
+    occlusion: Res<OcclusionSettings>,
+    adaptive: Res<AdaptiveSettings>,
+    mut gate: ResMut<AdaptiveState>,
     mut visible: ResMut<FrustumVisible>,
     mut stats: ResMut<CullStats>,
+    changed_occluders: Query<(), Changed<Occluder>>,
 ) {
     let start = Instant::now();
-    stats.objects = store.len();
     stats.bounds_recomputed = store.recomputed_last_sync;
     stats.bounds_time = store.last_sync_time;
+    let inputs = (*camera, store.generation(), *settings, *occlusion);
+    stats.reused = adaptive.reuse_unchanged && gate.last_inputs == Some(inputs) && changed_occluders.is_empty();
+    gate.last_inputs = Some(inputs);
+    if stats.reused {
+        // Last frame's counts stand; only the times are this frame's.
+        (stats.frustum_time, stats.raster_time, stats.occlusion_time) =
+            (start.elapsed(), Duration::ZERO, Duration::ZERO);
+        return;
+    }
+    stats.objects = store.len();
     match camera.frustum() {
         Ok(_) if !settings.enabled => {
             visible.0 = VisibleSet::all(store.len());
@@ -178,12 +270,29 @@ pub fn occlusion_stage(
     settings: Res<OcclusionSettings>,
     mut state: ResMut<OcclusionState>,
     mut stats: ResMut<CullStats>,
+    adaptive: Res<AdaptiveSettings>,
+    mut gate: ResMut<AdaptiveState>,
     occluders: Query<(&Occluder, &ObjectTransform)>,
 ) {
+    if stats.reused {
+        return;
+    }
     let start = Instant::now();
     let state = &mut *state;
-    let (slots, chosen): (Vec<u32>, Vec<OccluderInstance>) = if settings.enabled {
-        select_occluders(&store, &frustum_visible.0, camera.position, settings.triangle_budget, |slot| {
+    stats.occlusion_gated = settings.enabled && gate.occlusion_skip_left > 0;
+    if stats.occlusion_gated {
+        gate.occlusion_skip_left -= 1;
+    }
+    // Occluders hidden last frame are left out: `state.occluded` still holds last frame's hidden objects.
+    let candidates = if adaptive.skip_hidden_occluders && state.occluded.len() == frustum_visible.0.len() {
+        let mut candidates = frustum_visible.0.clone();
+        candidates.and_not(&state.occluded);
+        std::borrow::Cow::Owned(candidates)
+    } else {
+        std::borrow::Cow::Borrowed(&frustum_visible.0)
+    };
+    let (slots, chosen): (Vec<u32>, Vec<OccluderInstance>) = if settings.enabled && !stats.occlusion_gated {
+        select_occluders(&store, &candidates, camera.position, settings.triangle_budget, |slot| {
             let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
             Some(OccluderInstance { occluder, transform: transform.0 })
         })
@@ -216,4 +325,15 @@ pub fn occlusion_stage(
         test_occlusion(&store, &frustum_visible.0, &view, &state.pyramid, &mut state.visible, &mut state.occluded);
     stats.after_occlusion = result.visible;
     stats.occlusion_time = start.elapsed();
+    // Gating: count frames of little benefit; after enough of them, skip the stage for a while.
+    let removed = stats.after_frustum - stats.after_occlusion;
+    if (removed as f32) < adaptive.min_occlusion_benefit * stats.after_frustum as f32 {
+        gate.low_occlusion_frames += 1;
+        if gate.low_occlusion_frames >= adaptive.low_benefit_frames {
+            gate.low_occlusion_frames = 0;
+            gate.occlusion_skip_left = adaptive.reprobe_every;
+        }
+    } else {
+        gate.low_occlusion_frames = 0;
+    }
 }

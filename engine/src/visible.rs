@@ -60,6 +60,13 @@ impl VisibleSet {
         }
     }
 
+    /// Clears every slot set in `other` (the shorter length of the two applies).
+    pub fn and_not(&mut self, other: &VisibleSet) {
+        for (word, &remove) in self.words.iter_mut().zip(&other.words) {
+            *word &= !remove;
+        }
+    }
+
     /// Number of set slots.
     pub fn count(&self) -> usize {
         self.words.iter().map(|w| w.count_ones() as usize).sum()

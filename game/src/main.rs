@@ -10,7 +10,7 @@ mod window;
 use clap::Parser;
 use cullet::CameraPath;
 use cullet::flight::Flight;
-use cullet::pipeline::OcclusionSettings;
+use cullet::pipeline::{AdaptiveSettings, OcclusionSettings};
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
@@ -23,8 +23,9 @@ use std::time::Instant;
 #[derive(Parser, Debug)]
 #[command(version, about)]
 struct Args {
-    /// Scene to load: `city` or `city:N` for the built-in procedural city of N objects, or a glTF file
-    /// (`.gltf` or `.glb`).
+    /// Scene to load: a built-in one, `city[:N]` (dense, occluded; 100 000 objects by default), `field[:N]`
+    /// (open, no occluders) or `cad[:N]` (everything on screen; 20 000 by default), or a glTF file (`.gltf` or
+    /// `.glb`).
     #[arg(long, default_value = "city:100000")]
     scene: String,
     /// Give large meshes without an artist occluder one made of their own largest triangles (conservative:
@@ -35,6 +36,14 @@ struct Args {
     /// stored in f32 that far from its origin).
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
     world_offset: Option<String>,
+    /// Keep the camera at the start of its path (a static-camera run: nothing changes, so the stages reuse
+    /// their last result).
+    #[arg(long)]
+    static_camera: bool,
+    /// Run every stage every frame: no reuse of unchanged frames, no skipping of stages that removed little,
+    /// no temporal coherence (the fixed pipeline, for comparison).
+    #[arg(long)]
+    fixed_pipeline: bool,
     /// Number of frames: headless, spread along the camera path (default 300); in a window, close after this
     /// many (default: run until closed).
     #[arg(long)]
@@ -100,26 +109,36 @@ struct LoadedScene {
 
 /// The scene `--scene` names: the built-in city, or a glTF file (warnings printed, errors returned).
 fn load_scene(args: &Args) -> Result<LoadedScene, String> {
-    let city_objects = match args.scene.split_once(':') {
-        None if args.scene == "city" => Some(Ok(100_000)),
-        Some(("city", count)) => Some(count.parse().map_err(|_| format!("bad object count in --scene {}", args.scene))),
-        _ => None,
+    let (name, count) = match args.scene.split_once(':') {
+        Some((name, count)) => (name, Some(count)),
+        None => (args.scene.as_str(), None),
     };
-    let mut loaded = match city_objects {
+    let builtin = ["city", "field", "cad"].contains(&name).then(|| match count {
+        None => Ok(if name == "city" { 100_000 } else { 20_000 }),
+        Some(count) => count.parse::<usize>().map_err(|_| format!("bad object count in --scene {}", args.scene)),
+    });
+    let mut loaded = match builtin {
         Some(objects) => {
-            let city = CityScene::generate(CityParams::with_objects(objects?));
-            let path = city.flythrough();
-            LoadedScene {
-                description: format!("city of {} objects", city.scene.objects.len()),
-                scene: city.scene,
-                path,
-            }
+            let objects = objects?;
+            let (scene, path) = match name {
+                "city" => {
+                    let city = CityScene::generate(CityParams::with_objects(objects));
+                    let path = city.flythrough();
+                    (city.scene, path)
+                }
+                "field" => cullet::scene::field::field(objects),
+                _ => cullet::scene::cad::cad(objects),
+            };
+            LoadedScene { description: format!("{name} of {} objects", scene.objects.len()), scene, path }
         }
         None => {
             let file = std::path::Path::new(&args.scene);
             let extension = file.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
             if !matches!(extension.as_deref(), Some("gltf" | "glb")) {
-                return Err(format!("unknown scene '{}': expected city, city:N or a .gltf/.glb file", args.scene));
+                return Err(format!(
+                    "unknown scene '{}': expected city[:N], field[:N], cad[:N] or a .gltf/.glb file",
+                    args.scene
+                ));
             }
             let gltf = load_gltf(file).map_err(|e| e.to_string())?;
             for warning in &gltf.warnings {
@@ -225,15 +244,21 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         }
         None => path,
     };
+    if args.static_camera {
+        path.keys.truncate(1);
+    }
     if let Some(offset) = &args.world_offset {
         let offset = parse_offset(offset)?;
         scene.translate(offset);
         path = path.translated(offset);
         description.push_str(&format!(", moved by {offset}"));
     }
-    let flight = Flight::new(path, aspect, args.headless_frames(), occlusion, |world| {
+    let mut flight = Flight::new(path, aspect, args.headless_frames(), occlusion, |world| {
         scene.spawn(world);
     });
+    if args.fixed_pipeline {
+        flight.world.insert_resource(AdaptiveSettings::fixed());
+    }
     println!(
         "{description}; loaded and spawned in {:.0} ms; camera path of {:.0} s",
         start.elapsed().as_secs_f64() * 1e3,

@@ -7,7 +7,7 @@ use std::time::Duration;
 /// The stats CSV's columns.
 pub const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters_in,clusters_out,triangles_in,\
 triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
-image_error_pixels";
+image_error_pixels,reused,occlusion_gated";
 
 /// Microseconds of `duration`.
 pub fn micros(duration: Duration) -> f64 {
@@ -81,10 +81,17 @@ pub fn print_summary(frames: &[CullStats]) {
         ""
     );
     let after = frames.iter().map(|f| f.after_occlusion as f64).sum::<f64>() / n;
+    let reused = frames.iter().filter(|f| f.reused).count();
+    let gated = frames.iter().filter(|f| f.occlusion_gated).count();
     let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.occlusion_time)).collect());
     println!(
         "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {after:>12.0} {:>9.1}%",
         "occlusion",
         100.0 * (1.0 - after / kept.max(1.0))
+    );
+    println!(
+        "gating: {reused} of {} frames reused the last result (nothing changed); occlusion skipped in {gated} \
+         (it had removed under the threshold)",
+        frames.len()
     );
 }

@@ -94,6 +94,22 @@ fn city_far_from_the_origin_validates_with_zero_false_negatives() {
 }
 
 #[test]
+fn field_cad_and_a_static_camera_validate_with_zero_false_negatives() {
+    for (name, args) in [
+        ("field", &["--scene", "field:3000"][..]),
+        ("cad", &["--scene", "cad:2000"][..]),
+        ("static", &["--scene", "cad:1000", "--static-camera"][..]),
+    ] {
+        let (text, rows) = run_validated(name, args, 12);
+        check(name, &text, &rows);
+        if name == "static" {
+            // Nothing moves and the camera stays: every frame after the first reuses the first's result.
+            assert!(rows[1..].iter().all(|r| r["reused"] == "1"), "{name}: frames not reused");
+        }
+    }
+}
+
+#[test]
 fn shipped_gltf_scene_validates_with_zero_false_negatives() {
     let scene = workspace_file("tests/scenes/city_small.gltf");
     let (text, rows) = run_validated("gltf", &["--scene", scene.to_str().unwrap()], 24);

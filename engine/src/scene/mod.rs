@@ -1,13 +1,16 @@
 //! Scenes: the input of the pipeline. A [`Scene`] is a library of triangle meshes and the objects that place
 //! them, spawned into a `bevy_ecs` world as the components the culling stages read.
 //!
-//! - [`city`] generates the built-in procedural city;
+//! - [`city`] generates the built-in procedural city (dense, occluded), [`field`] an open field (nothing to
+//!   occlude), [`cad`] an assembly always entirely on screen (nothing for the frustum to cull);
 //! - [`gltf_import`] loads a glTF 2.0 file (`.gltf` or `.glb`), artist occluders included;
 //! - [`gltf_export`] writes a scene as glTF, so the project ships test scenes its own generator made;
 //! - [`auto_occluders`] gives occluders to large meshes of scenes that have none.
 
 pub mod auto_occluders;
+pub mod cad;
 pub mod city;
+pub mod field;
 pub mod gltf_export;
 pub mod gltf_import;
 

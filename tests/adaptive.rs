@@ -1,0 +1,126 @@
+//! Adaptive stages: unchanged frames reuse their result, an occlusion stage that removes too little is skipped
+//! and re-probed, the fixed pipeline never gates, and gating adds no false negatives on the built-in scenes
+//! (city, field, cad) against the exact rendering.
+
+use cullet::camera::CameraPath;
+use cullet::flight::Flight;
+use cullet::mesh::Mesh;
+use cullet::pipeline::{AdaptiveSettings, CullStats, OcclusionSettings};
+use cullet::scene::{Scene, SceneObject};
+use cullet::{Camera, ObjectTransform, Occluder};
+use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
+use glam::{Affine3A, Vec3};
+
+/// A wall with an occluder 20 units in front of the camera and `behind` boxes behind it, `beside` boxes
+/// beside it.
+fn wall_scene(behind: usize, beside: usize) -> Scene {
+    let cube = Mesh::unit_cube(1);
+    let occluder = Occluder::new(Mesh::unit_cube(1).scaled(Vec3::splat(0.98), Vec3::ZERO).triangle_soup());
+    let mut objects = vec![SceneObject {
+        mesh: 0,
+        transform: Affine3A::from_scale_rotation_translation(
+            Vec3::new(20.0, 10.0, 1.0),
+            glam::Quat::IDENTITY,
+            Vec3::new(0.0, 0.0, -20.0),
+        ),
+        occluder: Some(occluder),
+        velocity: None,
+        color: [200; 4],
+    }];
+    let place = |x: f32, z: f32| SceneObject {
+        mesh: 0,
+        transform: Affine3A::from_translation(Vec3::new(x, 0.0, z)),
+        occluder: None,
+        velocity: None,
+        color: [200; 4],
+    };
+    objects.extend((0..behind).map(|i| place(i as f32 - behind as f32 * 0.5, -40.0)));
+    objects.extend((0..beside).map(|i| place(30.0 + i as f32 * 2.0, -60.0)));
+    Scene::new(vec![cube], objects)
+}
+
+fn flight(scene: &Scene, adaptive: AdaptiveSettings) -> Flight {
+    let path = CameraPath { fov_y_deg: 90.0, near: 0.1, far: None, keys: Vec::new() };
+    let mut flight = Flight::new(path, 1.0, 1, OcclusionSettings::default(), |world| {
+        scene.spawn(world);
+    });
+    flight.world.insert_resource(adaptive);
+    flight
+}
+
+fn camera() -> Camera {
+    Camera { aspect: 1.0, fov_y: 90f32.to_radians(), ..Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z) }
+}
+
+#[test]
+fn unchanged_frames_reuse_the_last_result_and_any_change_reruns() {
+    let scene = wall_scene(8, 4);
+    let mut flight = flight(&scene, AdaptiveSettings::default());
+    let first = flight.run_with_camera(camera(), 0.0);
+    assert!(!first.reused && first.after_occlusion < first.after_frustum, "{first:?}");
+    let second = flight.run_with_camera(camera(), 0.0);
+    assert!(second.reused);
+    assert_eq!((second.after_frustum, second.after_occlusion), (first.after_frustum, first.after_occlusion));
+    // The camera turns: run again.
+    let turned = Camera { forward: Vec3::new(0.1, 0.0, -1.0), ..camera() };
+    assert!(!flight.run_with_camera(turned, 0.0).reused);
+    assert!(flight.run_with_camera(turned, 0.0).reused);
+    // An object moves (a static one, so by inserting its new transform): run again.
+    let entity = flight.world.resource::<cullet::BoundsStore>().entities()[3];
+    flight.world.entity_mut(entity).insert(ObjectTransform(Affine3A::from_translation(Vec3::new(0.0, 0.0, 10.0))));
+    let moved = flight.run_with_camera(turned, 0.0);
+    assert!(!moved.reused);
+    // A setting changes: run again.
+    flight.world.resource_mut::<OcclusionSettings>().width = 128;
+    assert!(!flight.run_with_camera(turned, 0.0).reused);
+    // The fixed pipeline never reuses.
+    let mut fixed = self::flight(&scene, AdaptiveSettings::fixed());
+    fixed.run_with_camera(camera(), 0.0);
+    assert!(!fixed.run_with_camera(camera(), 0.0).reused);
+}
+
+#[test]
+fn occlusion_that_removes_nothing_is_skipped_then_reprobed() {
+    // Nothing behind the wall: occlusion runs, removes nothing.
+    let scene = wall_scene(0, 6);
+    let adaptive =
+        AdaptiveSettings { reuse_unchanged: false, low_benefit_frames: 3, reprobe_every: 5, ..Default::default() };
+    let mut flight = flight(&scene, adaptive);
+    let gated: Vec<bool> =
+        (0..12).map(|_| flight.run_with_camera(camera(), 0.0)).map(|s: CullStats| s.occlusion_gated).collect();
+    // 3 frames that remove nothing, 5 skipped, a probe that removes nothing, ...
+    assert_eq!(gated, [false, false, false, true, true, true, true, true, false, false, false, true]);
+    // Where occlusion pays, it is never skipped.
+    let mut paying = self::flight(&wall_scene(8, 0), adaptive);
+    assert!((0..12).all(|_| !paying.run_with_camera(camera(), 0.0).occlusion_gated));
+}
+
+/// The built-in scenes along their paths, default (adaptive) pipeline: zero false negatives.
+#[test]
+fn gating_adds_no_false_negatives_on_the_built_in_scenes() {
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(3000));
+    let scenes = [
+        ("city", city.scene.clone(), city.flythrough()),
+        ("field", cullet::scene::field::field(3000).0, cullet::scene::field::field(3000).1),
+        ("cad", cullet::scene::cad::cad(2000).0, cullet::scene::cad::cad(2000).1),
+    ];
+    for (name, scene, path) in scenes {
+        // The path, then the same frame again (reused), with a gated occlusion stage on the city's roofs.
+        let frames = 24;
+        let mut flight = Flight::new(path, 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
+            scene.spawn(world);
+        });
+        let settings = JudgeSettings {
+            reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
+            occlusion_ideal: false,
+        };
+        let mut metrics = PathMetrics::default();
+        for frame in (0..frames).chain([frames - 1, frames - 1]) {
+            flight.run_frame(frame);
+            let judged = judge_frame(&flight.world, &scene.meshes, &settings).metrics;
+            assert!(judged.false_negatives.is_empty(), "{name} frame {frame}: {:?}", judged.false_negatives);
+            metrics.add(&judged);
+        }
+        println!("{name}: {metrics:?}");
+    }
+}
