@@ -188,8 +188,8 @@ impl DrawPass {
         Self { pipelines: [pipeline(wgpu::CompareFunction::Greater), pipeline(wgpu::CompareFunction::Less)] }
     }
 
-    /// Records the draw of `source` into `targets`, clearing them first, with `timestamps` at the pass's start
-    /// and end if given.
+    /// Records the draw of `source` into `targets`, clearing them first if `clear` (else drawing over them),
+    /// with `timestamps` at the pass's start and end if given.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -201,9 +201,11 @@ impl DrawPass {
         instances: &wgpu::Buffer,
         positions: &wgpu::Buffer,
         source: DrawSource<'_>,
+        clear: bool,
         timestamps: Option<wgpu::RenderPassTimestampWrites<'_>>,
     ) {
         let reversed = depth == DepthConvention::Reversed;
+        let load = |value| if clear { wgpu::LoadOp::Clear(value) } else { wgpu::LoadOp::Load };
         let pipeline = &self.pipelines[usize::from(!reversed)];
         let bind_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("draw"),
@@ -224,19 +226,23 @@ impl DrawPass {
                     view: &color_view,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(SKY), store: wgpu::StoreOp::Store },
+                    ops: wgpu::Operations { load: load(SKY), store: wgpu::StoreOp::Store },
                 }),
                 Some(wgpu::RenderPassColorAttachment {
                     view: &object_view,
                     depth_slice: None,
                     resolve_target: None,
-                    ops: wgpu::Operations { load: wgpu::LoadOp::Clear(clear_object), store: wgpu::StoreOp::Store },
+                    ops: wgpu::Operations { load: load(clear_object), store: wgpu::StoreOp::Store },
                 }),
             ],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: &depth_view,
                 depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(if reversed { 0.0 } else { 1.0 }),
+                    load: if clear {
+                        wgpu::LoadOp::Clear(if reversed { 0.0 } else { 1.0 })
+                    } else {
+                        wgpu::LoadOp::Load
+                    },
                     store: wgpu::StoreOp::Store,
                 }),
                 stencil_ops: None,

@@ -155,6 +155,31 @@ impl GpuCounters {
         }
     }
 
+    /// Every counter, `instances` first, then in the order of the counter slots.
+    fn to_array(self) -> [u32; 14] {
+        [
+            self.instances,
+            self.clusters_in,
+            self.clusters_frustum,
+            self.clusters_cone,
+            self.clusters_hzb,
+            self.clusters_small,
+            self.clusters_out,
+            self.triangles_in,
+            self.triangles_degenerate,
+            self.triangles_backface,
+            self.triangles_frustum,
+            self.triangles_small,
+            self.triangles_out,
+            self.draws,
+        ]
+    }
+
+    /// The inverse of [`GpuCounters::to_array`].
+    fn from_array(c: [u32; 14]) -> Self {
+        Self::from_slots(c[0], &c[1..])
+    }
+
     /// How many clusters `verdict` accounts for.
     pub fn clusters(&self, verdict: ClusterVerdict) -> u32 {
         match verdict {
@@ -290,6 +315,21 @@ pub struct GpuFrameOutput {
     pub wall_time: Duration,
 }
 
+impl GpuFrameOutput {
+    /// Both outputs added up: counters, pass times and wall time (the batches of one frame).
+    pub fn plus(&self, other: &GpuFrameOutput) -> GpuFrameOutput {
+        let (a, b) = (self.counters.to_array(), other.counters.to_array());
+        let counters = GpuCounters::from_array(std::array::from_fn(|i| a[i] + b[i]));
+        let pass_times = self.pass_times.zip(other.pass_times).map(|(a, b)| GpuPassTimes {
+            hzb: a.hzb + b.hzb,
+            clusters: a.clusters + b.clusters,
+            triangles: a.triangles + b.triangles,
+            draw: a.draw + b.draw,
+        });
+        GpuFrameOutput { counters, pass_times, wall_time: self.wall_time + other.wall_time }
+    }
+}
+
 /// The GPU pipeline for one scene: passes, per-frame buffers and render targets.
 pub struct GpuCuller {
     /// The scene buffers.
@@ -312,6 +352,9 @@ pub struct GpuCuller {
     frame: Option<FrameBuffers>,
     timer: Option<PassTimer>,
     last_counters: GpuCounters,
+    /// A smaller storage-binding budget than the device's, to split frames into batches (see
+    /// [`GpuCuller::limit_batches`]).
+    batch_bytes: Option<u64>,
 }
 
 /// Buffers sized for a frame's candidates.
@@ -372,6 +415,7 @@ impl GpuCuller {
             frame: None,
             timer: PassTimer::new(context),
             last_counters: GpuCounters::default(),
+            batch_bytes: None,
         }
     }
 
@@ -487,6 +531,64 @@ impl GpuCuller {
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
+        let mut total: Option<GpuFrameOutput> = None;
+        for (i, batch) in self.batches(context, visible).into_iter().enumerate() {
+            let output = self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, i == 0);
+            total = Some(match total {
+                None => output,
+                Some(sum) => sum.plus(&output),
+            });
+        }
+        total.unwrap_or_default()
+    }
+
+    /// Splits frames into batches as if the device's largest storage binding were `bytes` (never more than
+    /// it is): the path a frame with too many candidate triangles for one batch takes, made testable on a
+    /// small scene.
+    pub fn limit_batches(&mut self, bytes: u64) {
+        self.batch_bytes = Some(bytes);
+    }
+
+    /// Splits `visible` into runs whose candidate triangles fit the device's largest storage binding (the
+    /// compacted index buffer is sized for every candidate surviving): almost always one run; several when
+    /// the CPU stages leave millions of triangles (a large scene with occlusion off), instead of failing.
+    fn batches(&self, context: &GpuContext, visible: &[u32]) -> Vec<std::ops::Range<usize>> {
+        let device_limit = u64::from(context.device.limits().max_storage_buffer_binding_size);
+        let limit = self.batch_bytes.map_or(device_limit, |bytes| bytes.min(device_limit));
+        // Buffers grow to 1.5x the candidates plus 64 (see `frame_buffers`): 12 bytes a triangle, 20 a cluster.
+        let max_triangles = (limit / 12).saturating_sub(64) * 2 / 3;
+        let max_clusters = (limit / 20).saturating_sub(64) * 2 / 3;
+        let library = &self.scene.library;
+        let instances = self.scene.instances();
+        let mut batches = Vec::new();
+        let (mut start, mut triangles, mut clusters) = (0, 0u64, 0u64);
+        for (i, &slot) in visible.iter().enumerate() {
+            let own = library.clusters_of(instances[slot as usize].mesh);
+            let own_triangles: u64 = own.iter().map(|c| u64::from(c.triangle_count)).sum();
+            if i > start && (triangles + own_triangles > max_triangles || clusters + own.len() as u64 > max_clusters) {
+                batches.push(start..i);
+                (start, triangles, clusters) = (i, 0, 0);
+            }
+            triangles += own_triangles;
+            clusters += own.len() as u64;
+        }
+        batches.push(start..visible.len());
+        batches
+    }
+
+    /// One batch of [`GpuCuller::run_from`]: the first builds the HZB and clears the targets, later ones draw
+    /// over what the earlier ones drew.
+    #[allow(clippy::too_many_arguments)]
+    fn run_batch(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+        first: bool,
+    ) -> GpuFrameOutput {
         let view = self.view_for(camera, settings, visible.len() as u32);
         self.last_view = view;
         context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
@@ -503,7 +605,9 @@ impl GpuCuller {
             encoder.clear_buffer(&frame.draw_args, 0, None);
         }
         let timer = self.timer.as_ref();
-        self.hzb.build(context, depth, &mut encoder, timer.map(|t| t.compute(0)));
+        if first {
+            self.hzb.build(context, depth, &mut encoder, timer.map(|t| t.compute(0)));
+        }
         let bind = |pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]| {
             let entries: Vec<_> = buffers
                 .iter()
@@ -576,7 +680,7 @@ impl GpuCuller {
             count_offset: DRAWS_SLOT * 4,
             max_draws: frame.max_clusters,
         };
-        self.record_draw(context, &mut encoder, camera.depth, source, timer.map(|t| t.render(3)));
+        self.record_draw(context, &mut encoder, camera.depth, source, first, timer.map(|t| t.render(3)));
         if let Some(timer) = timer {
             encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
         }
@@ -665,18 +769,19 @@ impl GpuCuller {
             });
             let source =
                 DrawSource::Unculled { indices: &self.scene.cluster_indices, args: &buffer, draws: args.len() as u32 };
-            self.record_draw(context, &mut encoder, camera.depth, source, None);
+            self.record_draw(context, &mut encoder, camera.depth, source, true, None);
             context.queue.submit([encoder.finish()]);
         }
     }
 
-    /// Records the draw of `source` into this culler's targets.
+    /// Records the draw of `source` into this culler's targets, clearing them first if `clear`.
     fn record_draw(
         &self,
         context: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         depth: DepthConvention,
         source: DrawSource<'_>,
+        clear: bool,
         timestamps: Option<wgpu::RenderPassTimestampWrites<'_>>,
     ) {
         let scene = &self.scene;
@@ -689,6 +794,7 @@ impl GpuCuller {
             &scene.instances,
             &scene.positions,
             source,
+            clear,
             timestamps,
         );
     }
