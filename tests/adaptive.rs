@@ -8,7 +8,6 @@ use cullet::mesh::Mesh;
 use cullet::pipeline::{AdaptiveSettings, CullStats, OcclusionSettings};
 use cullet::scene::{Scene, SceneObject};
 use cullet::{Camera, ObjectTransform, Occluder};
-use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 use glam::{Affine3A, Vec3};
 
 /// A wall with an occluder 20 units in front of the camera and `behind` boxes behind it, `beside` boxes
@@ -105,22 +104,9 @@ fn gating_adds_no_false_negatives_on_the_built_in_scenes() {
         ("cad", cullet::scene::cad::cad(2000).0, cullet::scene::cad::cad(2000).1),
     ];
     for (name, scene, path) in scenes {
-        // The path, then the same frame again (reused), with a gated occlusion stage on the city's roofs.
+        // The path, then its last frame twice more: reused, and judged again.
         let frames = 24;
-        let mut flight = Flight::new(path, 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
-            scene.spawn(world);
-        });
-        let settings = JudgeSettings {
-            reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
-            occlusion_ideal: false,
-        };
-        let mut metrics = PathMetrics::default();
-        for frame in (0..frames).chain([frames - 1, frames - 1]) {
-            flight.run_frame(frame);
-            let judged = judge_frame(&flight.world, &scene.meshes, &settings).metrics;
-            assert!(judged.false_negatives.is_empty(), "{name} frame {frame}: {:?}", judged.false_negatives);
-            metrics.add(&judged);
-        }
+        let metrics = cullet_test_support::fly_and_judge(&scene, path, frames, (0..frames).chain([frames - 1; 2]));
         println!("{name}: {metrics:?}");
     }
 }

@@ -3,15 +3,13 @@
 //! never panic, and culling stays conservative on all of them against the exact ground truth.
 
 use cullet::camera::CameraPath;
-use cullet::flight::Flight;
 use cullet::mesh::Mesh;
-use cullet::pipeline::OcclusionSettings;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
 use cullet::scene::city::{CityParams, CityScene, TEST_SCENE_OBJECTS};
 use cullet::scene::gltf_export::write_gltf;
 use cullet::scene::gltf_import::{GltfError, GltfScene, load_gltf, parse_gltf};
-use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
+use cullet_truth::PathMetrics;
 use std::path::{Path, PathBuf};
 
 fn repo_file(relative: &str) -> PathBuf {
@@ -32,26 +30,8 @@ fn parse(json: &str) -> Result<GltfScene, GltfError> {
     parse_gltf(json.as_bytes(), None, "test.gltf")
 }
 
-/// Flies `frames` frames along `path` through `scene` with the default (conservative) pipeline and judges each
-/// against the exact rendering at 640x360; panics on a false negative.
 fn fly_and_judge(scene: &Scene, path: CameraPath, frames: u32) -> PathMetrics {
-    let mut flight = Flight::new(path, 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
-        scene.spawn(world);
-    });
-    let settings = JudgeSettings {
-        reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
-        occlusion_ideal: false,
-    };
-    let mut metrics = PathMetrics::default();
-    for frame in 0..frames {
-        flight.run_frame(frame);
-        let judgement = judge_frame(&flight.world, &scene.meshes, &settings);
-        if let Some(missed) = judgement.metrics.false_negatives.first() {
-            panic!("frame {frame}: object {} is visible but {} culled it", missed.object, missed.stage);
-        }
-        metrics.add(&judgement.metrics);
-    }
-    metrics
+    cullet_test_support::fly_and_judge(scene, path, frames, 0..frames)
 }
 
 #[test]

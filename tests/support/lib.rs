@@ -29,3 +29,33 @@ pub fn reference_keeps(planes: &[DVec4], camera_position: DVec3, bounds: &WorldB
     let extent = bounds.half_extent.as_dvec3();
     planes.iter().all(|p| p.truncate().dot(center) + p.w + p.truncate().abs().dot(extent) >= 0.0)
 }
+
+/// Flies `scene` along `path` (spread over `frame_count` frames) with the default pipeline, running the frames
+/// listed in `frames` in that order, and judges each against the exact rendering at 640x360. Panics on the
+/// first false negative; returns the metrics over all judged frames.
+pub fn fly_and_judge(
+    scene: &cullet::scene::Scene,
+    path: cullet::CameraPath,
+    frame_count: u32,
+    frames: impl IntoIterator<Item = u32>,
+) -> cullet_truth::PathMetrics {
+    use cullet_truth::{JudgeSettings, ReferenceSettings, judge_frame};
+    let occlusion = cullet::pipeline::OcclusionSettings::default();
+    let mut flight = cullet::flight::Flight::new(path, 16.0 / 9.0, frame_count, occlusion, |world| {
+        scene.spawn(world);
+    });
+    let settings = JudgeSettings {
+        reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
+        occlusion_ideal: false,
+    };
+    let mut metrics = cullet_truth::PathMetrics::default();
+    for frame in frames {
+        flight.run_frame(frame);
+        let judged = judge_frame(&flight.world, &scene.meshes, &settings).metrics;
+        if let Some(missed) = judged.false_negatives.first() {
+            panic!("frame {frame}: object {} is visible but {} culled it", missed.object, missed.stage);
+        }
+        metrics.add(&judged);
+    }
+    metrics
+}
