@@ -217,10 +217,11 @@ fn ceil(x: f32) -> u32 {
 
 /// Whether `rect` is hidden by the pyramid.
 ///
-/// Eq. 19.5 picks the level `l` where the rectangle spans at most 2x2 texels; the test reads the at most 3x3
-/// texels it spans one level finer, `l - 1`. That is the coarse test refined, in one step: a coarse texel holds
-/// the farthest depth of the finer texels under it, so whatever the coarse level hides, the finer one hides
-/// too. A fixed 3x3 window (edge texels repeated) keeps it free of data-dependent branches.
+/// Eq. 19.5 picks the level `l` where the rectangle spans at most 2x2 texels. Those are read first: most hidden
+/// objects are found there. Otherwise the at most 3x3 texels it spans one level finer, `l - 1`, are read: the
+/// coarse test refined. A coarse texel holds the farthest depth of the finer texels under it, so whatever the
+/// coarse level hides the finer one hides too, and the answer is the finer level's either way. Fixed windows
+/// (edge texels repeated) keep the reads free of data-dependent loops.
 #[inline(always)]
 fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
     if rect.always_visible {
@@ -228,19 +229,29 @@ fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
     }
     let size = (rect.x1 - rect.x0).max(rect.y1 - rect.y0).max(1);
     let coarse = (size.next_power_of_two().trailing_zeros() as usize).min(pyramid.level_count() - 1);
-    let level = coarse.saturating_sub(1);
+    rect.nearest < farthest_in::<2>(rect, pyramid, coarse)
+        || (coarse > 0 && rect.nearest < farthest_in::<3>(rect, pyramid, coarse - 1))
+}
+
+/// The farthest depth among the texels of level `level` under `rect`, read as a `WINDOW` x `WINDOW` block from
+/// its top-left texel (rows and columns past the rectangle repeat its last ones).
+#[inline(always)]
+fn farthest_in<const WINDOW: u32>(rect: &ScreenRect, pyramid: &DepthPyramid, level: usize) -> f32 {
     let texels = pyramid.level(level);
+    let width = texels.width() as usize;
     let (x0, y0) = (rect.x0 >> level, rect.y0 >> level);
     let (x1, y1) = ((rect.x1 - 1) >> level, (rect.y1 - 1) >> level);
     let mut farthest = f32::INFINITY;
-    for dy in 0..3 {
-        let row = (y0 + dy).min(y1) * texels.width();
-        for dx in 0..3 {
-            let x = (x0 + dx).min(x1);
-            farthest = farthest.min(texels.texels()[(row + x) as usize]);
+    for dy in 0..WINDOW {
+        let start = (y0 + dy).min(y1) as usize * width;
+        let row = &texels.texels()[start..start + width];
+        for dx in 0..WINDOW {
+            let texel = row[(x0 + dx).min(x1) as usize];
+            // A plain select, not `f32::min` (which pays to handle NaN): a NaN texel is skipped either way.
+            farthest = if texel < farthest { texel } else { farthest };
         }
     }
-    rect.nearest < farthest
+    farthest
 }
 
 #[cfg(target_arch = "x86_64")]
