@@ -164,16 +164,36 @@ impl TexelRect {
     }
 }
 
-/// One occluder after setup: its front-facing triangles, and the screen segments that bound their union.
+/// One occluder after setup: its front-facing triangles, and the screen segments that bound their union, as
+/// ranges of its chunk's [`SetupArena`] (one allocation a chunk of occluders, not two an occluder).
 #[derive(Clone, Debug)]
 struct SetupOccluder {
-    triangles: Vec<SetupTriangle>,
+    /// Index of the arena holding its triangles and boundary.
+    arena: u32,
+    triangles: std::ops::Range<u32>,
     /// Silhouette, open-boundary and near-clip edges `(x0, y0, x1, y1)`: the union of the triangles has no other
     /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole.
-    boundary: Vec<[f64; 4]>,
+    boundary: std::ops::Range<u32>,
     rect: TexelRect,
     /// The largest `1/w` of any of its vertices: nothing of the occluder is nearer.
     nearest: f32,
+}
+
+/// The triangles and boundary segments of a chunk of set-up occluders.
+#[derive(Default)]
+struct SetupArena {
+    triangles: Vec<SetupTriangle>,
+    boundary: Vec<[f64; 4]>,
+}
+
+impl SetupOccluder {
+    fn triangles<'a>(&self, arenas: &'a [SetupArena]) -> &'a [SetupTriangle] {
+        &arenas[self.arena as usize].triangles[self.triangles.start as usize..self.triangles.end as usize]
+    }
+
+    fn boundary<'a>(&self, arenas: &'a [SetupArena]) -> &'a [[f64; 4]] {
+        &arenas[self.arena as usize].boundary[self.boundary.start as usize..self.boundary.end as usize]
+    }
 }
 
 /// Counts from one rasterization.
@@ -205,11 +225,22 @@ pub fn rasterize(
 ) -> RasterStats {
     buffer.reset(view.width, view.height);
     let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
-    let mut setups: Vec<SetupOccluder> = occluders
-        .par_iter()
-        .map_init(SetupScratch::default, |scratch, occluder| setup_occluder(view, occluder, mode, scratch))
-        .flatten()
+    // A few chunks a worker, each setting up its occluders into one arena.
+    let chunk = occluders.len().div_ceil(4 * rayon::current_num_threads()).max(16);
+    let chunks: Vec<(SetupArena, Vec<SetupOccluder>)> = occluders
+        .par_chunks(chunk)
+        .enumerate()
+        .map(|(index, chunk)| {
+            let (mut arena, mut scratch) = (SetupArena::default(), SetupScratch::default());
+            let setups = chunk
+                .iter()
+                .filter_map(|occluder| setup_occluder(view, occluder, mode, &mut scratch, &mut arena, index as u32))
+                .collect();
+            (arena, setups)
+        })
         .collect();
+    let (arenas, setups): (Vec<SetupArena>, Vec<Vec<SetupOccluder>>) = chunks.into_iter().unzip();
+    let mut setups: Vec<SetupOccluder> = setups.into_iter().flatten().collect();
     // Nearest first, so that occluders hidden behind nearer ones can be skipped.
     setups.sort_unstable_by(|a, b| b.nearest.total_cmp(&a.nearest));
     let triangles_rasterized = setups.iter().map(|o| o.triangles.len()).sum();
@@ -243,8 +274,8 @@ pub fn rasterize(
                     continue;
                 }
                 match mode {
-                    RasterMode::Conservative => raster_union(&setups[index as usize], band.reborrow(), &mut scratch),
-                    RasterMode::Fast => raster_centres(&setups[index as usize], band.reborrow()),
+                    RasterMode::Conservative => raster_union(occluder, &arenas, band.reborrow(), &mut scratch),
+                    RasterMode::Fast => raster_centres(occluder.triangles(&arenas), band.reborrow()),
                 }
             }
         },
@@ -293,8 +324,8 @@ struct Scratch {
 }
 
 /// Fast mode: each triangle writes its centre depth wherever it covers the texel centre.
-fn raster_centres(occluder: &SetupOccluder, band: Band<'_>) {
-    for tri in &occluder.triangles {
+fn raster_centres(triangles: &[SetupTriangle], band: Band<'_>) {
+    for tri in triangles {
         let rect = band.clip(tri.rect);
         for y in rect.y0..rect.y1 {
             let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
@@ -316,7 +347,7 @@ fn raster_centres(occluder: &SetupOccluder, band: Band<'_>) {
 /// Conservative mode: a texel is written when the occluder's front faces cover its centre and no boundary
 /// segment of their union touches it (so the union covers it whole), with the farthest depth of every
 /// triangle that may overlap it.
-fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch) {
+fn raster_union(occluder: &SetupOccluder, arenas: &[SetupArena], band: Band<'_>, scratch: &mut Scratch) {
     let rect = band.clip(occluder.rect);
     if rect.is_empty() {
         return;
@@ -329,7 +360,7 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
     scratch.farthest.clear();
     scratch.farthest.resize(w * h, f32::INFINITY);
 
-    for tri in &occluder.triangles {
+    for tri in occluder.triangles(arenas) {
         let tri_rect = band.clip(tri.rect);
         let [[a0, b0, c0, o0], [a1, b1, c1, o1], [a2, b2, c2, o2]] = tri.edges;
         let [p, q, r] = tri.depth;
@@ -372,7 +403,7 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
             }
         }
     }
-    for segment in &occluder.boundary {
+    for segment in occluder.boundary(arenas) {
         block_segment(segment, rect, w, &mut scratch.blocked);
     }
     for y in rect.y0..rect.y1 {
@@ -417,12 +448,15 @@ fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [b
 }
 
 /// Transforms, clips against the near plane and sets up the front faces of one occluder, with the boundary of
-/// their union: edges whose neighbour is missing or back-facing, and edges made by near clipping.
+/// their union: edges whose neighbour is missing or back-facing, and edges made by near clipping. Triangles and
+/// segments go into `arena` (number `arena_index`); a rejected occluder leaves nothing there.
 fn setup_occluder(
     view: &ScreenView,
     instance: &OccluderInstance<'_>,
     mode: RasterMode,
     scratch: &mut SetupScratch,
+    arena: &mut SetupArena,
+    arena_index: u32,
 ) -> Option<SetupOccluder> {
     let transform = DAffine3::from_mat3_translation(
         glam::Mat3::from(instance.transform.matrix3).as_dmat3(),
@@ -437,7 +471,9 @@ fn setup_occluder(
     front.clear();
     front.extend(relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(t[0]) < 0.0));
     let m = view.clip_from_relative;
-    let mut setup = SetupOccluder { triangles: Vec::new(), boundary: Vec::new(), rect: TexelRect::EMPTY, nearest: 0.0 };
+    let (first_triangle, first_segment) = (arena.triangles.len(), arena.boundary.len());
+    let mut setup =
+        SetupOccluder { arena: arena_index, triangles: 0..0, boundary: 0..0, rect: TexelRect::EMPTY, nearest: 0.0 };
     for (t, corners) in relative.chunks_exact(3).enumerate() {
         if !front[t] {
             continue;
@@ -465,13 +501,13 @@ fn setup_occluder(
         for (i, &(_, boundary)) in polygon[..count].iter().enumerate() {
             if boundary {
                 let (a, b) = (screen[i], screen[(i + 1) % count]);
-                setup.boundary.push([a.x, a.y, b.x, b.y]);
+                arena.boundary.push([a.x, a.y, b.x, b.y]);
             }
         }
         for i in 1..count - 1 {
             if let Some(tri) = setup_triangle([screen[0], screen[i], screen[i + 1]], view, mode) {
                 setup.rect = setup.rect.union(tri.rect);
-                setup.triangles.push(tri);
+                arena.triangles.push(tri);
             }
         }
     }
@@ -479,7 +515,14 @@ fn setup_occluder(
     // across on screen (before clamping to the buffer) can write none.
     let extent = screen_max - screen_min;
     let too_small = mode == RasterMode::Conservative && (extent.x < 1.0 || extent.y < 1.0);
-    (!setup.triangles.is_empty() && !too_small).then_some(setup)
+    setup.triangles = first_triangle as u32..arena.triangles.len() as u32;
+    setup.boundary = first_segment as u32..arena.boundary.len() as u32;
+    if setup.triangles.is_empty() || too_small {
+        arena.triangles.truncate(first_triangle);
+        arena.boundary.truncate(first_segment);
+        return None;
+    }
+    Some(setup)
 }
 
 /// Reused buffers of [`setup_occluder`], one per rayon worker.
