@@ -553,7 +553,7 @@ impl GpuCuller {
     /// compacted index buffer is sized for every candidate surviving): almost always one run; several when
     /// the CPU stages leave millions of triangles (a large scene with occlusion off), instead of failing.
     fn batches(&self, context: &GpuContext, visible: &[u32]) -> Vec<std::ops::Range<usize>> {
-        let device_limit = u64::from(context.device.limits().max_storage_buffer_binding_size);
+        let device_limit = context.device.limits().max_storage_buffer_binding_size;
         let limit = self.batch_bytes.map_or(device_limit, |bytes| bytes.min(device_limit));
         // Buffers grow to 1.5x the candidates plus 64 (see `frame_buffers`): 12 bytes a triangle, 20 a cluster.
         let max_triangles = (limit / 12).saturating_sub(64) * 2 / 3;
