@@ -323,9 +323,8 @@ impl Geometry {
         if let Some(indices) = primitive.indices() {
             check_accessor(&indices, &self.buffers, indices.data_type(), gltf::accessor::Dimensions::Scalar)
                 .map_err(|why| problem(format!("indices {why}")))?;
-            if indices.data_type() == gltf::accessor::DataType::F32
-                || matches!(indices.data_type(), gltf::accessor::DataType::I8 | gltf::accessor::DataType::I16)
-            {
+            use gltf::accessor::DataType;
+            if !matches!(indices.data_type(), DataType::U8 | DataType::U16 | DataType::U32) {
                 return Err(problem(format!("indices of type {:?}", indices.data_type())));
             }
         }
@@ -458,26 +457,7 @@ fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, String> {
 
 /// A URI path with `%XX` escapes decoded (glTF URIs are percent-encoded); bad escapes are kept as they are.
 fn percent_decode(uri: &str) -> String {
-    let bytes = uri.as_bytes();
-    let mut out = Vec::with_capacity(bytes.len());
-    let mut i = 0;
-    while i < bytes.len() {
-        let hex = bytes
-            .get(i + 1..i + 3)
-            .and_then(|h| std::str::from_utf8(h).ok())
-            .and_then(|h| u8::from_str_radix(h, 16).ok());
-        match (bytes[i], hex) {
-            (b'%', Some(byte)) => {
-                out.push(byte);
-                i += 3;
-            }
-            (byte, _) => {
-                out.push(byte);
-                i += 1;
-            }
-        }
-    }
-    String::from_utf8_lossy(&out).into_owned()
+    percent_encoding::percent_decode_str(uri).decode_utf8_lossy().into_owned()
 }
 
 /// A URI cut to a readable length for messages (data URIs are long).
