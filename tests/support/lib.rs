@@ -1,6 +1,6 @@
 //! Shared helpers of Cullet's integration tests: exact (f64) references that the fast paths are judged against.
 
-use cullet::{Camera, DepthConvention, WorldBounds};
+use cullet::{Camera, WorldBounds};
 use glam::{DMat4, DVec3, DVec4};
 
 /// The camera's clip-from-relative matrix in f64, from its parameters: the true frustum, free of the f32
@@ -13,14 +13,7 @@ pub fn reference_clip_from_relative(camera: &Camera) -> DMat4 {
 /// The frustum's half-spaces `(n, d)` (inside where `n · p + d >= 0`, p camera-relative), in f64, with planes at
 /// infinity left out. Not normalized: the box test below does not need it.
 pub fn reference_planes(camera: &Camera) -> Vec<DVec4> {
-    let m = reference_clip_from_relative(camera).transpose();
-    let (r0, r1, r2, r3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
-    let (near, far) = match camera.depth {
-        DepthConvention::Standard => (r2, r3 - r2),
-        DepthConvention::Reversed => (r3 - r2, r2),
-        DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2),
-    };
-    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far].into_iter().filter(|p| p.truncate().length() > 0.0).collect()
+    cullet_truth::stress::exact_half_spaces(camera)
 }
 
 /// Exact box-versus-planes test in f64: kept unless the box lies entirely outside one plane.

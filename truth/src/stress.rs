@@ -288,9 +288,10 @@ pub fn projection_error(camera: &Camera) -> f64 {
     (exact - rounded).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs())) / scale.max(f64::MIN_POSITIVE)
 }
 
-/// The frustum's planes in f64, normalized, inside where `n · p + d >= 0` (p camera-relative); planes at
-/// infinity left out.
-fn exact_planes(camera: &Camera) -> Vec<DVec4> {
+/// The frustum's half-spaces `(n, d)` in f64 from the camera's exact clip matrix, inside where
+/// `n · p + d >= 0` (p camera-relative), planes at infinity left out; not normalized (sign tests do not need it).
+/// The exact reference both for the stress report and for the frustum tests.
+pub fn exact_half_spaces(camera: &Camera) -> Vec<DVec4> {
     let m = camera.clip_from_relative_f64().transpose();
     let (r0, r1, r2, r3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
     let (near, far) = match camera.depth {
@@ -298,11 +299,12 @@ fn exact_planes(camera: &Camera) -> Vec<DVec4> {
         DepthConvention::Reversed => (r3 - r2, r2),
         DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2),
     };
-    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far]
-        .into_iter()
-        .filter(|p| p.truncate().length() > 0.0)
-        .map(|p| p / p.truncate().length())
-        .collect()
+    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far].into_iter().filter(|p| p.truncate().length() > 0.0).collect()
+}
+
+/// [`exact_half_spaces`] normalized to unit normals.
+fn exact_planes(camera: &Camera) -> Vec<DVec4> {
+    exact_half_spaces(camera).into_iter().map(|p| p / p.truncate().length()).collect()
 }
 
 /// Triangles the exact rendering shows, of objects the CPU stages kept, that the GPU cluster and triangle
