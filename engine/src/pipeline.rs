@@ -328,8 +328,7 @@ pub fn occlusion_stage(
     stats.after_occlusion = result.visible;
     stats.occlusion_time = start.elapsed();
     // Gating: count frames of little benefit; after enough of them, skip the stage for a while.
-    let removed = stats.after_frustum - stats.after_occlusion;
-    if (removed as f32) < adaptive.min_occlusion_benefit * stats.after_frustum as f32 {
+    if (stats.occlusion_removed() as f32) < adaptive.min_occlusion_benefit * stats.after_frustum as f32 {
         gate.low_occlusion_frames += 1;
         if gate.low_occlusion_frames >= adaptive.low_benefit_frames {
             gate.low_occlusion_frames = 0;

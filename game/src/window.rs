@@ -84,17 +84,19 @@ pub fn open_event_loop() -> Result<EventLoop<()>, String> {
 /// Runs the game in a window until it is closed (or after `frames` frames), then prints the summary.
 pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -> Result<(), String> {
     event_loop.set_control_flow(ControlFlow::Poll);
-    let (yaw, pitch) = yaw_pitch(prepared.flight.path.camera_at(0.0, 1.0).forward);
+    let start = prepared.flight.path.camera_at(0.0, 1.0);
+    let (yaw, pitch) = yaw_pitch(start.forward);
+    let (width, height) = prepared.resolution;
     let radius = prepared.scene.bounds().map_or(100.0, |(min, max)| (max - min).length() * 0.5);
     let mut game = Game {
         prepared,
-        size: (0, 0),
+        size: (width.min(1920), height.min(1080)),
         graphics: None,
         error: None,
         keys: HashSet::new(),
         looking: false,
         autopilot: Some(0.0),
-        position: Vec3::ZERO,
+        position: start.position,
         yaw,
         pitch,
         speed: (radius * 0.05).max(1.0),
@@ -110,11 +112,6 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
         fps: 0.0,
         frame_limit: frames.map(|n| n as usize),
     };
-    game.size = {
-        let (w, h) = game.prepared.resolution;
-        (w.min(1920), h.min(1080))
-    };
-    game.position = game.prepared.flight.path.camera_at(0.0, 1.0).position;
     println!("{HELP}");
     event_loop.run_app(&mut game).map_err(|e| e.to_string())?;
     print_summary(&game.frames);
