@@ -1,6 +1,7 @@
 // Cluster culling: one workgroup per instance the CPU stages kept; its threads walk the instance's clusters and
 // append the survivors of the frustum, normal-cone and HZB tests (and the opt-in, lossy small-cluster test)
-// to a compact list. The engine's `cluster_cull::cull_cluster` is the same test on the CPU.
+// to a compact list. Where the triangle pass is skipped (VIEW_DRAW_CLUSTERS), each survivor's draw is written
+// here instead, over the cluster's own indices. The engine's `cluster_cull::cull_cluster` is the same test on the CPU.
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
@@ -10,6 +11,7 @@
 @group(0) @binding(5) var<storage, read> hzb: array<f32>;
 @group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;
 @group(0) @binding(7) var<storage, read_write> survivors: array<vec2<u32>>;
+@group(0) @binding(8) var<storage, read_write> draws: array<DrawArgs>;
 
 // Cone test slack: a cluster is called back-facing only this far past meshoptimizer's cutoff.
 const CONE_SLACK: f32 = 1e-3;
@@ -115,9 +117,15 @@ fn main(
     for (var c = thread; c < mesh.cluster_count; c += 64u) {
         let cluster_index = mesh.first_cluster + c;
         atomicAdd(&counters[CLUSTERS_IN], 1u);
-        let verdict = cull_cluster(instance, clusters[cluster_index]);
+        let cluster = clusters[cluster_index];
+        let verdict = cull_cluster(instance, cluster);
         if (verdict == KEEP) {
             survivors[atomicAdd(&counters[CLUSTERS_OUT], 1u)] = vec2<u32>(instance_index, cluster_index);
+            if ((view.flags & VIEW_DRAW_CLUSTERS) != 0u) {
+                draws[atomicAdd(&counters[DRAWS], 1u)] =
+                    DrawArgs(3u * cluster.triangle_count, 1u, cluster.first_index, 0, instance_index);
+                atomicAdd(&counters[TRIANGLES_OUT], cluster.triangle_count);
+            }
         } else {
             atomicAdd(&counters[verdict], 1u);
         }

@@ -67,12 +67,24 @@ struct View {
 
 const INSTANCE_CONE_SAFE: u32 = 1u;
 
+// One indexed indirect draw, as wgpu's `DrawIndexedIndirectArgs`.
+struct DrawArgs {
+    index_count: u32,
+    instance_count: u32,
+    first_index: u32,
+    base_vertex: i32,
+    first_instance: u32,
+}
+
 const VIEW_CONE: u32 = 1u;
 const VIEW_HZB: u32 = 2u;
 const VIEW_SMALL_CLUSTER: u32 = 4u;
 const VIEW_BACKFACE: u32 = 8u;
 const VIEW_SMALL_TRIANGLE: u32 = 16u;
 const VIEW_TRIANGLE_FRUSTUM: u32 = 32u;
+// The triangle pass is skipped: the cluster pass writes each surviving cluster's draw, of its uncompacted
+// triangles in the cluster index buffer.
+const VIEW_DRAW_CLUSTERS: u32 = 64u;
 
 // Counter slots (see the engine's `GpuCounters`).
 const CLUSTERS_IN: u32 = 0u;

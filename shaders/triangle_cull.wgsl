@@ -4,14 +4,6 @@
 // vertex at w <= 0 skips the screen-space tests and is kept. The engine's `triangle_cull::cull_triangle` is
 // the same test on the CPU.
 
-struct DrawArgs {
-    index_count: u32,
-    instance_count: u32,
-    first_index: u32,
-    base_vertex: i32,
-    first_instance: u32,
-}
-
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 @group(0) @binding(2) var<storage, read> clusters: array<Cluster>;

@@ -12,7 +12,7 @@ use cullet::gpu::hzb::Hzb;
 use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::{GpuContext, context_for_tests};
-use cullet::pipeline::{OcclusionSettings, OcclusionState};
+use cullet::pipeline::{AdaptiveSettings, OcclusionSettings, OcclusionState};
 use cullet::raster::{DepthBuffer, DepthPyramid};
 use cullet::scene::city::{CityParams, CityScene};
 use glam::Vec3;
@@ -152,6 +152,8 @@ fn flips_when_nudged<V: PartialEq>(view: &GpuView, decide: impl Fn(&GpuView) -> 
 fn cluster_and_triangle_culling_match_the_cpu_exactly() {
     let Some(context) = context_for_tests() else { return };
     let mut setup = setup(&context, 5000);
+    // Every pass runs on every frame (no gating).
+    setup.culler.set_adaptive(AdaptiveSettings::fixed());
     let half = setup.half;
     let settings = GpuCullSettings::default();
     let mut totals: HashMap<String, u64> = HashMap::new();
@@ -261,8 +263,28 @@ fn cluster_and_triangle_culling_match_the_cpu_exactly() {
     }
 }
 
-/// The image drawn through the CPU stages and every GPU test equals the image drawn with no culling at all:
-/// depth everywhere, colour and object ID wherever they do not depend on draw order.
+/// Pixels of the last frame's image that differ from the image drawn with no culling at all from `camera`:
+/// depth anywhere, colour and object ID wherever they do not depend on draw order. Also returns how many
+/// pixels the unculled image covers.
+fn pixels_differing_from_unculled(context: &GpuContext, culler: &GpuCuller, camera: &Camera) -> (usize, usize) {
+    let culled = culler.read_image(context);
+    let unculled = culler.draw_unculled(context, camera, false);
+    let reversed = culler.draw_unculled(context, camera, true);
+    assert_eq!(unculled.depth, reversed.depth, "depth must not depend on draw order");
+    // Pixels where two objects' surfaces meet at exactly the same depth: which one shows depends on draw order
+    // alone, and the culled draws come in the order the GPU appended them.
+    let tie = |i: usize| unculled.object[i] != reversed.object[i];
+    let differing = (0..culled.object.len())
+        .filter(|&i| {
+            culled.depth[i] != unculled.depth[i]
+                || (!tie(i) && (culled.object[i] != unculled.object[i] || culled.color[i] != unculled.color[i]))
+        })
+        .count();
+    let covered = unculled.object.iter().filter(|&&o| o != cullet::gpu::draw::NO_OBJECT).count();
+    (differing, covered)
+}
+
+/// The image drawn through the CPU stages and every GPU test equals the image drawn with no culling at all.
 #[test]
 fn culled_image_equals_unculled_image() {
     let Some(context) = context_for_tests() else { return };
@@ -270,25 +292,84 @@ fn culled_image_equals_unculled_image() {
     let half = setup.half;
     for (name, camera) in cameras(half) {
         let (output, _, _) = setup.run(&context, camera, &GpuCullSettings::default());
-        let culled = setup.culler.read_image(&context);
-        let unculled = setup.culler.draw_unculled(&context, &camera, false);
-        let reversed = setup.culler.draw_unculled(&context, &camera, true);
-        assert_eq!(unculled.depth, reversed.depth, "{name}: depth must not depend on draw order");
-        // Pixels where two objects' surfaces meet at exactly the same depth: which one shows depends on draw order
-        // alone, and the culled draws come in the order the GPU appended them.
-        let tie = |i: usize| unculled.object[i] != reversed.object[i];
-        let ties = (0..unculled.object.len()).filter(|&i| tie(i)).count();
-        let differing = (0..culled.object.len())
-            .filter(|&i| {
-                culled.depth[i] != unculled.depth[i]
-                    || (!tie(i) && (culled.object[i] != unculled.object[i] || culled.color[i] != unculled.color[i]))
-            })
-            .count();
-        let covered = unculled.object.iter().filter(|&&o| o != cullet::gpu::draw::NO_OBJECT).count();
-        println!("{name}: {differing} differing pixels, {covered} covered, {ties} depth ties, {:?}", output.counters);
+        let (differing, covered) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+        println!("{name}: {differing} differing pixels, {covered} covered, {:?}", output.counters);
         assert!(covered > 0, "{name}: nothing drawn");
         assert_eq!(differing, 0, "{name}: culling changed {differing} pixels");
     }
+}
+
+/// Each way of skipping GPU passes (no cluster pass for a tiny frame, no triangle pass where it removes too
+/// little, both) draws the same image as no culling at all, and its counters say what ran.
+#[test]
+fn skipped_gpu_passes_draw_the_same_image() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 2000);
+    let half = setup.half;
+    // Every frame counts as tiny, or as too little removed; the triangle pass is skipped from the second frame.
+    let tiny = AdaptiveSettings { tiny_scene_clusters: u32::MAX, ..AdaptiveSettings::fixed() };
+    let no_triangles = AdaptiveSettings {
+        min_triangle_benefit: 1.0,
+        low_benefit_frames: 1,
+        reprobe_every: u32::MAX,
+        ..AdaptiveSettings::fixed()
+    };
+    let both = AdaptiveSettings { tiny_scene_clusters: u32::MAX, ..no_triangles };
+    for (label, adaptive) in [("tiny", tiny), ("no triangle pass", no_triangles), ("both", both)] {
+        setup.culler.set_adaptive(adaptive);
+        let mut tested = 0;
+        for (name, camera) in cameras(half) {
+            let (output, visible, _) = setup.run(&context, camera, &GpuCullSettings::default());
+            let (differing, covered) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+            let c = output.counters;
+            println!("{label}, {name}: {differing} differing of {covered} covered, {output:?}");
+            assert!(covered > 0, "{label}, {name}: nothing drawn");
+            assert_eq!(differing, 0, "{label}, {name}: {differing} pixels changed");
+            assert_eq!(output.cluster_pass_skipped, adaptive.tiny_scene_clusters > 0);
+            let library = &setup.culler.scene.library;
+            let instances = setup.culler.scene.instances();
+            let candidates: Vec<_> =
+                visible.iter().flat_map(|&s| library.clusters_of(instances[s as usize].mesh)).collect();
+            if output.cluster_pass_skipped {
+                assert_eq!((c.clusters_in, c.clusters_out), (candidates.len() as u32, candidates.len() as u32));
+            }
+            if output.triangle_pass_skipped {
+                tested += 1;
+                assert_eq!(c.triangles_in, 0, "{label}, {name}");
+                assert_eq!(c.draws, c.clusters_out, "{label}, {name}: one draw per surviving cluster");
+                let (survivors, indices) = setup.culler.read_survivors(&context);
+                assert_eq!(indices.len() as u32, 3 * c.triangles_out);
+                let drawn: u32 = survivors.iter().map(|&(_, k)| library.clusters[k as usize].triangle_count).sum();
+                assert_eq!(drawn, c.triangles_out);
+            }
+        }
+        let expect_skipped = if adaptive.min_triangle_benefit > 0.0 { cameras(half).len() - 1 } else { 0 };
+        assert_eq!(tested, expect_skipped, "{label}: frames without the triangle pass");
+    }
+}
+
+/// The triangle pass is skipped after `low_benefit_frames` frames under the threshold and re-probed every
+/// `reprobe_every` frames; a pass that removes enough is never skipped.
+#[test]
+fn triangle_pass_is_skipped_and_reprobed() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 1000);
+    let camera = cameras(setup.half)[0].1;
+    let gated =
+        AdaptiveSettings { min_triangle_benefit: 1.0, low_benefit_frames: 2, reprobe_every: 3, ..Default::default() };
+    setup.culler.set_adaptive(gated);
+    let skipped: Vec<bool> =
+        (0..10).map(|_| setup.run(&context, camera, &GpuCullSettings::default()).0.triangle_pass_skipped).collect();
+    // Two low frames, three skipped, then the re-probe starts the count again.
+    let expected = [false, false, true, true, true, false, false, true, true, true];
+    assert_eq!(skipped, expected);
+    // The default threshold (10%) keeps the pass on the street, where back faces alone are far more.
+    setup.culler.set_adaptive(AdaptiveSettings::default());
+    let outputs: Vec<GpuFrameOutput> =
+        (0..20).map(|_| setup.run(&context, camera, &GpuCullSettings::default()).0).collect();
+    assert!(outputs.iter().all(|o| !o.triangle_pass_skipped && !o.cluster_pass_skipped));
+    let c = outputs[0].counters;
+    println!("street: {} of {} triangles removed", c.triangles_in - c.triangles_out, c.triangles_in);
 }
 
 /// Per-instance data is written only where the store changed (the moving cars), and the GPU copy always

@@ -94,11 +94,22 @@ pub struct AdaptiveSettings {
     /// on the city's fly-through at 30 frames a second it saved 5% of the CPU stages' time but left the GPU
     /// 5% more triangles (an occluder hidden last frame may show this frame), so it does not pay.
     pub skip_hidden_occluders: bool,
+    /// A frame whose candidates (the CPU stages' survivors) have at most this many clusters skips the GPU
+    /// cluster pass: the CPU lists every candidate cluster for the triangle pass (or the draw) instead. With so
+    /// few clusters the pass cannot save more than its own dispatch costs. 0 never skips.
+    pub tiny_scene_clusters: u32,
+    /// The GPU triangle pass is skipped once it has removed less than this fraction of the triangles it tested
+    /// for `low_benefit_frames` frames in a row, and re-probed every `reprobe_every` frames: the surviving
+    /// clusters are then drawn whole and the hardware culls their triangles. The pass reads and transforms
+    /// every triangle, about the work the hardware's vertex stage and culling do on it, so it pays only when it
+    /// removes a good share. 0 never skips.
+    pub min_triangle_benefit: f32,
 }
 
 impl Default for AdaptiveSettings {
-    /// Reuse of unchanged frames, and occlusion skipped after 8 frames under 1% removed and re-probed every 30
-    /// frames; hidden occluders are still selected.
+    /// Reuse of unchanged frames; occlusion skipped after 8 frames under 1% removed and the triangle pass after
+    /// 8 frames under 10%, each re-probed every 30 frames; no cluster pass for 64 clusters or fewer; hidden
+    /// occluders are still selected.
     fn default() -> Self {
         Self {
             reuse_unchanged: true,
@@ -106,6 +117,8 @@ impl Default for AdaptiveSettings {
             low_benefit_frames: 8,
             reprobe_every: 30,
             skip_hidden_occluders: false,
+            tiny_scene_clusters: 64,
+            min_triangle_benefit: 0.1,
         }
     }
 }
@@ -119,6 +132,45 @@ impl AdaptiveSettings {
             low_benefit_frames: u32::MAX,
             reprobe_every: 0,
             skip_hidden_occluders: false,
+            tiny_scene_clusters: 0,
+            min_triangle_benefit: 0.0,
+        }
+    }
+}
+
+/// Skips a stage that keeps removing too little: after `low_benefit_frames` frames in a row under the benefit
+/// threshold, the stage is skipped for `reprobe_every` frames, then runs again to re-probe.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BenefitGate {
+    /// Consecutive frames the stage removed less than the threshold.
+    low_frames: u32,
+    /// Frames left to skip the stage before re-probing it.
+    skip_left: u32,
+}
+
+impl BenefitGate {
+    /// Whether the stage is skipped this frame; call once a frame.
+    pub fn skip_this_frame(&mut self) -> bool {
+        let skip = self.skip_left > 0;
+        self.skip_left = self.skip_left.saturating_sub(1);
+        skip
+    }
+
+    /// Records a frame the stage ran, removing `removed` of the `tested` items, against `min_benefit` (a
+    /// fraction) and the frame counts of `settings`. A frame with nothing tested says nothing and is not
+    /// counted.
+    pub fn record(&mut self, removed: usize, tested: usize, min_benefit: f32, settings: &AdaptiveSettings) {
+        if tested == 0 {
+            return;
+        }
+        if (removed as f32) < min_benefit * tested as f32 {
+            self.low_frames += 1;
+            if self.low_frames >= settings.low_benefit_frames {
+                self.low_frames = 0;
+                self.skip_left = settings.reprobe_every;
+            }
+        } else {
+            self.low_frames = 0;
         }
     }
 }
@@ -128,10 +180,8 @@ impl AdaptiveSettings {
 pub struct AdaptiveState {
     /// The inputs of the last frame that ran: camera, store generation and settings.
     last_inputs: Option<(Camera, u64, FrustumSettings, OcclusionSettings)>,
-    /// Consecutive frames in which occlusion removed less than the threshold.
-    low_occlusion_frames: u32,
-    /// Frames left to skip occlusion before re-probing it.
-    occlusion_skip_left: u32,
+    /// When the occlusion stage is skipped for removing too little.
+    occlusion: BenefitGate,
 }
 
 /// Settings of the frustum stage.
@@ -281,10 +331,7 @@ pub fn occlusion_stage(
     }
     let start = Instant::now();
     let state = &mut *state;
-    stats.occlusion_gated = settings.enabled && gate.occlusion_skip_left > 0;
-    if stats.occlusion_gated {
-        gate.occlusion_skip_left -= 1;
-    }
+    stats.occlusion_gated = settings.enabled && gate.occlusion.skip_this_frame();
     // Occluders hidden last frame are left out: `state.occluded` still holds last frame's hidden objects.
     let candidates = if adaptive.skip_hidden_occluders && state.occluded.len() == frustum_visible.0.len() {
         let mut candidates = frustum_visible.0.clone();
@@ -327,14 +374,5 @@ pub fn occlusion_stage(
         test_occlusion(&store, &frustum_visible.0, &view, &state.pyramid, &mut state.visible, &mut state.occluded);
     stats.after_occlusion = result.visible;
     stats.occlusion_time = start.elapsed();
-    // Gating: count frames of little benefit; after enough of them, skip the stage for a while.
-    if (stats.occlusion_removed() as f32) < adaptive.min_occlusion_benefit * stats.after_frustum as f32 {
-        gate.low_occlusion_frames += 1;
-        if gate.low_occlusion_frames >= adaptive.low_benefit_frames {
-            gate.low_occlusion_frames = 0;
-            gate.occlusion_skip_left = adaptive.reprobe_every;
-        }
-    } else {
-        gate.low_occlusion_frames = 0;
-    }
+    gate.occlusion.record(stats.occlusion_removed(), stats.after_frustum, adaptive.min_occlusion_benefit, &adaptive);
 }

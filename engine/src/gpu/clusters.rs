@@ -119,8 +119,13 @@ impl ClusterLibrary {
 
     /// The clusters of mesh `mesh` (none for a mesh index out of range, such as [`super::scene::NO_MESH`]).
     pub fn clusters_of(&self, mesh: u32) -> &[GpuCluster] {
-        let Some(&info) = self.meshes.get(mesh as usize) else { return &[] };
-        &self.clusters[info.first_cluster as usize..(info.first_cluster + info.cluster_count) as usize]
+        let range = self.cluster_range(mesh);
+        &self.clusters[range.start as usize..range.end as usize]
+    }
+
+    /// The indices in [`ClusterLibrary::clusters`] of mesh `mesh`'s clusters (empty as for `clusters_of`).
+    pub fn cluster_range(&self, mesh: u32) -> std::ops::Range<u32> {
+        self.meshes.get(mesh as usize).map_or(0..0, |info| info.first_cluster..info.first_cluster + info.cluster_count)
     }
 
     /// The three corner positions of triangle `triangle` of `cluster`.

@@ -271,21 +271,22 @@ impl DrawPass {
     }
 }
 
-/// The draws of every cluster of every instance, for drawing with culling off.
-pub fn unculled_draws(
+/// The draws of every cluster of the instances at `slots`, uncompacted (each over its cluster's own indices):
+/// for drawing with culling off, or without the triangle pass.
+pub fn cluster_draws(
     library: &super::clusters::ClusterLibrary,
     instances: &[super::scene::GpuInstance],
+    slots: impl IntoIterator<Item = u32>,
 ) -> Vec<DrawIndexedIndirectArgs> {
-    instances
-        .iter()
-        .enumerate()
-        .flat_map(|(slot, instance)| {
-            library.clusters_of(instance.mesh).iter().map(move |cluster| DrawIndexedIndirectArgs {
+    slots
+        .into_iter()
+        .flat_map(|slot| {
+            library.clusters_of(instances[slot as usize].mesh).iter().map(move |cluster| DrawIndexedIndirectArgs {
                 index_count: 3 * cluster.triangle_count,
                 instance_count: 1,
                 first_index: cluster.first_index,
                 base_vertex: 0,
-                first_instance: slot as u32,
+                first_instance: slot,
             })
         })
         .collect()

@@ -3,12 +3,13 @@
 
 use super::GpuContext;
 use super::cluster_cull::ClusterVerdict;
-use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage, unculled_draws};
+use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws};
 use super::hzb::{Hzb, HzbLevel, MAX_HZB_LEVELS};
 use super::scene::GpuScene;
 use super::triangle_cull::TriangleVerdict;
 use crate::camera::Camera;
 use crate::frustum::DepthConvention;
+use crate::pipeline::{AdaptiveSettings, BenefitGate};
 use crate::raster::DepthBuffer;
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec4};
@@ -27,6 +28,8 @@ pub const VIEW_BACKFACE: u32 = 8;
 pub const VIEW_SMALL_TRIANGLE: u32 = 16;
 /// View flag: viewport test of triangles.
 pub const VIEW_TRIANGLE_FRUSTUM: u32 = 32;
+/// View flag: the triangle pass is skipped; the cluster pass writes each surviving cluster's draw.
+pub const VIEW_DRAW_CLUSTERS: u32 = 64;
 
 /// The per-frame uniform every pass reads (`View` in `shaders/common.wgsl`).
 #[repr(C)]
@@ -133,6 +136,9 @@ pub struct GpuCounters {
 
 /// Counter slots, as in `shaders/common.wgsl`.
 const COUNTER_COUNT: usize = 16;
+const CLUSTERS_IN_SLOT: usize = 0;
+const CLUSTERS_OUT_SLOT: usize = 5;
+const TRIANGLES_OUT_SLOT: usize = 11;
 const DRAWS_SLOT: u64 = 12;
 
 impl GpuCounters {
@@ -313,6 +319,12 @@ pub struct GpuFrameOutput {
     pub pass_times: Option<GpuPassTimes>,
     /// Wall time from submitting the frame until its counters were back on the CPU.
     pub wall_time: Duration,
+    /// The frame had too few clusters for the cluster pass to pay ([`AdaptiveSettings::tiny_scene_clusters`]):
+    /// every candidate cluster went on to the next pass.
+    pub cluster_pass_skipped: bool,
+    /// The triangle pass was skipped for removing too little lately
+    /// ([`AdaptiveSettings::min_triangle_benefit`]): the surviving clusters were drawn whole.
+    pub triangle_pass_skipped: bool,
 }
 
 impl GpuFrameOutput {
@@ -326,7 +338,13 @@ impl GpuFrameOutput {
             triangles: a.triangles + b.triangles,
             draw: a.draw + b.draw,
         });
-        GpuFrameOutput { counters, pass_times, wall_time: self.wall_time + other.wall_time }
+        GpuFrameOutput {
+            counters,
+            pass_times,
+            wall_time: self.wall_time + other.wall_time,
+            cluster_pass_skipped: self.cluster_pass_skipped || other.cluster_pass_skipped,
+            triangle_pass_skipped: self.triangle_pass_skipped || other.triangle_pass_skipped,
+        }
     }
 }
 
@@ -352,9 +370,24 @@ pub struct GpuCuller {
     frame: Option<FrameBuffers>,
     timer: Option<PassTimer>,
     last_counters: GpuCounters,
+    /// Which passes the last frame skipped.
+    last_gate: PassGate,
     /// A smaller storage-binding budget than the device's, to split frames into batches (see
     /// [`GpuCuller::limit_batches`]).
     batch_bytes: Option<u64>,
+    /// Which GPU passes a frame may skip (see [`GpuCuller::set_adaptive`]).
+    adaptive: AdaptiveSettings,
+    /// When the triangle pass is skipped for removing too little.
+    triangle_gate: BenefitGate,
+}
+
+/// Which passes one frame skips.
+#[derive(Clone, Copy, Debug, Default)]
+struct PassGate {
+    /// No cluster pass: the CPU lists every candidate cluster.
+    skip_clusters: bool,
+    /// No triangle pass: surviving clusters are drawn whole.
+    skip_triangles: bool,
 }
 
 /// Buffers sized for a frame's candidates.
@@ -415,7 +448,10 @@ impl GpuCuller {
             frame: None,
             timer: PassTimer::new(context),
             last_counters: GpuCounters::default(),
+            last_gate: PassGate::default(),
             batch_bytes: None,
+            adaptive: AdaptiveSettings::default(),
+            triangle_gate: BenefitGate::default(),
         }
     }
 
@@ -531,15 +567,44 @@ impl GpuCuller {
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
+        let library = &self.scene.library;
+        let instances = self.scene.instances();
+        let candidate_clusters: usize =
+            visible.iter().map(|&slot| library.cluster_range(instances[slot as usize].mesh).len()).sum();
+        let gate = PassGate {
+            skip_clusters: candidate_clusters <= self.adaptive.tiny_scene_clusters as usize,
+            skip_triangles: self.triangle_gate.skip_this_frame(),
+        };
         let mut total: Option<GpuFrameOutput> = None;
         for (i, batch) in self.batches(context, visible).into_iter().enumerate() {
-            let output = self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, i == 0);
+            let output = self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, i == 0);
             total = Some(match total {
                 None => output,
                 Some(sum) => sum.plus(&output),
             });
         }
-        total.unwrap_or_default()
+        let total = total.unwrap_or_default();
+        if !gate.skip_triangles {
+            let c = total.counters;
+            let removed = c.triangles_in - c.triangles_out;
+            self.triangle_gate.record(
+                removed as usize,
+                c.triangles_in as usize,
+                self.adaptive.min_triangle_benefit,
+                &self.adaptive,
+            );
+        }
+        total
+    }
+
+    /// Sets which GPU passes a frame may skip: [`AdaptiveSettings::tiny_scene_clusters`] and
+    /// [`AdaptiveSettings::min_triangle_benefit`] (the default settings until set). New settings start the
+    /// triangle pass's benefit count afresh. [`GpuCuller::run_world`] sets the world's.
+    pub fn set_adaptive(&mut self, adaptive: AdaptiveSettings) {
+        if adaptive != self.adaptive {
+            self.adaptive = adaptive;
+            self.triangle_gate = BenefitGate::default();
+        }
     }
 
     /// Splits frames into batches as if the device's largest storage binding were `bytes` (never more than
@@ -587,9 +652,13 @@ impl GpuCuller {
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
+        gate: PassGate,
         first: bool,
     ) -> GpuFrameOutput {
-        let view = self.view_for(camera, settings, visible.len() as u32);
+        let mut view = self.view_for(camera, settings, visible.len() as u32);
+        if gate.skip_triangles {
+            view.flags |= VIEW_DRAW_CLUSTERS;
+        }
         self.last_view = view;
         context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
         let draw_view = if draw_camera == camera { view } else { self.view_for(draw_camera, settings, 0) };
@@ -600,9 +669,13 @@ impl GpuCuller {
             context.queue.write_buffer(&frame.visible, 0, bytemuck::cast_slice(visible));
         }
         let mut encoder = context.device.create_command_encoder(&Default::default());
-        encoder.clear_buffer(&self.counters, 0, None);
-        if !context.has_draw_count {
-            encoder.clear_buffer(&frame.draw_args, 0, None);
+        if gate.skip_clusters {
+            self.write_candidate_clusters(context, frame, visible, gate.skip_triangles);
+        } else {
+            encoder.clear_buffer(&self.counters, 0, None);
+            if !context.has_draw_count {
+                encoder.clear_buffer(&frame.draw_args, 0, None);
+            }
         }
         let timer = self.timer.as_ref();
         if first {
@@ -632,6 +705,7 @@ impl GpuCuller {
                 &self.hzb.buffer,
                 &self.counters,
                 &frame.survivors,
+                &frame.draw_args,
             ],
         );
         let prepare_group = bind(&self.prepare_pipeline, &[&self.counters, &self.dispatch]);
@@ -654,7 +728,7 @@ impl GpuCuller {
                 label: Some("cluster cull"),
                 timestamp_writes: timer.map(|t| t.compute(1)),
             });
-            if !visible.is_empty() {
+            if !visible.is_empty() && !gate.skip_clusters {
                 let n = visible.len() as u32;
                 pass.set_pipeline(&self.cluster_pipeline);
                 pass.set_bind_group(0, &cluster_group, &[]);
@@ -666,15 +740,18 @@ impl GpuCuller {
                 label: Some("triangle cull"),
                 timestamp_writes: timer.map(|t| t.compute(2)),
             });
-            pass.set_pipeline(&self.prepare_pipeline);
-            pass.set_bind_group(0, &prepare_group, &[]);
-            pass.dispatch_workgroups(1, 1, 1);
-            pass.set_pipeline(&self.triangle_pipeline);
-            pass.set_bind_group(0, &triangle_group, &[]);
-            pass.dispatch_workgroups_indirect(&self.dispatch, 0);
+            if !gate.skip_triangles {
+                pass.set_pipeline(&self.prepare_pipeline);
+                pass.set_bind_group(0, &prepare_group, &[]);
+                pass.dispatch_workgroups(1, 1, 1);
+                pass.set_pipeline(&self.triangle_pipeline);
+                pass.set_bind_group(0, &triangle_group, &[]);
+                pass.dispatch_workgroups_indirect(&self.dispatch, 0);
+            }
         }
         let source = DrawSource::Culled {
-            indices: &frame.draw_indices,
+            // Without the triangle pass, the draws index the clusters' own triangles.
+            indices: if gate.skip_triangles { &scene.cluster_indices } else { &frame.draw_indices },
             args: &frame.draw_args,
             count: &self.counters,
             count_offset: DRAWS_SLOT * 4,
@@ -690,12 +767,58 @@ impl GpuCuller {
         let wall_time = start.elapsed();
         let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
         self.last_counters = counters;
+        self.last_gate = gate;
         let pass_times = timer.map(|t| t.read(context));
-        GpuFrameOutput { counters, pass_times, wall_time }
+        GpuFrameOutput {
+            counters,
+            pass_times,
+            wall_time,
+            cluster_pass_skipped: gate.skip_clusters,
+            triangle_pass_skipped: gate.skip_triangles,
+        }
     }
 
-    /// The last frame's surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order, and its
-    /// compacted index buffer (surviving triangles' global vertex indices).
+    /// Stands in for the cluster pass of a tiny frame: every cluster of the `visible` instances survives, and
+    /// with `draw_clusters` each is also drawn whole (no triangle pass). Written before the frame's commands
+    /// run, so these buffers are not cleared on the GPU.
+    fn write_candidate_clusters(
+        &self,
+        context: &GpuContext,
+        frame: &FrameBuffers,
+        visible: &[u32],
+        draw_clusters: bool,
+    ) {
+        let library = &self.scene.library;
+        let instances = self.scene.instances();
+        let survivors: Vec<[u32; 2]> = visible
+            .iter()
+            .flat_map(|&slot| library.cluster_range(instances[slot as usize].mesh).map(move |c| [slot, c]))
+            .collect();
+        let mut counters = [0u32; COUNTER_COUNT];
+        counters[CLUSTERS_IN_SLOT] = survivors.len() as u32;
+        counters[CLUSTERS_OUT_SLOT] = survivors.len() as u32;
+        let draws = if draw_clusters { cluster_draws(library, instances, visible.iter().copied()) } else { Vec::new() };
+        if draw_clusters {
+            counters[TRIANGLES_OUT_SLOT] = draws.iter().map(|d| d.index_count / 3).sum();
+            counters[DRAWS_SLOT as usize] = draws.len() as u32;
+        }
+        if !survivors.is_empty() {
+            context.queue.write_buffer(&frame.survivors, 0, bytemuck::cast_slice(&survivors));
+        }
+        context.queue.write_buffer(&self.counters, 0, bytemuck::cast_slice(&counters));
+        // Without a draw count every slot is drawn: the unused ones must be empty draws.
+        let mut args: Vec<u8> = draws.iter().flat_map(|d| d.as_bytes().to_vec()).collect();
+        if !context.has_draw_count {
+            args.resize(frame.draw_args.size() as usize, 0);
+        }
+        if !args.is_empty() {
+            context.queue.write_buffer(&frame.draw_args, 0, &args);
+        }
+    }
+
+    /// The last frame's surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order, and the
+    /// global vertex indices of the triangles it drew: its compacted index buffer, or where the triangle pass
+    /// was skipped, the surviving clusters' own triangles.
     pub fn read_survivors(&self, context: &GpuContext) -> (Vec<(u32, u32)>, Vec<u32>) {
         let (Some(frame), counters) = (self.frame.as_ref(), self.last_counters) else { return Default::default() };
         let clusters = if counters.clusters_out > 0 {
@@ -704,7 +827,18 @@ impl GpuCuller {
         } else {
             Vec::new()
         };
-        let indices = if counters.triangles_out > 0 {
+        let indices = if self.last_gate.skip_triangles {
+            // Drawn whole: each surviving cluster's own triangles.
+            let library = &self.scene.library;
+            clusters
+                .iter()
+                .flat_map(|&(_, c)| {
+                    let cluster = &library.clusters[c as usize];
+                    let first = cluster.first_index as usize;
+                    library.indices[first..first + 3 * cluster.triangle_count as usize].to_vec()
+                })
+                .collect()
+        } else if counters.triangles_out > 0 {
             bytemuck::cast_slice(&context.read_buffer(&frame.draw_indices, 12 * u64::from(counters.triangles_out)))
                 .to_vec()
         } else {
@@ -734,6 +868,9 @@ impl GpuCuller {
         draw_camera: &Camera,
         settings: &GpuCullSettings,
     ) -> GpuFrameOutput {
+        if let Some(&adaptive) = world.get_resource::<AdaptiveSettings>() {
+            self.set_adaptive(adaptive);
+        }
         let written = world.resource_mut::<crate::bounds::BoundsStore>().take_written_slots();
         let count = world.resource::<crate::bounds::BoundsStore>().len();
         self.scene.write_instances(context, count, &written, |slot| super::scene::instance_of(world, slot));
@@ -755,7 +892,8 @@ impl GpuCuller {
     pub fn draw_all(&self, context: &GpuContext, camera: &Camera, reversed: bool) {
         let view = self.view_for(camera, &GpuCullSettings::default(), 0);
         context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&view));
-        let mut args = unculled_draws(&self.scene.library, self.scene.instances());
+        let instances = self.scene.instances();
+        let mut args = cluster_draws(&self.scene.library, instances, 0..instances.len() as u32);
         if reversed {
             args.reverse();
         }
