@@ -12,6 +12,8 @@
 //! 5. [`gpu`]: on the GPU, the survivors' clusters and triangles culled against the frustum, normal cones and
 //!    an HZB primed from the occluder buffer, compacted, and drawn with one multi-draw-indirect.
 //!
+//! [`draw_cost`] accounts what each stage saved the draw (triangles removed, estimated draw time).
+//!
 //! [`scene`] is the input: meshes and the objects placing them, from the built-in city or a glTF file;
 //! [`pipeline`] wires the stages into a `bevy_ecs` schedule;
 //! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw; [`flight`] flies a
@@ -23,6 +25,7 @@
 
 pub mod bounds;
 pub mod camera;
+pub mod draw_cost;
 pub mod flight;
 pub mod frustum;
 pub mod gpu;

@@ -1,7 +1,10 @@
 //! The headless run: the camera path flown frame by frame, with statistics, validation and screenshots.
 
-use crate::report::{STATS_HEADER, micros, print_gpu_summary, print_summary};
+use crate::report::{
+    STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary, print_savings, print_summary,
+};
 use crate::{Args, Prepared};
+use cullet::draw_cost::{DrawSavings, triangles_per_slot};
 use cullet::gpu::GpuContext;
 use cullet::gpu::clusters::ClusterLibrary;
 use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
@@ -38,6 +41,8 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     };
     let mut gpu_frames: Vec<GpuFrameOutput> = Vec::new();
     let mut per_frame = Vec::with_capacity(args.headless_frames() as usize);
+    let mut savings = Vec::with_capacity(args.headless_frames() as usize);
+    let slot_triangles = triangles_per_slot(&flight.world, &scene.meshes);
     let judge = JudgeSettings {
         reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
         occlusion_ideal: false,
@@ -104,7 +109,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 micros(stats.occlusion_time),
             );
         }
-        let mut gpu_output = None;
+        let mut gpu_output: Option<GpuFrameOutput> = None;
         if let Some((context, culler)) = gpu.as_mut() {
             let output = culler.run_world(context, &mut flight.world, &GpuCullSettings::default());
             if let Some(dir) = args.screenshots.as_ref().filter(|_| frame % args.every.max(1) == 0) {
@@ -116,7 +121,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                     .save(&file)
                     .map_err(|e| format!("{}: {e}", file.display()))?;
             }
-            gpu_output = Some(output.counters);
+            gpu_output = Some(output.clone());
             if !args.quiet {
                 let c = output.counters;
                 println!(
@@ -131,15 +136,16 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             }
             gpu_frames.push(output);
         }
+        let saved = DrawSavings::of_frame(&flight.world, &slot_triangles, gpu_output.as_ref());
         if args.stats.is_some() {
-            let c = gpu_output.unwrap_or_default();
-            let gpu_us = gpu_frames.last().filter(|_| gpu_output.is_some()).map_or(0.0, |o| micros(o.wall_time));
+            let c = gpu_output.as_ref().map(|o| o.counters).unwrap_or_default();
+            let gpu_us = gpu_output.as_ref().map_or(0.0, |o| micros(o.wall_time));
             let (false_negatives, false_positives, image_error) = frame_accuracy
                 .map_or((String::new(), String::new(), String::new()), |(a, b, c)| {
                     (a.to_string(), b.to_string(), c.to_string())
                 });
             csv.push_str(&format!(
-                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{}\n",
+                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{}\n",
                 stats.objects,
                 stats.after_frustum,
                 stats.after_occlusion,
@@ -154,9 +160,11 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 micros(stats.occlusion_time),
                 u8::from(stats.reused),
                 u8::from(stats.occlusion_gated),
+                gating_and_savings_columns(gpu_output.as_ref(), &saved),
             ));
         }
         per_frame.push(stats);
+        savings.push(saved);
     }
     let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
     for error in &errors {
@@ -171,6 +179,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     }
     print_summary(&per_frame);
     print_gpu_summary(&gpu_frames);
+    print_savings(&savings, &gpu_frames);
     if args.validate {
         println!(
             "\nvalidation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \

@@ -1,5 +1,6 @@
 //! Statistics printed after a run, and the stats CSV's columns.
 
+use cullet::draw_cost::{DrawSavings, draw_ns_per_triangle};
 use cullet::gpu::frame::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::CullStats;
 use std::time::Duration;
@@ -7,7 +8,8 @@ use std::time::Duration;
 /// The stats CSV's columns.
 pub const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters_in,clusters_out,triangles_in,\
 triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
-image_error_pixels,reused,occlusion_gated";
+image_error_pixels,reused,occlusion_gated,cluster_pass_skipped,triangle_pass_skipped,saved_triangles_frustum,\
+saved_triangles_occlusion,saved_triangles_clusters,saved_triangles_triangles";
 
 /// Microseconds of `duration`.
 pub fn micros(duration: Duration) -> f64 {
@@ -45,6 +47,49 @@ pub fn print_gpu_summary(frames: &[GpuFrameOutput]) {
     if let Some(times) = GpuPassTimes::mean(frames) {
         println!("GPU time per pass (mean): {times}");
     }
+    let skipped = |f: fn(&GpuFrameOutput) -> bool| frames.iter().filter(|o| f(o)).count();
+    println!(
+        "GPU gating: cluster pass skipped in {} of {} frames (too few clusters to pay), triangle pass in {} (it had \
+         removed under the threshold)",
+        skipped(|o| o.cluster_pass_skipped),
+        frames.len(),
+        skipped(|o| o.triangle_pass_skipped)
+    );
+}
+
+/// Prints each stage's mean benefit over the frames of `savings`: the triangles it kept from the draw and,
+/// where `gpu_frames` were timed, the draw time that is at their measured time per drawn triangle.
+pub fn print_savings(savings: &[DrawSavings], gpu_frames: &[GpuFrameOutput]) {
+    let Some(first) = savings.first() else { return };
+    let n = savings.len() as f64;
+    let rate = draw_ns_per_triangle(gpu_frames);
+    match rate {
+        Some(ns) => {
+            println!("\nestimated draw cost saved per frame (mean), at this GPU's {ns:.2} ns per drawn triangle")
+        }
+        None => println!("\nestimated draw cost saved per frame (mean), in triangles (no GPU draw timings)"),
+    }
+    let total = savings.iter().map(|s| s.total as f64).sum::<f64>() / n;
+    println!("{:<10} {:>14} {:>10} {:>12}", "stage", "triangles", "of all", "draw ms");
+    for (stage, (name, _)) in first.by_stage().iter().enumerate() {
+        let mean = savings.iter().map(|s| s.by_stage()[stage].1 as f64).sum::<f64>() / n;
+        let time = rate.map_or(String::from("-"), |ns| format!("{:.2}", mean * ns / 1e6));
+        println!("{name:<10} {mean:>14.0} {:>9.1}% {time:>12}", 100.0 * mean / total.max(1.0));
+    }
+}
+
+/// The stats CSV's columns from `cluster_pass_skipped` on, for one frame.
+pub fn gating_and_savings_columns(gpu: Option<&GpuFrameOutput>, savings: &DrawSavings) -> String {
+    let flag = |f: fn(&GpuFrameOutput) -> bool| gpu.map_or(String::new(), |o| u8::from(f(o)).to_string());
+    format!(
+        "{},{},{},{},{},{}",
+        flag(|o| o.cluster_pass_skipped),
+        flag(|o| o.triangle_pass_skipped),
+        savings.frustum,
+        savings.occlusion,
+        savings.clusters,
+        savings.triangles
+    )
 }
 
 /// Prints each CPU stage's mean, median and worst time and what it kept over `frames`.

@@ -6,7 +6,8 @@
 
 use crate::Prepared;
 use crate::present::{PresentPass, Source};
-use crate::report::{micros, print_gpu_summary, print_summary};
+use crate::report::{micros, print_gpu_summary, print_savings, print_summary};
+use cullet::draw_cost::{DrawSavings, triangles_per_slot};
 use cullet::gpu::GpuContext;
 use cullet::gpu::clusters::ClusterLibrary;
 use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
@@ -88,6 +89,7 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
     let (yaw, pitch) = yaw_pitch(start.forward);
     let (width, height) = prepared.resolution;
     let radius = prepared.scene.bounds().map_or(100.0, |(min, max)| (max - min).length() * 0.5);
+    let slot_triangles = triangles_per_slot(&prepared.flight.world, &prepared.scene.meshes);
     let mut game = Game {
         prepared,
         size: (width.min(1920), height.min(1080)),
@@ -108,6 +110,8 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
         last_title: Instant::now(),
         frames: Vec::new(),
         gpu_frames: Vec::new(),
+        slot_triangles,
+        savings: Vec::new(),
         tinted_last_frame: false,
         fps: 0.0,
         frame_limit: frames.map(|n| n as usize),
@@ -116,6 +120,7 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
     event_loop.run_app(&mut game).map_err(|e| e.to_string())?;
     print_summary(&game.frames);
     print_gpu_summary(&game.gpu_frames);
+    print_savings(&game.savings, &game.gpu_frames);
     game.error.map_or(Ok(()), Err)
 }
 
@@ -154,6 +159,10 @@ struct Game {
     last_title: Instant,
     frames: Vec<CullStats>,
     gpu_frames: Vec<GpuFrameOutput>,
+    /// Triangles of each store slot's mesh, for the savings.
+    slot_triangles: Vec<u32>,
+    /// What each stage saved the draw, per frame.
+    savings: Vec<DrawSavings>,
     /// The instance buffer holds tint colours and must be rewritten before a shaded frame.
     tinted_last_frame: bool,
     /// Frames per second, smoothed.
@@ -325,6 +334,7 @@ impl Game {
             culler.draw_all(context, &camera, false);
         } else {
             let output = culler.run_world_from(context, world, &camera, &self.gpu_settings);
+            self.savings.push(DrawSavings::of_frame(world, &self.slot_triangles, Some(&output)));
             self.gpu_frames.push(output);
         }
 
@@ -401,6 +411,17 @@ impl Game {
         }
         if self.autopilot.is_some() {
             flags.push("path".into());
+        }
+        let gpu = self.gpu_frames.last();
+        for (skipped, name) in [
+            (stats.reused, "reused"),
+            (stats.occlusion_gated, "occlusion skipped"),
+            (gpu.is_some_and(|o| o.cluster_pass_skipped), "cluster pass skipped"),
+            (gpu.is_some_and(|o| o.triangle_pass_skipped), "triangle pass skipped"),
+        ] {
+            if skipped {
+                flags.push(name.into());
+            }
         }
         for (off, name) in [
             (!world.resource::<FrustumSettings>().enabled, "frustum off"),

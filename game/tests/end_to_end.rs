@@ -6,8 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The columns the stats CSV must have (the sample-game issue's list, then accuracy).
-const COLUMNS: [&str; 17] = [
+/// The columns the stats CSV must have (the sample-game issue's list, accuracy, then gating and savings).
+const COLUMNS: [&str; 25] = [
     "frame",
     "objects",
     "after_frustum",
@@ -25,6 +25,14 @@ const COLUMNS: [&str; 17] = [
     "false_negatives",
     "false_positives",
     "image_error_pixels",
+    "reused",
+    "occlusion_gated",
+    "cluster_pass_skipped",
+    "triangle_pass_skipped",
+    "saved_triangles_frustum",
+    "saved_triangles_occlusion",
+    "saved_triangles_clusters",
+    "saved_triangles_triangles",
 ];
 
 fn workspace_file(relative: &str) -> PathBuf {
@@ -94,17 +102,29 @@ fn city_far_from_the_origin_validates_with_zero_false_negatives() {
 }
 
 #[test]
-fn field_cad_and_a_static_camera_validate_with_zero_false_negatives() {
+fn field_cad_tiny_and_static_camera_runs_validate_with_zero_false_negatives() {
     for (name, args) in [
         ("field", &["--scene", "field:3000"][..]),
         ("cad", &["--scene", "cad:2000"][..]),
         ("static", &["--scene", "cad:1000", "--static-camera"][..]),
+        ("tiny", &["--scene", "city:30"][..]),
     ] {
         let (text, rows) = run_validated(name, args, 12);
         check(name, &text, &rows);
+        assert!(text.contains("estimated draw cost saved per frame"), "{name}: no savings summary:\n{text}");
         if name == "static" {
             // Nothing moves and the camera stays: every frame after the first reuses the first's result.
             assert!(rows[1..].iter().all(|r| r["reused"] == "1"), "{name}: frames not reused");
+        }
+        let gpu_ran = rows.iter().any(|row| row["clusters_in"] != "0");
+        if name == "tiny" && gpu_ran {
+            // A few dozen objects: the GPU cluster pass cannot pay, and is skipped on every frame.
+            assert!(rows.iter().all(|r| r["cluster_pass_skipped"] == "1"), "{name}: cluster pass ran");
+        }
+        if name == "cad" {
+            // Everything on screen: the frustum saves nothing, occlusion does.
+            assert!(rows.iter().all(|r| r["saved_triangles_frustum"] == "0"));
+            assert!(rows.iter().any(|r| r["saved_triangles_occlusion"] != "0"));
         }
     }
 }
