@@ -2,7 +2,7 @@
 //! boxes that always contain the exactly transformed box.
 
 use bevy_ecs::prelude::*;
-use cullet::bounds::{BoundsRejected, LocalBounds, ObjectTransform, Static, WorldBounds};
+use cullet::bounds::{BoundsRejected, GroupBounds, LocalBounds, ObjectTransform, Static, WorldBounds};
 use cullet::pipeline::{self, CullStats, FrustumVisible};
 use cullet::{BoundsError, BoundsStore, Camera};
 use glam::{Affine3A, DVec3, Quat, Vec3};
@@ -238,4 +238,34 @@ proptest! {
         }
         prop_assert!(bounds.radius as f64 >= bounds.half_extent.as_dvec3().length());
     }
+}
+
+/// After objects move away, tightening makes every group box exactly the box grown from its members again (not
+/// merely one that contains them), and the supergroup boxes the union of their groups.
+#[test]
+fn tightened_group_boxes_equal_their_members_box() {
+    let (mut world, mut schedule) = world_with_schedule();
+    let entities: Vec<Entity> =
+        (0..300).map(|i| spawn_box(&mut world, Vec3::new(i as f32 * 1.5, (i % 7) as f32, -(i as f32)))).collect();
+    frame(&mut world, &mut schedule);
+    for (i, &entity) in entities.iter().enumerate().step_by(3) {
+        let far = Vec3::new(-1.0e5 + i as f32 * 0.37, 3.0e4, 7.0 - i as f32);
+        world.get_mut::<ObjectTransform>(entity).unwrap().0 = Affine3A::from_translation(far);
+    }
+    frame(&mut world, &mut schedule);
+    for (i, &entity) in entities.iter().enumerate().step_by(3) {
+        world.get_mut::<ObjectTransform>(entity).unwrap().0 = Affine3A::from_translation(Vec3::splat(i as f32 * 0.01));
+    }
+    frame(&mut world, &mut schedule);
+    let mut store = world.resource::<BoundsStore>().clone();
+    store.tighten_groups();
+    for (group, bounds) in store.groups().iter().enumerate() {
+        let mut expected = GroupBounds::EMPTY;
+        for slot in group * 64..((group + 1) * 64).min(store.len()) {
+            expected.grow(&store.get(slot));
+        }
+        assert_eq!(*bounds, expected, "group {group}");
+    }
+    let union = store.groups().iter().fold(GroupBounds::EMPTY, |acc, g| acc.union(g));
+    assert_eq!(store.supergroups()[0], union);
 }

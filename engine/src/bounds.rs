@@ -236,6 +236,26 @@ pub struct GroupBounds {
     pub max: Vec3,
 }
 
+/// The range `[min, max]` along one axis of the boxes `centers[i] ± extents[i]`, each rounded outward as
+/// [`GroupBounds::grow`] rounds it (so a group box is the same whichever computes it). Eight running minima and
+/// maxima, one per SIMD lane, so the loop vectorizes; min and max are exact, so the lane order changes nothing.
+fn outward_range(centers: &[f32], extents: &[f32]) -> (f32, f32) {
+    let (mut lo, mut hi) = ([f32::INFINITY; SIMD_LANES], [f32::NEG_INFINITY; SIMD_LANES]);
+    let mut lanes = |c: &[f32], e: &[f32]| {
+        for lane in 0..c.len() {
+            let slack = (c[lane].abs() + e[lane]) * f32::EPSILON;
+            lo[lane] = lo[lane].min(c[lane] - e[lane] - slack);
+            hi[lane] = hi[lane].max(c[lane] + e[lane] + slack);
+        }
+    };
+    let (chunks, tail) = (centers.chunks_exact(SIMD_LANES), centers.len() / SIMD_LANES * SIMD_LANES);
+    for (c, e) in chunks.zip(extents.chunks_exact(SIMD_LANES)) {
+        lanes(c, e);
+    }
+    lanes(&centers[tail..], &extents[tail..]);
+    (lo.into_iter().fold(f32::INFINITY, f32::min), hi.into_iter().fold(f32::NEG_INFINITY, f32::max))
+}
+
 impl GroupBounds {
     /// The empty box: growing it by a box gives that box.
     pub const EMPTY: Self = Self { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
@@ -386,12 +406,14 @@ impl BoundsStore {
                 continue; // Truncated away since it was queued.
             }
             self.loose_flags[group] = false;
-            let end = ((group + 1) * SOA_PADDING).min(self.len());
-            let mut bounds = GroupBounds::EMPTY;
-            for slot in group * SOA_PADDING..end {
-                bounds.grow(&self.get(slot));
-            }
-            self.groups[group] = bounds;
+            let slots = group * SOA_PADDING..((group + 1) * SOA_PADDING).min(self.len());
+            let axes =
+                [(&self.center_x, &self.extent_x), (&self.center_y, &self.extent_y), (&self.center_z, &self.extent_z)]
+                    .map(|(centers, extents)| outward_range(&centers[slots.clone()], &extents[slots.clone()]));
+            self.groups[group] = GroupBounds {
+                min: Vec3::new(axes[0].0, axes[1].0, axes[2].0),
+                max: Vec3::new(axes[0].1, axes[1].1, axes[2].1),
+            };
             supergroups.push(group / GROUPS_PER_SUPERGROUP);
         }
         supergroups.sort_unstable();
