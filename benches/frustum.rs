@@ -1,5 +1,6 @@
 //! Frustum culling of the built-in city: Cullet's SoA SIMD path against Bevy's `Frustum::intersects_obb` on the
-//! same objects and cameras, thread scaling, and the memory bandwidth bound of reading the SoA arrays.
+//! same objects and cameras, thread scaling, the memory bandwidth bound of reading the SoA arrays, and plane
+//! coherence (last frame's rejecting plane first) over consecutive frames of the fly-through.
 //!
 //! `cargo bench -p cullet-benches --bench frustum`
 
@@ -7,7 +8,7 @@ use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum};
 use bevy_shape::ViewFrustum;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use cullet::bounds::WorldBounds;
-use cullet::frustum::{SimdBackend, cull_frustum_with};
+use cullet::frustum::{PlaneCoherence, SimdBackend, cull_frustum_coherent, cull_frustum_with};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Frustum, VisibleSet};
 use rayon::prelude::*;
@@ -184,5 +185,38 @@ fn threads(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, frustum, threads);
+/// Consecutive frames (30 a second) of the city's fly-through, culled with and without plane coherence, in the
+/// city's spatial store order and shuffled (where every group crosses the frustum and every object is tested).
+fn coherence(c: &mut Criterion) {
+    let objects = 100_000;
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let path = city.flythrough();
+    let frusta: Vec<Frustum> =
+        (0..60).map(|frame| path.camera_at(5.0 + frame as f32 / 30.0, 16.0 / 9.0).frustum().unwrap()).collect();
+    let fixture = fixture(objects);
+    let mut group = c.benchmark_group("coherence");
+    group.sample_size(30).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_secs(1));
+    group.throughput(Throughput::Elements((objects * frusta.len()) as u64));
+    let mut visible = VisibleSet::default();
+    for (name, store) in [("city", &fixture.store), ("shuffled", &fixture.shuffled)] {
+        group.bench_function(BenchmarkId::new("all-planes", name), |b| {
+            b.iter(|| {
+                for frustum in &frusta {
+                    black_box(cull_frustum_with(store, frustum, SimdBackend::Auto, &mut visible));
+                }
+            })
+        });
+        group.bench_function(BenchmarkId::new("coherent", name), |b| {
+            b.iter(|| {
+                let mut coherence = PlaneCoherence::default();
+                for frustum in &frusta {
+                    black_box(cull_frustum_coherent(store, frustum, SimdBackend::Auto, &mut visible, &mut coherence));
+                }
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, frustum, threads, coherence);
 criterion_main!(benches);

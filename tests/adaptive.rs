@@ -110,3 +110,27 @@ fn gating_adds_no_false_negatives_on_the_built_in_scenes() {
         println!("{name}: {metrics:?}");
     }
 }
+
+/// Plane coherence in the pipeline: along the city's path, the frustum stage keeps exactly the objects the
+/// all-planes test keeps, frame after frame.
+#[test]
+fn plane_coherence_keeps_exactly_what_all_planes_keep() {
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(5000));
+    let run = |adaptive: AdaptiveSettings| {
+        let mut flight = Flight::new(city.flythrough(), 16.0 / 9.0, 60, OcclusionSettings::default(), |world| {
+            city.spawn(world);
+        });
+        flight.world.insert_resource(adaptive);
+        (0..60)
+            .map(|frame| {
+                flight.run_frame(frame);
+                flight.world.resource::<cullet::pipeline::FrustumVisible>().0.clone()
+            })
+            .collect::<Vec<_>>()
+    };
+    let coherent = run(AdaptiveSettings { plane_coherence: true, ..AdaptiveSettings::fixed() });
+    let all_planes = run(AdaptiveSettings::fixed());
+    for (frame, (a, b)) in coherent.iter().zip(&all_planes).enumerate() {
+        assert_eq!(a, b, "frame {frame}");
+    }
+}

@@ -4,8 +4,10 @@
 //! Each group of 64 consecutive objects, and each supergroup of 64 groups, has a box ([`GroupBounds`]) tested
 //! first (a two-level hierarchy, as in the hierarchical culling of seed 000 section 19.4): a group outside or
 //! inside the frustum is decided without touching its objects. Scenes stored in spatial order (the city is) decide most groups this way; in a shuffled store
-//! every group crosses and every object is tested. The per-object kernel always runs all six planes, fully
-//! unrolled: branch-free, it is faster than skipping the planes a group lies inside.
+//! every group crosses and every object is tested. The per-object kernel runs all six planes, fully unrolled:
+//! branch-free, it is faster than skipping the planes a group lies inside. One branch it does take is temporal
+//! coherence (Assarsson and Möller, seed 000 section 19.4): [`PlaneCoherence`] remembers, per block of 8
+//! objects, the plane that rejected the whole block last frame, and tests it alone first.
 //!
 //! # Conventions
 //! - A plane is `(normal, d)` with `normal` of unit length pointing *into* the frustum: a point `p` is inside
@@ -33,6 +35,30 @@ pub const PLANE_TEST_TOLERANCE: f32 = 1.0 / (1 << 20) as f32;
 
 /// Bitset words handed to one rayon task: one supergroup.
 const WORDS_PER_TASK: usize = GROUPS_PER_SUPERGROUP;
+
+/// SIMD blocks of objects per bitset word.
+const BLOCKS_PER_WORD: usize = 64 / SIMD_LANES;
+
+/// No plane rejected the whole block last frame.
+const NO_PLANE: u8 = u8::MAX;
+
+/// Temporal coherence of the frustum test: for each block of 8 consecutive store slots, the plane that rejected
+/// all 8 objects in the last frame culled with it, tested alone first in the next (seed 000 section 19.4,
+/// after Assarsson and Möller). Objects move little between frames, so an object outside one plane usually
+/// stays outside that plane. Results are the same bits as without it: a block is skipped only when that plane
+/// rejects every object in it, which the full test would do too.
+#[derive(bevy_ecs::resource::Resource, Clone, Debug, Default, PartialEq, Eq)]
+pub struct PlaneCoherence {
+    /// Plane index per block, or `NO_PLANE`.
+    planes: Vec<u8>,
+}
+
+impl PlaneCoherence {
+    /// Blocks whose last frame found a plane rejecting all of their objects.
+    pub fn blocks_with_plane(&self) -> usize {
+        self.planes.iter().filter(|&&p| p != NO_PLANE).count()
+    }
+}
 
 /// How clip-space depth maps the near and far planes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -325,14 +351,47 @@ pub fn cull_frustum_with(
     backend: SimdBackend,
     visible: &mut VisibleSet,
 ) -> usize {
+    cull(store, frustum, backend, visible, None)
+}
+
+/// [`cull_frustum_with`], trying first for each block of 8 objects the plane `coherence` remembers from the
+/// last call, and remembering this call's for the next. The same bits as without it.
+pub fn cull_frustum_coherent(
+    store: &BoundsStore,
+    frustum: &Frustum,
+    backend: SimdBackend,
+    visible: &mut VisibleSet,
+    coherence: &mut PlaneCoherence,
+) -> usize {
+    cull(store, frustum, backend, visible, Some(coherence))
+}
+
+/// [`cull_frustum_coherent`], with coherence or without.
+fn cull(
+    store: &BoundsStore,
+    frustum: &Frustum,
+    backend: SimdBackend,
+    visible: &mut VisibleSet,
+    coherence: Option<&mut PlaneCoherence>,
+) -> usize {
     let len = store.len();
     visible.reset(len);
     let backend = backend.resolve();
+    let tasks = visible.words().len().div_ceil(WORDS_PER_TASK);
+    // Each task's slice of the coherence planes, or none.
+    let task_planes: Vec<Option<&mut [u8]>> = match coherence {
+        Some(coherence) => {
+            coherence.planes.resize(visible.words().len() * BLOCKS_PER_WORD, NO_PLANE);
+            coherence.planes.chunks_mut(WORDS_PER_TASK * BLOCKS_PER_WORD).map(Some).collect()
+        }
+        None => (0..tasks).map(|_| None).collect(),
+    };
     visible
         .words_mut()
         .par_chunks_mut(WORDS_PER_TASK)
+        .zip(task_planes)
         .enumerate()
-        .map(|(task, words)| {
+        .map(|(task, (words, mut planes))| {
             let mut count = 0;
             let supergroup = frustum.classify_group(&store.supergroups()[task]);
             let mut classes = [supergroup; SIMD_LANES];
@@ -361,7 +420,14 @@ pub fn cull_frustum_with(
                     GroupClass::Crossing => match backend {
                         #[cfg(target_arch = "x86_64")]
                         // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2.
-                        SimdBackend::Avx2 => unsafe { avx2::cull_word(frustum, store, base) },
+                        SimdBackend::Avx2 => unsafe {
+                            let mut none = [NO_PLANE; BLOCKS_PER_WORD];
+                            let planes = match planes.as_deref_mut() {
+                                Some(planes) => &mut planes[offset * BLOCKS_PER_WORD..(offset + 1) * BLOCKS_PER_WORD],
+                                None => &mut none,
+                            };
+                            avx2::cull_word(frustum, store, base, planes)
+                        },
                         _ => frustum.cull_word_scalar(store, base),
                     },
                 };
@@ -392,18 +458,19 @@ mod avx2 {
         frustum.classify_groups(groups)
     }
 
-    /// Culls the 64 objects from `base`, returning their visibility bits.
+    /// Culls the 64 objects from `base`, returning their visibility bits; `planes` holds the coherence plane
+    /// of each of its 8 blocks (see [`PlaneCoherence`]), read and updated.
     ///
     /// # Safety
     /// The processor must support AVX2, and `base + 64 <= store.padded_len()`.
     #[target_feature(enable = "avx2")]
-    pub unsafe fn cull_word(frustum: &Frustum, store: &BoundsStore, base: usize) -> u64 {
+    pub unsafe fn cull_word(frustum: &Frustum, store: &BoundsStore, base: usize, planes: &mut [u8]) -> u64 {
         debug_assert!(base + 64 <= store.padded_len());
         let mut word = 0u64;
-        for block in 0..64 / SIMD_LANES {
+        for (block, plane) in planes.iter_mut().enumerate().take(BLOCKS_PER_WORD) {
             let i = base + block * SIMD_LANES;
             // SAFETY: the caller guarantees `i + 8 <= padded_len` for every array of the store.
-            let bits = unsafe { cull_block(frustum, store, i) };
+            let bits = unsafe { cull_block(frustum, store, i, plane) };
             word |= (bits as u64) << (block * SIMD_LANES);
         }
         word
@@ -423,7 +490,7 @@ mod avx2 {
 
     #[target_feature(enable = "avx2")]
     #[inline]
-    unsafe fn cull_block(frustum: &Frustum, store: &BoundsStore, i: usize) -> u8 {
+    unsafe fn cull_block(frustum: &Frustum, store: &BoundsStore, i: usize, coherent_plane: &mut u8) -> u8 {
         let zero = _mm256_setzero_ps();
         let tolerance = _mm256_set1_ps(PLANE_TEST_TOLERANCE);
         let (cx, cy, cz, r) = unsafe {
@@ -434,27 +501,45 @@ mod avx2 {
         let rz = _mm256_sub_ps(cz, _mm256_set1_ps(frustum.origin.z));
         let magnitude = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(abs(rx), abs(ry)), abs(rz)), r);
         let base_slack = _mm256_mul_ps(tolerance, magnitude);
-
-        let mut dist = [zero; 6];
-        let mut slack = [zero; 6];
-        let mut sphere_out = zero;
-        let mut sphere_in = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
-        for (p, plane) in frustum.planes.iter().enumerate() {
-            let n = plane.normal;
+        // The sphere test of plane `p`, as in the loop below: its distances, slacks and the lanes it rejects.
+        let plane_test = |p: usize| {
+            let n = frustum.planes[p].normal;
             let d = _mm256_add_ps(
                 _mm256_add_ps(
                     _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(n.x), rx), _mm256_mul_ps(_mm256_set1_ps(n.y), ry)),
                     _mm256_mul_ps(_mm256_set1_ps(n.z), rz),
                 ),
-                _mm256_set1_ps(plane.d),
+                _mm256_set1_ps(frustum.planes[p].d),
             );
             let s = _mm256_add_ps(base_slack, _mm256_set1_ps(frustum.slack_d[p]));
             let out = _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_add_ps(_mm256_add_ps(d, r), s), zero);
+            (d, s, out)
+        };
+        let last = usize::from(*coherent_plane);
+        if last < frustum.planes.len() && _mm256_movemask_ps(plane_test(last).2) == 0xFF {
+            // Last frame's plane rejects the whole block again: so would the full test.
+            return 0;
+        }
+        *coherent_plane = NO_PLANE;
+
+        let mut dist = [zero; 6];
+        let mut slack = [zero; 6];
+        let mut sphere_out = zero;
+        let mut sphere_in = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+        let mut outs = [zero; 6];
+        for p in 0..frustum.planes.len() {
+            let (d, s, out) = plane_test(p);
+            outs[p] = out;
             let inside = _mm256_cmp_ps::<_CMP_GE_OQ>(_mm256_sub_ps(_mm256_sub_ps(d, r), s), zero);
             sphere_out = _mm256_or_ps(sphere_out, out);
             sphere_in = _mm256_and_ps(sphere_in, inside);
             dist[p] = d;
             slack[p] = s;
+        }
+        if _mm256_movemask_ps(sphere_out) == 0xFF {
+            // Remember a plane rejecting the whole block, if one does, for the next frame.
+            let whole = (0..frustum.planes.len()).find(|&p| _mm256_movemask_ps(outs[p]) == 0xFF);
+            *coherent_plane = whole.map_or(NO_PLANE, |p| p as u8);
         }
         let sphere_in_bits = _mm256_movemask_ps(sphere_in) as u8;
         let decided = _mm256_movemask_ps(_mm256_or_ps(sphere_in, sphere_out)) as u8;

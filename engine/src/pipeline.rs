@@ -6,7 +6,7 @@ use crate::bounds::{
     on_occluder_removed, sync_bounds,
 };
 use crate::camera::Camera;
-use crate::frustum::{FrustumError, cull_frustum};
+use crate::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum, cull_frustum_coherent};
 use crate::occluder::select_occluders;
 use crate::occlusion::test_occlusion;
 use crate::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
@@ -94,6 +94,9 @@ pub struct AdaptiveSettings {
     /// on the city's fly-through at 30 frames a second it saved 5% of the CPU stages' time but left the GPU
     /// 5% more triangles (an occluder hidden last frame may show this frame), so it does not pay.
     pub skip_hidden_occluders: bool,
+    /// The frustum stage tests first, for each block of 8 objects, the plane that rejected the whole block last
+    /// frame ([`PlaneCoherence`]). The same result either way.
+    pub plane_coherence: bool,
     /// A frame whose candidates (the CPU stages' survivors) have at most this many clusters skips the GPU
     /// cluster pass: the CPU lists every candidate cluster for the triangle pass (or the draw) instead. With so
     /// few clusters the pass cannot save more than its own dispatch costs. 0 never skips.
@@ -108,8 +111,8 @@ pub struct AdaptiveSettings {
 
 impl Default for AdaptiveSettings {
     /// Reuse of unchanged frames; occlusion skipped after 8 frames under 1% removed and the triangle pass after
-    /// 8 frames under 10%, each re-probed every 30 frames; no cluster pass for 64 clusters or fewer; hidden
-    /// occluders are still selected.
+    /// 8 frames under 10%, each re-probed every 30 frames; no cluster pass for 64 clusters or fewer; plane
+    /// coherence on; hidden occluders are still selected.
     fn default() -> Self {
         Self {
             reuse_unchanged: true,
@@ -117,6 +120,7 @@ impl Default for AdaptiveSettings {
             low_benefit_frames: 8,
             reprobe_every: 30,
             skip_hidden_occluders: false,
+            plane_coherence: true,
             tiny_scene_clusters: 64,
             min_triangle_benefit: 0.1,
         }
@@ -132,6 +136,7 @@ impl AdaptiveSettings {
             low_benefit_frames: u32::MAX,
             reprobe_every: 0,
             skip_hidden_occluders: false,
+            plane_coherence: false,
             tiny_scene_clusters: 0,
             min_triangle_benefit: 0.0,
         }
@@ -245,6 +250,7 @@ pub fn init_world(world: &mut World) {
     world.init_resource::<FrustumSettings>();
     world.init_resource::<AdaptiveSettings>();
     world.init_resource::<AdaptiveState>();
+    world.init_resource::<PlaneCoherence>();
     world.init_resource::<OcclusionSettings>();
     world.init_resource::<OcclusionState>();
     world.add_observer(on_bounds_inserted);
@@ -276,6 +282,7 @@ pub fn frustum_stage(
     mut gate: ResMut<AdaptiveState>,
     mut visible: ResMut<FrustumVisible>,
     mut stats: ResMut<CullStats>,
+    mut coherence: ResMut<PlaneCoherence>,
     changed_occluders: Query<(), Changed<Occluder>>,
 ) {
     let start = Instant::now();
@@ -295,6 +302,11 @@ pub fn frustum_stage(
         Ok(_) if !settings.enabled => {
             visible.0 = VisibleSet::all(store.len());
             stats.after_frustum = store.len();
+            stats.frustum_error = None;
+        }
+        Ok(frustum) if adaptive.plane_coherence => {
+            stats.after_frustum =
+                cull_frustum_coherent(&store, &frustum, SimdBackend::Auto, &mut visible.0, &mut coherence);
             stats.frustum_error = None;
         }
         Ok(frustum) => {
