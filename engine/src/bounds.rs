@@ -241,18 +241,24 @@ pub struct GroupBounds {
 /// maxima, one per SIMD lane, so the loop vectorizes; min and max are exact, so the lane order changes nothing.
 fn outward_range(centers: &[f32], extents: &[f32]) -> (f32, f32) {
     let (mut lo, mut hi) = ([f32::INFINITY; SIMD_LANES], [f32::NEG_INFINITY; SIMD_LANES]);
-    let mut lanes = |c: &[f32], e: &[f32]| {
-        for lane in 0..c.len() {
-            let slack = (c[lane].abs() + e[lane]) * f32::EPSILON;
-            lo[lane] = lo[lane].min(c[lane] - e[lane] - slack);
-            hi[lane] = hi[lane].max(c[lane] + e[lane] + slack);
-        }
+    // Selects rather than `f32::min`: bounds are never NaN, and plain compares vectorize without NaN fix-ups.
+    let lane = |c: f32, e: f32, lo: &mut f32, hi: &mut f32| {
+        let slack = (c.abs() + e) * f32::EPSILON;
+        let (low, high) = (c - e - slack, c + e + slack);
+        *lo = if low < *lo { low } else { *lo };
+        *hi = if high > *hi { high } else { *hi };
     };
-    let (chunks, tail) = (centers.chunks_exact(SIMD_LANES), centers.len() / SIMD_LANES * SIMD_LANES);
-    for (c, e) in chunks.zip(extents.chunks_exact(SIMD_LANES)) {
-        lanes(c, e);
+    let (center_chunks, extent_chunks) = (centers.chunks_exact(SIMD_LANES), extents.chunks_exact(SIMD_LANES));
+    let (center_tail, extent_tail) = (center_chunks.remainder(), extent_chunks.remainder());
+    for (c, e) in center_chunks.zip(extent_chunks) {
+        let (c, e): ([f32; SIMD_LANES], [f32; SIMD_LANES]) = (c.try_into().unwrap(), e.try_into().unwrap());
+        for i in 0..SIMD_LANES {
+            lane(c[i], e[i], &mut lo[i], &mut hi[i]);
+        }
     }
-    lanes(&centers[tail..], &extents[tail..]);
+    for (i, (&c, &e)) in center_tail.iter().zip(extent_tail).enumerate() {
+        lane(c, e, &mut lo[i], &mut hi[i]);
+    }
     (lo.into_iter().fold(f32::INFINITY, f32::min), hi.into_iter().fold(f32::NEG_INFINITY, f32::max))
 }
 
