@@ -134,3 +134,60 @@ fn plane_coherence_keeps_exactly_what_all_planes_keep() {
         assert_eq!(a, b, "frame {frame}");
     }
 }
+
+/// A static camera over the city while its cars move: after the first frame only the cars are re-tested, and
+/// both stages keep exactly what the full (fixed) pipeline keeps, frame after frame. An occluder that moves
+/// makes the next frame run in full.
+#[test]
+fn only_moved_objects_are_retested_and_keep_what_a_full_run_keeps() {
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(5000));
+    let mut path = city.flythrough();
+    path.keys.truncate(1);
+    let run = |adaptive: AdaptiveSettings, frames: u32| {
+        let mut flight = Flight::new(path.clone(), 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
+            city.spawn(world);
+        });
+        flight.world.insert_resource(adaptive);
+        (0..frames)
+            .map(|frame| {
+                let stats = flight.run_frame(frame);
+                let world = &flight.world;
+                let occlusion = world.resource::<cullet::pipeline::OcclusionState>();
+                let frustum = world.resource::<cullet::pipeline::FrustumVisible>().0.clone();
+                (stats, frustum, occlusion.visible.clone(), occlusion.occluded.clone())
+            })
+            .collect::<Vec<_>>()
+    };
+    let frames = 30;
+    let adaptive = run(AdaptiveSettings::default(), frames);
+    let fixed = run(AdaptiveSettings::fixed(), frames);
+    let moving = city.scene.objects.iter().filter(|o| o.velocity.is_some()).count();
+    assert!(moving > 0);
+    for (frame, (a, f)) in adaptive.iter().zip(&fixed).enumerate() {
+        assert_eq!(a.1, f.1, "frame {frame}: frustum");
+        assert_eq!(a.2, f.2, "frame {frame}: occlusion visible");
+        assert_eq!(a.3, f.3, "frame {frame}: occluded");
+        assert_eq!((a.0.after_frustum, a.0.after_occlusion), (f.0.after_frustum, f.0.after_occlusion));
+        if frame > 0 {
+            assert_eq!(a.0.retested, moving, "frame {frame}: only the cars are re-tested");
+        }
+    }
+    assert!(adaptive[5].0.after_occlusion < adaptive[5].0.after_frustum, "occlusion does cull here");
+
+    // An occluder moves: the next frame runs in full.
+    let scene = wall_scene(8, 4);
+    let mut flight = flight(&scene, AdaptiveSettings::default());
+    flight.run_with_camera(camera(), 0.0);
+    let boxes: Vec<_> = flight
+        .world
+        .query::<(bevy_ecs::entity::Entity, &ObjectTransform)>()
+        .iter(&flight.world)
+        .map(|(e, _)| e)
+        .collect();
+    let wall = boxes.into_iter().find(|&e| flight.world.get::<Occluder>(e).is_some()).unwrap();
+    let mut moved_wall = *flight.world.get::<ObjectTransform>(wall).unwrap();
+    moved_wall.0.translation.x += 5.0;
+    flight.world.entity_mut(wall).insert(moved_wall);
+    let after = flight.run_with_camera(camera(), 0.0);
+    assert_eq!((after.reused, after.retested), (false, 0), "{after:?}");
+}

@@ -337,6 +337,12 @@ pub struct BoundsStore {
     pub errors: Vec<BoundsError>,
     /// Counts every change of the stored bounds or occluder marks: equal generations mean equal contents.
     generation: u64,
+    /// Counts changes of which objects are stored where, and of occluder marks: inserts of new objects,
+    /// removals, occluder marks set or cleared. Equal layouts differ at most in the bounds of `moved` slots.
+    layout_generation: u64,
+    /// Slots whose bounds were overwritten in place since the last [`BoundsStore::take_moved_slots`]
+    /// (duplicates possible); `None` once there were too many to be worth listing.
+    moved: Option<Vec<u32>>,
 }
 
 impl BoundsStore {
@@ -377,6 +383,9 @@ impl BoundsStore {
     /// Marks whether the object in `slot` carries an occluder.
     pub fn set_occluder(&mut self, slot: usize, has_occluder: bool) {
         self.generation += 1;
+        if self.occluders.contains(slot) != has_occluder {
+            self.layout_generation += 1;
+        }
         self.occluders.set(slot, has_occluder);
     }
 
@@ -445,6 +454,13 @@ impl BoundsStore {
     pub fn set(&mut self, slot: usize, bounds: &WorldBounds) {
         self.mark_loose(slot / SOA_PADDING);
         self.write(slot, bounds);
+        // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
+        let limit = self.len() / 8;
+        if let Some(moved) = self.moved.as_mut().filter(|moved| moved.len() < limit) {
+            moved.push(slot as u32);
+        } else {
+            self.moved = None;
+        }
     }
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
@@ -476,6 +492,7 @@ impl BoundsStore {
             return slot;
         }
         let slot = self.entities.len();
+        self.layout_generation += 1;
         self.entities.push(entity);
         self.slots.insert(entity, slot as u32);
         if slot == self.padded_len() {
@@ -498,6 +515,7 @@ impl BoundsStore {
     pub fn remove(&mut self, entity: Entity) -> bool {
         let Some(slot) = self.slots.remove(&entity) else { return false };
         self.generation += 1;
+        self.layout_generation += 1;
         let slot = slot as usize;
         let last = self.entities.len() - 1;
         self.entities.swap_remove(slot);
@@ -551,6 +569,18 @@ impl BoundsStore {
     /// may then reuse their last result).
     pub fn generation(&self) -> u64 {
         self.generation
+    }
+
+    /// Changes of the layout so far (see [`BoundsStore::take_moved_slots`]).
+    pub fn layout_generation(&self) -> u64 {
+        self.layout_generation
+    }
+
+    /// The slots whose bounds changed in place since the last call (duplicates possible), and forgets them;
+    /// `None` when too many changed to list (an eighth of the store). Together with an unchanged
+    /// [`BoundsStore::layout_generation`], these are the only slots whose bounds differ from the last call's.
+    pub fn take_moved_slots(&mut self) -> Option<Vec<u32>> {
+        self.moved.replace(Vec::new())
     }
 
     /// The slots written since the last call, in order, and forgets them. Slots at or past [`BoundsStore::len`]

@@ -72,17 +72,62 @@ pub fn test_occlusion(
                 visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words).enumerate()
             {
                 let base = (chunk * WORDS_PER_TASK + i) * 64;
-                let kept = match avx2 {
-                    #[cfg(target_arch = "x86_64")]
-                    // SAFETY: AVX2 was detected on this processor.
-                    true => unsafe { test_word_avx2(store, view, pyramid, base, input) },
-                    _ => test_word(store, view, pyramid, base, input),
-                };
+                let kept = test_word_with_backend(avx2, store, view, pyramid, base, input);
                 *visible_word = kept;
                 *occluded_word = input & !kept;
             }
         });
     OcclusionStats { tested, visible: visible.count() }
+}
+
+/// Re-tests only the objects in `slots` after their bounds changed, against the same view and pyramid as the
+/// [`test_occlusion`] call that filled `visible` and `occluded`; every other object keeps its result. Each
+/// listed object ends up visible, occluded, or (outside `frustum_visible`) neither, exactly as a full test
+/// would leave it.
+pub fn retest_occlusion(
+    store: &BoundsStore,
+    frustum_visible: &VisibleSet,
+    view: &ScreenView,
+    pyramid: &DepthPyramid,
+    slots: &[u32],
+    visible: &mut VisibleSet,
+    occluded: &mut VisibleSet,
+) {
+    let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+    let mut sorted = slots.to_vec();
+    sorted.sort_unstable();
+    for run in sorted.chunk_by(|a, b| a / 64 == b / 64) {
+        let word = run[0] as usize / 64;
+        let listed = run.iter().fold(0u64, |bits, &slot| bits | 1 << (slot % 64));
+        let input = frustum_visible.words()[word] & listed;
+        let base = word * 64;
+        let kept = if pyramid.level_count() == 0 {
+            input
+        } else {
+            test_word_with_backend(avx2, store, view, pyramid, base, input)
+        };
+        let (visible_word, occluded_word) = (&mut visible.words_mut()[word], &mut occluded.words_mut()[word]);
+        *visible_word = (*visible_word & !listed) | kept;
+        *occluded_word = (*occluded_word & !listed) | (input & !kept);
+    }
+}
+
+/// [`test_word`], with the AVX2 projection where `avx2` (detected on this processor).
+#[inline(always)]
+fn test_word_with_backend(
+    avx2: bool,
+    store: &BoundsStore,
+    view: &ScreenView,
+    pyramid: &DepthPyramid,
+    base: usize,
+    input: u64,
+) -> u64 {
+    match avx2 {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `avx2` is set only where AVX2 was detected.
+        true => unsafe { test_word_avx2(store, view, pyramid, base, input) },
+        _ => test_word(store, view, pyramid, base, input),
+    }
 }
 
 /// [`test_word`] with the AVX2 projection.

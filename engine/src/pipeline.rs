@@ -8,7 +8,7 @@ use crate::bounds::{
 use crate::camera::Camera;
 use crate::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum, cull_frustum_coherent};
 use crate::occluder::select_occluders;
-use crate::occlusion::test_occlusion;
+use crate::occlusion::{retest_occlusion, test_occlusion};
 use crate::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
@@ -57,6 +57,10 @@ pub struct CullStats {
     /// Nothing moved and neither the camera nor a setting changed: the frustum and occlusion stages kept last
     /// frame's result without running ([`AdaptiveSettings::reuse_unchanged`]).
     pub reused: bool,
+    /// Objects culled alone this frame because only they moved: the camera, the settings, which objects are
+    /// stored where and every occluder were unchanged, so the frustum and occlusion stages re-tested just these
+    /// against last frame's planes and depth pyramid. 0 when the frame ran in full or was reused.
+    pub retested: usize,
     /// The occlusion stage was skipped because it had removed too little lately
     /// ([`AdaptiveSettings::min_occlusion_benefit`]); everything the frustum kept stays visible.
     pub occlusion_gated: bool,
@@ -79,7 +83,8 @@ impl CullStats {
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct AdaptiveSettings {
     /// Reuse last frame's frustum and occlusion results when no bounds changed, the camera is the same and so
-    /// are the settings.
+    /// are the settings; when only a few objects without occluders moved, re-test just those
+    /// ([`CullStats::retested`]).
     pub reuse_unchanged: bool,
     /// The occlusion stage is skipped once it has removed less than this fraction of the frustum survivors for
     /// [`AdaptiveSettings::low_benefit_frames`] frames in a row (an open field), then run again to re-probe
@@ -183,8 +188,12 @@ impl BenefitGate {
 /// What the gating remembers between frames.
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct AdaptiveState {
-    /// The inputs of the last frame that ran: camera, store generation and settings.
-    last_inputs: Option<(Camera, u64, FrustumSettings, OcclusionSettings)>,
+    /// The view of the last frame: camera, store layout generation and settings.
+    last_view: Option<(Camera, u64, FrustumSettings, OcclusionSettings)>,
+    /// The store generation of the last frame.
+    last_generation: u64,
+    /// The slots the frustum stage re-tested alone this frame, for the occlusion stage to re-test too.
+    retest: Option<Vec<u32>>,
     /// When the occlusion stage is skipped for removing too little.
     occlusion: BenefitGate,
 }
@@ -274,7 +283,7 @@ pub fn add_systems(schedule: &mut Schedule) {
 /// turned off in [`FrustumSettings`].
 #[allow(clippy::too_many_arguments)]
 pub fn frustum_stage(
-    store: Res<BoundsStore>,
+    mut store: ResMut<BoundsStore>,
     camera: Res<Camera>,
     settings: Res<FrustumSettings>,
     occlusion: Res<OcclusionSettings>,
@@ -288,13 +297,28 @@ pub fn frustum_stage(
     let start = Instant::now();
     stats.bounds_recomputed = store.recomputed_last_sync;
     stats.bounds_time = store.last_sync_time;
-    let inputs = (*camera, store.generation(), *settings, *occlusion);
-    stats.reused = adaptive.reuse_unchanged && gate.last_inputs == Some(inputs) && changed_occluders.is_empty();
-    gate.last_inputs = Some(inputs);
+    let moved = store.take_moved_slots();
+    let view = (*camera, store.layout_generation(), *settings, *occlusion);
+    let same_view = adaptive.reuse_unchanged && gate.last_view == Some(view) && changed_occluders.is_empty();
+    stats.reused = same_view && gate.last_generation == store.generation();
+    (gate.last_view, gate.last_generation, gate.retest, stats.retested) = (Some(view), store.generation(), None, 0);
     if stats.reused {
         // Last frame's counts stand; only the times are this frame's.
         (stats.frustum_time, stats.raster_time, stats.occlusion_time) =
             (start.elapsed(), Duration::ZERO, Duration::ZERO);
+        return;
+    }
+    // Only objects without occluders moved: the planes and the occluder buffer stand, re-test just those.
+    if let (true, true, Some(moved), Ok(frustum)) = (same_view, settings.enabled, moved, camera.frustum())
+        && moved.iter().all(|&slot| !store.occluders().contains(slot as usize))
+    {
+        for &slot in &moved {
+            visible.0.set(slot as usize, frustum.intersects(&store.get(slot as usize)));
+        }
+        stats.after_frustum = visible.0.count();
+        stats.retested = moved.len();
+        gate.retest = Some(moved);
+        stats.frustum_time = start.elapsed();
         return;
     }
     stats.objects = store.len();
@@ -343,6 +367,23 @@ pub fn occlusion_stage(
     }
     let start = Instant::now();
     let state = &mut *state;
+    if let Some(moved) = gate.retest.take() {
+        // Same view and occluders as last frame: its pyramid stands (or its absence, where the stage was off,
+        // gated or had no occluder); the benefit count waits for a full frame.
+        let view = ScreenView::new(&camera, settings.width, settings.height);
+        retest_occlusion(
+            &store,
+            &frustum_visible.0,
+            &view,
+            &state.pyramid,
+            &moved,
+            &mut state.visible,
+            &mut state.occluded,
+        );
+        stats.after_occlusion = state.visible.count();
+        (stats.raster_time, stats.occlusion_time) = (Duration::ZERO, start.elapsed());
+        return;
+    }
     stats.occlusion_gated = settings.enabled && gate.occlusion.skip_this_frame();
     // Occluders hidden last frame are left out: `state.occluded` still holds last frame's hidden objects.
     let candidates = if adaptive.skip_hidden_occluders && state.occluded.len() == frustum_visible.0.len() {

@@ -145,7 +145,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                     (a.to_string(), b.to_string(), c.to_string())
                 });
             csv.push_str(&format!(
-                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{}\n",
+                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{},{}\n",
                 stats.objects,
                 stats.after_frustum,
                 stats.after_occlusion,
@@ -159,6 +159,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 micros(stats.raster_time),
                 micros(stats.occlusion_time),
                 u8::from(stats.reused),
+                stats.retested,
                 u8::from(stats.occlusion_gated),
                 gating_and_savings_columns(gpu_output.as_ref(), &saved),
             ));

@@ -8,7 +8,7 @@ use std::time::Duration;
 /// The stats CSV's columns.
 pub const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters_in,clusters_out,triangles_in,\
 triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
-image_error_pixels,reused,occlusion_gated,cluster_pass_skipped,triangle_pass_skipped,saved_triangles_frustum,\
+image_error_pixels,reused,retested,occlusion_gated,cluster_pass_skipped,triangle_pass_skipped,saved_triangles_frustum,\
 saved_triangles_occlusion,saved_triangles_clusters,saved_triangles_triangles";
 
 /// Microseconds of `duration`.
@@ -127,6 +127,7 @@ pub fn print_summary(frames: &[CullStats]) {
     );
     let after = frames.iter().map(|f| f.after_occlusion as f64).sum::<f64>() / n;
     let reused = frames.iter().filter(|f| f.reused).count();
+    let retested = frames.iter().filter(|f| f.retested > 0).count();
     let gated = frames.iter().filter(|f| f.occlusion_gated).count();
     let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.occlusion_time)).collect());
     println!(
@@ -135,8 +136,8 @@ pub fn print_summary(frames: &[CullStats]) {
         100.0 * (1.0 - after / kept.max(1.0))
     );
     println!(
-        "gating: {reused} of {} frames reused the last result (nothing changed); occlusion skipped in {gated} \
-         (it had removed under the threshold)",
+        "gating: {reused} of {} frames reused the last result (nothing changed), {retested} re-tested only the \
+         objects that moved (same view); occlusion skipped in {gated} (it had removed under the threshold)",
         frames.len()
     );
 }

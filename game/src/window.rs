@@ -415,6 +415,7 @@ impl Game {
         let gpu = self.gpu_frames.last();
         for (skipped, name) in [
             (stats.reused, "reused"),
+            (stats.retested > 0, "moved objects re-tested"),
             (stats.occlusion_gated, "occlusion skipped"),
             (gpu.is_some_and(|o| o.cluster_pass_skipped), "cluster pass skipped"),
             (gpu.is_some_and(|o| o.triangle_pass_skipped), "triangle pass skipped"),
