@@ -6,7 +6,8 @@
 //! everything on (a configuration that culls less is not cheaper, it moves the cost to the GPU). Writes
 //! `target/adaptive/adaptive.csv`.
 //!
-//! `cargo bench -p cullet-benches --bench adaptive`
+//! `cargo bench -p cullet-benches --bench adaptive [-- --passes N --only SCENE]` (`--only` keeps the scenes
+//! whose name contains SCENE).
 //!
 //! Wall time on a shared machine drifts by ±10% between identical runs, too much to check the 1% and 3% targets.
 //! `cargo bench -p cullet-benches --bench adaptive -- --instructions` counts instead the instructions each
@@ -23,6 +24,7 @@ use std::time::{Duration, Instant};
 
 /// Frames along each 20-second path: 30 frames a second, so that frame-to-frame coherence is realistic.
 const FRAMES: u32 = 600;
+/// Wall-time passes per configuration (`--passes N` to change).
 const PASSES: usize = 5;
 
 /// A fixed or adaptive pipeline.
@@ -168,12 +170,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&out)?;
     let mut csv = String::from("scene,config,cpu_us,gpu_triangles\n");
     println!("{:<26} {:<24} {:>10} {:>14}", "scene", "configuration", "CPU us", "GPU triangles");
+    let value_of = |flag: &str| args.iter().position(|a| a == flag).and_then(|at| args.get(at + 1));
+    let passes: usize = value_of("--passes").map_or(Ok(PASSES), |n| n.parse())?;
     for (index, name) in SCENES.iter().enumerate() {
+        if value_of("--only").is_some_and(|only| !name.contains(only.as_str())) {
+            continue;
+        }
         let (scene, path) = load_scene(index);
         // Passes interleave the configurations, so that the machine's drifting speed touches them alike.
         let configs = configs();
         let mut results = vec![(f64::INFINITY, 0.0); configs.len()];
-        for _ in 0..PASSES {
+        for _ in 0..passes {
             for (result, config) in results.iter_mut().zip(&configs) {
                 let (cpu, triangles) = fly(&scene, &path, config);
                 *result = (result.0.min(cpu.as_secs_f64() * 1e6), triangles);
