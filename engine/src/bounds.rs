@@ -576,11 +576,14 @@ impl BoundsStore {
         self.layout_generation
     }
 
-    /// The slots whose bounds changed in place since the last call (duplicates possible), and forgets them;
+    /// The slots whose bounds changed in place since the last call, in increasing order, and forgets them;
     /// `None` when too many changed to list (an eighth of the store). Together with an unchanged
     /// [`BoundsStore::layout_generation`], these are the only slots whose bounds differ from the last call's.
     pub fn take_moved_slots(&mut self) -> Option<Vec<u32>> {
-        self.moved.replace(Vec::new())
+        let mut moved = self.moved.replace(Vec::new())?;
+        moved.sort_unstable();
+        moved.dedup();
+        Some(moved)
     }
 
     /// The slots written since the last call, in order, and forgets them. Slots at or past [`BoundsStore::len`]

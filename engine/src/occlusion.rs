@@ -95,7 +95,9 @@ pub fn retest_occlusion(
 ) {
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let mut sorted = slots.to_vec();
-    sorted.sort_unstable();
+    if !sorted.is_sorted() {
+        sorted.sort_unstable();
+    }
     for run in sorted.chunk_by(|a, b| a / 64 == b / 64) {
         let word = run[0] as usize / 64;
         let listed = run.iter().fold(0u64, |bits, &slot| bits | 1 << (slot % 64));

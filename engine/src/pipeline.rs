@@ -280,7 +280,8 @@ pub fn add_systems(schedule: &mut Schedule) {
 
 /// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`]. A camera that gives no valid
 /// frustum culls nothing (everything stays visible) and reports the error in [`CullStats`]; so does a stage
-/// turned off in [`FrustumSettings`].
+/// turned off in [`FrustumSettings`]. With [`AdaptiveSettings::reuse_unchanged`] it keeps last frame's result
+/// when nothing changed, and re-tests only the moved objects when nothing else did ([`CullStats::retested`]).
 #[allow(clippy::too_many_arguments)]
 pub fn frustum_stage(
     mut store: ResMut<BoundsStore>,
@@ -349,7 +350,9 @@ pub fn frustum_stage(
 
 /// Selects occluders among the frustum survivors, rasterizes them into the depth buffer, builds its pyramid and
 /// tests every frustum survivor against it, into [`OcclusionState`]. With no occluder in view it rasterizes
-/// and tests nothing.
+/// and tests nothing; where the frustum stage re-tested only moved objects, so does this stage, against last
+/// frame's pyramid; after frames of too little benefit it is skipped for a while
+/// ([`AdaptiveSettings::min_occlusion_benefit`]).
 #[allow(clippy::too_many_arguments)]
 pub fn occlusion_stage(
     store: Res<BoundsStore>,
