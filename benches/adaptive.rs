@@ -14,10 +14,10 @@
 //! configuration executes in its frames, under Valgrind's callgrind on one thread (deterministic: the same
 //! run gives the same count), and writes `target/adaptive/instructions.csv`. It takes about 20 minutes.
 
+use cullet::draw_cost::SlotTriangles;
 use cullet::flight::Flight;
 use cullet::pipeline::{AdaptiveSettings, OcclusionSettings, OcclusionState};
 use cullet::scene::Scene;
-use cullet::{BoundsStore, MeshRef};
 use cullet::{CameraPath, scene};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
@@ -56,19 +56,14 @@ fn fly(scene: &Scene, path: &CameraPath, config: &Config) -> (Duration, f64) {
         scene.spawn(world);
     });
     flight.world.insert_resource(config.adaptive);
-    // Triangles per store slot, from each object's mesh.
-    let triangles_of = |world: &bevy_ecs::world::World, slot: usize| {
-        let entity = world.resource::<BoundsStore>().entities()[slot];
-        world.get::<MeshRef>(entity).map_or(0, |m| scene.meshes[m.0 as usize].triangle_count())
-    };
-    let (mut cpu, mut triangles) = (Duration::ZERO, 0usize);
+    // The scenes neither add nor remove objects: one count per slot serves the whole path.
+    let slot_triangles = SlotTriangles::of_world(&flight.world, &scene.meshes);
+    let (mut cpu, mut triangles) = (Duration::ZERO, 0u64);
     for frame in 0..FRAMES {
         let start = Instant::now();
         cull_frame(&mut flight, frame);
         cpu += start.elapsed();
-        let world = &flight.world;
-        triangles +=
-            world.resource::<OcclusionState>().visible.iter().map(|slot| triangles_of(world, slot)).sum::<usize>();
+        triangles += slot_triangles.sum(&flight.world.resource::<OcclusionState>().visible);
     }
     (cpu / FRAMES, triangles as f64 / f64::from(FRAMES))
 }

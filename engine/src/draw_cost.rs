@@ -28,19 +28,21 @@ pub struct DrawSavings {
 }
 
 impl DrawSavings {
-    /// The savings of `world`'s last frame, with `triangles_per_slot` from [`triangles_per_slot`]. Without
-    /// `gpu` (no GPU pass ran) the GPU passes saved nothing.
-    pub fn of_frame(world: &World, triangles_per_slot: &[u32], gpu: Option<&GpuFrameOutput>) -> Self {
-        let sum = |set: &VisibleSet| set.iter().map(|slot| u64::from(triangles_per_slot[slot])).sum::<u64>();
-        let total: u64 = triangles_per_slot.iter().map(|&t| u64::from(t)).sum();
-        let after_frustum = sum(&world.resource::<FrustumVisible>().0);
-        let after_occlusion = sum(&world.resource::<OcclusionState>().visible);
+    /// The savings of `world`'s last frame, with the triangle counts of its objects. Without `gpu` (no GPU
+    /// pass ran) the GPU passes saved nothing.
+    pub fn of_frame(world: &World, triangles: &SlotTriangles, gpu: Option<&GpuFrameOutput>) -> Self {
+        let total = triangles.total;
+        let after_frustum = triangles.sum(&world.resource::<FrustumVisible>().0);
+        let after_occlusion = triangles.sum(&world.resource::<OcclusionState>().visible);
         let (clusters, triangles) = gpu.map_or((0, 0), |output| {
             let c = output.counters;
-            // Without the triangle pass, the clusters kept are drawn whole.
-            let reaching_triangle_pass = if output.triangle_pass_skipped { c.triangles_out } else { c.triangles_in };
-            let triangle_pass = u64::from(c.triangles_in - c.triangles_out.min(c.triangles_in));
-            (after_occlusion.saturating_sub(u64::from(reaching_triangle_pass)), triangle_pass)
+            // Without the triangle pass, the clusters kept are drawn whole and it removed nothing.
+            let (after_clusters, triangle_pass) = if output.triangle_pass_skipped {
+                (c.triangles_out, 0)
+            } else {
+                (c.triangles_in, c.triangles_in - c.triangles_out)
+            };
+            (after_occlusion.saturating_sub(u64::from(after_clusters)), u64::from(triangle_pass))
         });
         Self {
             total,
@@ -62,19 +64,38 @@ impl DrawSavings {
     }
 }
 
-/// The triangle count of each store slot's mesh (0 for an object without a mesh), indexed by store slot.
-pub fn triangles_per_slot(world: &World, meshes: &[Mesh]) -> Vec<u32> {
-    let store = world.resource::<BoundsStore>();
-    store
-        .entities()
-        .iter()
-        .map(|&entity| {
-            world
-                .get::<MeshRef>(entity)
-                .and_then(|mesh| meshes.get(mesh.0 as usize))
-                .map_or(0, |mesh| mesh.triangle_count() as u32)
-        })
-        .collect()
+/// The triangle count of each stored object's mesh, by store slot, and their total: taken once, valid while
+/// no object is added or removed.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SlotTriangles {
+    /// Triangles of each store slot's mesh (0 for an object without a mesh).
+    per_slot: Vec<u32>,
+    /// Their sum: what drawing without culling would submit.
+    total: u64,
+}
+
+impl SlotTriangles {
+    /// The counts of `world`'s stored objects, whose [`MeshRef`]s index `meshes`.
+    pub fn of_world(world: &World, meshes: &[Mesh]) -> Self {
+        let per_slot: Vec<u32> = world
+            .resource::<BoundsStore>()
+            .entities()
+            .iter()
+            .map(|&entity| {
+                world
+                    .get::<MeshRef>(entity)
+                    .and_then(|mesh| meshes.get(mesh.0 as usize))
+                    .map_or(0, |mesh| mesh.triangle_count() as u32)
+            })
+            .collect();
+        let total = per_slot.iter().map(|&t| u64::from(t)).sum();
+        Self { per_slot, total }
+    }
+
+    /// Triangles of the objects in `set`.
+    pub fn sum(&self, set: &VisibleSet) -> u64 {
+        set.iter().map(|slot| u64::from(self.per_slot[slot])).sum()
+    }
 }
 
 /// Mean GPU draw time per drawn triangle over `frames`, in nanoseconds: the rate at which a removed triangle's

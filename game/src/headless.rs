@@ -4,7 +4,7 @@ use crate::report::{
     STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary, print_savings, print_summary,
 };
 use crate::{Args, Prepared};
-use cullet::draw_cost::{DrawSavings, triangles_per_slot};
+use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::GpuContext;
 use cullet::gpu::clusters::ClusterLibrary;
 use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
@@ -42,7 +42,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     let mut gpu_frames: Vec<GpuFrameOutput> = Vec::new();
     let mut per_frame = Vec::with_capacity(args.headless_frames() as usize);
     let mut savings = Vec::with_capacity(args.headless_frames() as usize);
-    let slot_triangles = triangles_per_slot(&flight.world, &scene.meshes);
+    let slot_triangles = SlotTriangles::of_world(&flight.world, &scene.meshes);
     let judge = JudgeSettings {
         reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
         occlusion_ideal: false,

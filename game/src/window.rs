@@ -7,7 +7,7 @@
 use crate::Prepared;
 use crate::present::{PresentPass, Source};
 use crate::report::{micros, print_gpu_summary, print_savings, print_summary};
-use cullet::draw_cost::{DrawSavings, triangles_per_slot};
+use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::GpuContext;
 use cullet::gpu::clusters::ClusterLibrary;
 use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
@@ -89,7 +89,7 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
     let (yaw, pitch) = yaw_pitch(start.forward);
     let (width, height) = prepared.resolution;
     let radius = prepared.scene.bounds().map_or(100.0, |(min, max)| (max - min).length() * 0.5);
-    let slot_triangles = triangles_per_slot(&prepared.flight.world, &prepared.scene.meshes);
+    let slot_triangles = SlotTriangles::of_world(&prepared.flight.world, &prepared.scene.meshes);
     let mut game = Game {
         prepared,
         size: (width.min(1920), height.min(1080)),
@@ -160,7 +160,7 @@ struct Game {
     frames: Vec<CullStats>,
     gpu_frames: Vec<GpuFrameOutput>,
     /// Triangles of each store slot's mesh, for the savings.
-    slot_triangles: Vec<u32>,
+    slot_triangles: SlotTriangles,
     /// What each stage saved the draw, per frame.
     savings: Vec<DrawSavings>,
     /// The instance buffer holds tint colours and must be rewritten before a shaded frame.
