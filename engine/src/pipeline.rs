@@ -329,13 +329,12 @@ pub fn frustum_stage(
             stats.after_frustum = store.len();
             stats.frustum_error = None;
         }
-        Ok(frustum) if adaptive.plane_coherence => {
-            stats.after_frustum =
-                cull_frustum_coherent(&store, &frustum, SimdBackend::Auto, &mut visible.0, &mut coherence);
-            stats.frustum_error = None;
-        }
         Ok(frustum) => {
-            stats.after_frustum = cull_frustum(&store, &frustum, &mut visible.0);
+            stats.after_frustum = if adaptive.plane_coherence {
+                cull_frustum_coherent(&store, &frustum, SimdBackend::Auto, &mut visible.0, &mut coherence)
+            } else {
+                cull_frustum(&store, &frustum, &mut visible.0)
+            };
             stats.frustum_error = None;
         }
         Err(error) => {
