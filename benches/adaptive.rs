@@ -15,9 +15,9 @@
 //! run gives the same count), and writes `target/adaptive/instructions.csv`. It takes about 20 minutes.
 
 use cullet::draw_cost::SlotTriangles;
-use cullet::flight::Flight;
 use cullet::pipeline::{AdaptiveSettings, OcclusionSettings, OcclusionState};
 use cullet::scene::Scene;
+use cullet::scene::flight::Flight;
 use cullet::{CameraPath, scene};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};

@@ -7,7 +7,6 @@
 use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum};
 use bevy_shape::ViewFrustum;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use cullet::bounds::WorldBounds;
 use cullet::frustum::{PlaneCoherence, SimdBackend, cull_frustum_coherent, cull_frustum_with};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Frustum, VisibleSet};
@@ -34,7 +33,7 @@ fn fixture(objects: usize) -> Fixture {
     for (i, object) in city.scene.objects.iter().enumerate() {
         let local = city.scene.mesh_bounds[object.mesh as usize];
         let entity = bevy_ecs_entity(i);
-        store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
+        store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
         let aabb = Aabb {
             center: bevy_math::Vec3A::from_array(local.center.to_array()),
             half_extents: bevy_math::Vec3A::from_array(local.half_extent.to_array()),
@@ -45,7 +44,7 @@ fn fixture(objects: usize) -> Fixture {
     let mut shuffled = BoundsStore::default();
     for i in 0..store.len() {
         let slot = (i * 7919) % store.len(); // 7919 is prime and never divides a tested size
-        shuffled.insert(bevy_ecs_entity(i), &store.get(slot));
+        shuffled.insert(bevy_ecs_entity(i), &store.get(slot).unwrap()).unwrap();
     }
     let cameras = city.benchmark_cameras();
     let cullet_frusta = cameras.iter().map(|(_, c)| c.frustum().unwrap()).collect();
@@ -160,15 +159,7 @@ fn threads(c: &mut Criterion) {
     let mut group = c.benchmark_group("bandwidth");
     group.sample_size(30).measurement_time(Duration::from_secs(4)).warm_up_time(Duration::from_secs(1));
     let store = &fixture.store;
-    let arrays = [
-        &store.center_x,
-        &store.center_y,
-        &store.center_z,
-        &store.extent_x,
-        &store.extent_y,
-        &store.extent_z,
-        &store.radius,
-    ];
+    let arrays = store.soa().all();
     group.throughput(Throughput::Bytes((arrays.len() * store.padded_len() * 4) as u64));
     group.bench_function("read_soa/1000000", |b| {
         b.iter(|| {

@@ -4,15 +4,12 @@
 //! `cargo bench -p cullet-benches --bench gpu`; `CULLET_GPU_OBJECTS` (default 100000) and `CULLET_GPU_FRAMES`
 //! (default 100) size the run. On a software adapter (lavapipe) times mean little: read the counts and ratios.
 
-use cullet::flight::Flight;
-use cullet::gpu::GpuContext;
 use cullet::gpu::cluster_cull::ClusterVerdict;
-use cullet::gpu::clusters::ClusterLibrary;
-use cullet::gpu::frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuPassTimes};
-use cullet::gpu::scene::{GpuScene, instances_from_world};
 use cullet::gpu::triangle_cull::TriangleVerdict;
+use cullet::gpu::{GpuContext, GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::flight::Flight;
 use std::time::Duration;
 
 fn env_or(name: &str, default: usize) -> usize {
@@ -39,26 +36,25 @@ fn main() {
     let frames = env_or("CULLET_GPU_FRAMES", 100) as u32;
     let (width, height) = (1920, 1080);
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let library = ClusterLibrary::build(&city.scene.meshes);
+    let mut flight =
+        Flight::new(city.flythrough(), width as f32 / height as f32, frames, OcclusionSettings::default(), |world| {
+            city.spawn(world);
+        });
+    let mut culler = GpuCuller::for_world(&context, &flight.world, &city.scene.meshes, (width, height));
+    let library = &culler.scene().library;
     println!(
         "{objects}-object city, {frames} frames at {width}x{height}; clusters of at most 64 vertices / 124 triangles: {} \
          clusters for {} triangles in the mesh library",
         library.clusters.len(),
         library.indices.len() / 3
     );
-    let mut flight =
-        Flight::new(city.flythrough(), width as f32 / height as f32, frames, OcclusionSettings::default(), |world| {
-            city.spawn(world);
-        });
-    let scene = GpuScene::new(&context, library, instances_from_world(&flight.world));
-    let mut culler = GpuCuller::new(&context, scene, width, height, 256, 144);
     let settings = GpuCullSettings::default();
     let mut outputs: Vec<GpuFrameOutput> = Vec::new();
     let mut written = 0;
     for frame in 0..frames {
         flight.run_frame(frame);
-        outputs.push(culler.run_world(&context, &mut flight.world, &settings));
-        written += culler.scene.instances_written_last_update;
+        outputs.push(culler.run_world(&context, &mut flight.world, &settings).expect("GPU frame"));
+        written += culler.scene().instances_written_last_update;
     }
     let n = outputs.len() as f64;
     let sum = |f: fn(&GpuCounters) -> u32| outputs.iter().map(|o| f64::from(f(&o.counters))).sum::<f64>() / n;

@@ -6,11 +6,13 @@
 
 use bevy_ecs::entity::Entity;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use cullet::bounds::{Occluder, WorldBounds};
+use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::cull_frustum;
+use cullet::occluder::Occluder;
+use cullet::occluder::OccluderInstance;
 use cullet::occluder::select_occluders;
 use cullet::occlusion::test_occlusion;
-use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use cullet::raster::{RasterMode, rasterize};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Camera, VisibleSet};
 use std::hint::black_box;
@@ -32,9 +34,9 @@ fn fixture(objects: usize) -> Fixture {
     for (i, object) in city.scene.objects.iter().enumerate() {
         let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
         let local = city.scene.mesh_bounds[object.mesh as usize];
-        let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
+        let slot = store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
         if let Some(occluder) = &object.occluder {
-            store.set_occluder(slot, true);
+            store.set_occluder(slot, true).unwrap();
             occluders.insert(slot, (occluder.clone(), object.transform));
         }
     }

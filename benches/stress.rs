@@ -5,10 +5,10 @@
 //!
 //! `cargo bench -p cullet-benches --bench stress`
 
-use cullet::flight::Flight;
 use cullet::gpu::GpuContext;
 use cullet::pipeline::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::flight::Flight;
 use cullet_truth::stress::{cases, gpu_false_negatives, run_case};
 use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 use plotters::prelude::*;
@@ -32,7 +32,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     for case in cases() {
         let (outcome, mut flight) = run_case(&case);
-        let gpu_missed = gpu.as_ref().map(|context| gpu_false_negatives(&case, &mut flight, context));
+        let gpu_missed =
+            gpu.as_ref().map(|context| gpu_false_negatives(&case, &mut flight, context).expect("GPU frame"));
         let gpu_text = gpu_missed.map_or("-".to_string(), |n| n.to_string());
         println!(
             "{:<18} {:>10.3e} {:>8} {:>8} {:>6} {:>7} {:>10.1}% {:>10.1e} {:>10.1e}",

@@ -5,10 +5,10 @@
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
 //! `CULLET_TRADEOFF_FRAMES` (default 200) size the run.
 
-use cullet::flight::Flight;
 use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::flight::Flight;
 use cullet_truth::judge::{occlusion_ideal, render_world, stage_metrics};
 use cullet_truth::metrics::OcclusionIdeal;
 use cullet_truth::{ExactVisibility, PathMetrics, ReferenceSettings};

@@ -3,9 +3,9 @@
 //! (city, field, cad) against the exact rendering.
 
 use cullet::camera::CameraPath;
-use cullet::flight::Flight;
 use cullet::mesh::Mesh;
 use cullet::pipeline::{AdaptiveSettings, CullStats, OcclusionSettings};
+use cullet::scene::flight::Flight;
 use cullet::scene::{Scene, SceneObject};
 use cullet::{Camera, ObjectTransform, Occluder};
 use glam::{Affine3A, Vec3};

@@ -9,11 +9,9 @@ use glam::{Affine3A, DVec3, Quat, Vec3};
 use proptest::prelude::*;
 
 fn world_with_schedule() -> (World, Schedule) {
-    let mut world = World::new();
-    pipeline::init_world(&mut world);
+    let (mut world, mut schedule) = (World::new(), Schedule::default());
+    pipeline::install(&mut world, &mut schedule, pipeline::PipelineSettings::default());
     world.insert_resource(Camera::looking_at(Vec3::new(0.0, 0.0, 50.0), Vec3::ZERO));
-    let mut schedule = Schedule::default();
-    pipeline::add_systems(&mut schedule);
     (world, schedule)
 }
 
@@ -42,13 +40,13 @@ fn assert_store_consistent(world: &mut World) {
         let Some(slot) = store.slot_of(entity) else { continue };
         assert_eq!(store.occluders().contains(slot), has_occluder, "occluder bit of {entity}");
         assert_eq!(store.entities()[slot], entity);
-        assert_eq!(store.get(slot), WorldBounds::from_local(entity, local, &transform.0).unwrap());
-        assert!(store.groups()[slot / 64].contains(&store.get(slot)));
+        assert_eq!(store.get(slot).unwrap(), WorldBounds::from_local(entity, local, &transform.0).unwrap());
+        assert!(store.groups()[slot / 64].contains(&store.get(slot).unwrap()));
         seen += 1;
     }
     assert_eq!(seen, store.len());
     // Padding past the last object stays zero so SIMD blocks read nothing stale.
-    assert!(store.center_x[store.len()..].iter().all(|&x| x == 0.0));
+    assert!(store.soa().all().iter().all(|array| array[store.len()..].iter().all(|&x| x == 0.0)));
     assert_eq!(store.padded_len() % 64, 0);
 }
 
@@ -66,7 +64,7 @@ fn only_changed_entities_are_recomputed() {
     let stats = frame(&mut world, &mut schedule);
     assert_eq!(stats.bounds_recomputed, 2);
     let slot = world.resource::<BoundsStore>().slot_of(entities[7]).unwrap();
-    assert_eq!(world.resource::<BoundsStore>().get(slot).center, Vec3::new(7.0, 3.0, 0.0));
+    assert_eq!(world.resource::<BoundsStore>().get(slot).unwrap().center, Vec3::new(7.0, 3.0, 0.0));
     assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
     assert_store_consistent(&mut world);
 }
@@ -149,7 +147,7 @@ fn static_objects_are_never_scanned_but_reinsertion_moves_them() {
     // Static objects move only by inserting a new transform, and are stored again immediately.
     world.entity_mut(statics[4]).insert(ObjectTransform(Affine3A::from_translation(Vec3::new(0.0, 9.0, 0.0))));
     let slot = world.resource::<BoundsStore>().slot_of(statics[4]).unwrap();
-    assert_eq!(world.resource::<BoundsStore>().get(slot).center, Vec3::new(0.0, 9.0, 0.0));
+    assert_eq!(world.resource::<BoundsStore>().get(slot).unwrap().center, Vec3::new(0.0, 9.0, 0.0));
     assert_eq!(frame(&mut world, &mut schedule).bounds_recomputed, 0);
     assert_store_consistent(&mut world);
 }
@@ -262,10 +260,71 @@ fn tightened_group_boxes_equal_their_members_box() {
     for (group, bounds) in store.groups().iter().enumerate() {
         let mut expected = GroupBounds::EMPTY;
         for slot in group * 64..((group + 1) * 64).min(store.len()) {
-            expected.grow(&store.get(slot));
+            expected.grow(&store.get(slot).unwrap());
         }
         assert_eq!(*bounds, expected, "group {group}");
     }
     let union = store.groups().iter().fold(GroupBounds::EMPTY, |acc, g| acc.union(g));
     assert_eq!(store.supergroups()[0], union);
+}
+
+/// Every write path of the store validates what it writes: `insert`, `set`, `set_occluder` and the component
+/// path (`update`) refuse NaN, infinite and negative extents, radii too small for their box and slots out of
+/// range with a `BoundsError`, and leave the store exactly as it was.
+#[test]
+fn every_write_path_refuses_invalid_bounds_and_changes_nothing() {
+    let entity = |i: u32| Entity::from_raw_u32(i).unwrap();
+    let mut store = BoundsStore::default();
+    let good = WorldBounds::new(entity(1), Vec3::new(1.0, 2.0, 3.0), Vec3::ONE).unwrap();
+    let slot = store.insert(entity(1), &good).unwrap();
+    let before = store.clone();
+    let unchanged = |store: &BoundsStore| {
+        assert_eq!(store.len(), before.len());
+        assert_eq!(store.get(slot), before.get(slot));
+        assert_eq!(store.soa().all(), before.soa().all());
+        assert_eq!(store.generation(), before.generation());
+    };
+    let bad = [
+        ("NaN centre", WorldBounds { center: Vec3::new(f32::NAN, 0.0, 0.0), ..good }),
+        ("infinite centre", WorldBounds { center: Vec3::new(0.0, f32::INFINITY, 0.0), ..good }),
+        ("NaN extent", WorldBounds { half_extent: Vec3::new(1.0, f32::NAN, 1.0), ..good }),
+        (
+            "infinite extent",
+            WorldBounds { half_extent: Vec3::new(1.0, 1.0, f32::INFINITY), radius: f32::INFINITY, ..good },
+        ),
+        ("negative extent", WorldBounds { half_extent: Vec3::new(1.0, -1.0, 1.0), ..good }),
+        ("NaN radius", WorldBounds { radius: f32::NAN, ..good }),
+        ("radius smaller than the box", WorldBounds { radius: 1.0, ..good }),
+    ];
+    for (what, bounds) in bad {
+        let inserted = store.insert(entity(2), &bounds);
+        assert!(matches!(inserted, Err(BoundsError::InvalidWorld { .. })), "insert, {what}: {inserted:?}");
+        unchanged(&store);
+        let overwritten = store.insert(entity(1), &bounds);
+        assert!(matches!(overwritten, Err(BoundsError::InvalidWorld { .. })), "re-insert, {what}: {overwritten:?}");
+        unchanged(&store);
+        let set = store.set(slot, &bounds);
+        assert!(matches!(set, Err(BoundsError::InvalidWorld { entity: e, .. }) if e == entity(1)), "set, {what}");
+        unchanged(&store);
+        assert!(WorldBounds::new(entity(3), bounds.center, bounds.half_extent).is_err() || what.contains("radius"));
+    }
+    // Slots past the stored objects (padding included) are errors, not panics.
+    for past in [1, 63, 64, usize::MAX] {
+        assert_eq!(store.set(past, &good), Err(BoundsError::SlotOutOfRange { slot: past, len: 1 }));
+        assert_eq!(store.set_occluder(past, true), Err(BoundsError::SlotOutOfRange { slot: past, len: 1 }));
+        assert_eq!(store.get(past), None);
+        unchanged(&store);
+    }
+    // The component path: `update` validates through `from_local`, and drops what it refuses.
+    let nan_local = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::new(f32::NAN, 1.0, 1.0) };
+    let refused = store.update(entity(1), &nan_local, &ObjectTransform(Affine3A::IDENTITY));
+    assert!(matches!(refused, Err(BoundsError::NonFiniteLocal { .. })));
+    assert!(store.is_empty(), "an object whose new bounds are refused leaves the store");
+    // Valid writes go through.
+    assert_eq!(store.insert(entity(1), &good), Ok(0));
+    let moved = WorldBounds::new(entity(1), Vec3::splat(9.0), Vec3::splat(0.5)).unwrap();
+    assert_eq!(store.set(0, &moved), Ok(()));
+    assert_eq!(store.get(0), Some(moved));
+    assert_eq!(store.set_occluder(0, true), Ok(()));
+    assert!(store.occluders().contains(0));
 }

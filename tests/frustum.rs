@@ -15,7 +15,7 @@ fn store_of(boxes: &[(Vec3, Vec3)]) -> BoundsStore {
         let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
         let local = LocalBounds { center: Vec3::ZERO, half_extent };
         let bounds = WorldBounds::from_local(entity, &local, &Affine3A::from_translation(center)).unwrap();
-        store.insert(entity, &bounds);
+        store.insert(entity, &bounds).unwrap();
     }
     store
 }
@@ -33,7 +33,7 @@ fn cull_and_check(store: &BoundsStore, camera: &Camera) -> VisibleSet {
     assert_eq!(scalar_count, scalar.count());
     let planes = reference_planes(camera);
     for slot in 0..store.len() {
-        let bounds = store.get(slot);
+        let bounds = store.get(slot).unwrap();
         if reference_keeps(&planes, camera.position.as_dvec3(), &bounds) {
             assert!(scalar.contains(slot), "culled a box the f64 reference keeps: {bounds:?} for {camera:?}");
             assert!(frustum.intersects(&bounds), "single-object test culls what the f64 reference keeps");

@@ -4,17 +4,17 @@
 //! `CULLET_REQUIRE_GPU` is set.
 
 use cullet::Camera;
-use cullet::flight::Flight;
+use cullet::depth::{DepthBuffer, DepthPyramid};
 use cullet::gpu::cluster_cull::{ClusterVerdict, cull_cluster};
-use cullet::gpu::clusters::ClusterLibrary;
-use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput, GpuView};
 use cullet::gpu::hzb::Hzb;
-use cullet::gpu::scene::{GpuScene, instances_from_world};
+use cullet::gpu::interface::GpuView;
+use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::{GpuContext, context_for_tests};
-use cullet::pipeline::{AdaptiveSettings, OcclusionSettings, OcclusionState};
-use cullet::raster::{DepthBuffer, DepthPyramid};
+use cullet::gpu::{GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating};
+use cullet::pipeline::{OcclusionSettings, OcclusionState};
 use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::flight::Flight;
 use glam::Vec3;
 use std::collections::HashMap;
 
@@ -31,13 +31,11 @@ struct Setup {
 
 fn setup(context: &GpuContext, objects: usize) -> Setup {
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let library = ClusterLibrary::build(&city.scene.meshes);
     let flight =
         Flight::new(city.flythrough(), WIDTH as f32 / HEIGHT as f32, 10, OcclusionSettings::default(), |world| {
             city.spawn(world);
         });
-    let scene = GpuScene::new(context, library, instances_from_world(&flight.world));
-    let culler = GpuCuller::new(context, scene, WIDTH, HEIGHT, 256, 144);
+    let culler = GpuCuller::for_world(context, &flight.world, &city.scene.meshes, (WIDTH, HEIGHT));
     Setup { flight, culler, half: city.half_size() }
 }
 
@@ -54,7 +52,7 @@ impl Setup {
         let state = self.flight.world.resource::<OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|s| s as u32).collect();
         let depth = state.depth.clone();
-        let output = self.culler.run(context, &camera, &visible, &depth, settings);
+        let output = self.culler.run(context, &camera, &visible, &depth, settings).expect("GPU frame");
         (output, visible, depth)
     }
 }
@@ -96,7 +94,7 @@ fn hzb_equals_the_cpu_pyramid_for_odd_and_even_sizes() {
         hzb.build(&context, &depth, &mut encoder, None);
         context.queue.submit([encoder.finish()]);
         encoder_count += 1;
-        let gpu = hzb.read(&context);
+        let gpu = hzb.read(&context).unwrap();
         let mut cpu = DepthPyramid::default();
         cpu.build(&depth);
         assert_eq!(gpu.len(), cpu.level_count(), "{width}x{height}");
@@ -153,17 +151,17 @@ fn cluster_and_triangle_culling_match_the_cpu_exactly() {
     let Some(context) = context_for_tests() else { return };
     let mut setup = setup(&context, 5000);
     // Every pass runs on every frame (no gating).
-    setup.culler.set_adaptive(AdaptiveSettings::fixed());
+    setup.culler.set_gating(GpuGating::fixed());
     let half = setup.half;
     let settings = GpuCullSettings::default();
     let mut totals: HashMap<String, u64> = HashMap::new();
     for (name, camera) in cameras(half) {
         let (output, visible, _) = setup.run(&context, camera, &settings);
-        let (gpu_clusters, gpu_indices) = setup.culler.read_survivors(&context);
-        let view = setup.culler.last_view;
-        let hzb: Vec<f32> = setup.culler.hzb.read(&context).concat();
-        let library = &setup.culler.scene.library;
-        let instances = setup.culler.scene.instances();
+        let (gpu_clusters, gpu_indices) = setup.culler.read_survivors(&context).unwrap();
+        let view = *setup.culler.last_view();
+        let hzb: Vec<f32> = setup.culler.hzb().read(&context).unwrap().concat();
+        let library = &setup.culler.scene().library;
+        let instances = setup.culler.scene().instances();
         // Clusters.
         let mut expected_clusters = Vec::new();
         let mut cluster_counts: HashMap<ClusterVerdict, u32> = HashMap::new();
@@ -267,9 +265,9 @@ fn cluster_and_triangle_culling_match_the_cpu_exactly() {
 /// depth anywhere, colour and object ID wherever they do not depend on draw order. Also returns how many
 /// pixels the unculled image covers.
 fn pixels_differing_from_unculled(context: &GpuContext, culler: &GpuCuller, camera: &Camera) -> (usize, usize) {
-    let culled = culler.read_image(context);
-    let unculled = culler.draw_unculled(context, camera, false);
-    let reversed = culler.draw_unculled(context, camera, true);
+    let culled = culler.read_image(context).unwrap();
+    let unculled = culler.draw_unculled(context, camera, false).unwrap();
+    let reversed = culler.draw_unculled(context, camera, true).unwrap();
     assert_eq!(unculled.depth, reversed.depth, "depth must not depend on draw order");
     // Pixels where two objects' surfaces meet at exactly the same depth: which one shows depends on draw order
     // alone, and the culled draws come in the order the GPU appended them.
@@ -307,16 +305,12 @@ fn skipped_gpu_passes_draw_the_same_image() {
     let mut setup = setup(&context, 2000);
     let half = setup.half;
     // Every frame counts as tiny, or as too little removed; the triangle pass is skipped from the second frame.
-    let tiny = AdaptiveSettings { tiny_scene_clusters: u32::MAX, ..AdaptiveSettings::fixed() };
-    let no_triangles = AdaptiveSettings {
-        min_triangle_benefit: 1.0,
-        low_benefit_frames: 1,
-        reprobe_every: u32::MAX,
-        ..AdaptiveSettings::fixed()
-    };
-    let both = AdaptiveSettings { tiny_scene_clusters: u32::MAX, ..no_triangles };
+    let tiny = GpuGating { tiny_scene_clusters: u32::MAX, ..GpuGating::fixed() };
+    let no_triangles =
+        GpuGating { min_triangle_benefit: 1.0, low_benefit_frames: 1, reprobe_every: u32::MAX, ..GpuGating::fixed() };
+    let both = GpuGating { tiny_scene_clusters: u32::MAX, ..no_triangles };
     for (label, adaptive) in [("tiny", tiny), ("no triangle pass", no_triangles), ("both", both)] {
-        setup.culler.set_adaptive(adaptive);
+        setup.culler.set_gating(adaptive);
         let mut tested = 0;
         for (name, camera) in cameras(half) {
             let (output, visible, _) = setup.run(&context, camera, &GpuCullSettings::default());
@@ -326,8 +320,8 @@ fn skipped_gpu_passes_draw_the_same_image() {
             assert!(covered > 0, "{label}, {name}: nothing drawn");
             assert_eq!(differing, 0, "{label}, {name}: {differing} pixels changed");
             assert_eq!(output.cluster_pass_skipped, adaptive.tiny_scene_clusters > 0);
-            let library = &setup.culler.scene.library;
-            let instances = setup.culler.scene.instances();
+            let library = &setup.culler.scene().library;
+            let instances = setup.culler.scene().instances();
             let candidates: Vec<_> =
                 visible.iter().flat_map(|&s| library.clusters_of(instances[s as usize].mesh)).collect();
             if output.cluster_pass_skipped {
@@ -337,7 +331,7 @@ fn skipped_gpu_passes_draw_the_same_image() {
                 tested += 1;
                 assert_eq!(c.triangles_in, 0, "{label}, {name}");
                 assert_eq!(c.draws, c.clusters_out, "{label}, {name}: one draw per surviving cluster");
-                let (survivors, indices) = setup.culler.read_survivors(&context);
+                let (survivors, indices) = setup.culler.read_survivors(&context).unwrap();
                 assert_eq!(indices.len() as u32, 3 * c.triangles_out);
                 let drawn: u32 = survivors.iter().map(|&(_, k)| library.clusters[k as usize].triangle_count).sum();
                 assert_eq!(drawn, c.triangles_out);
@@ -355,16 +349,15 @@ fn triangle_pass_is_skipped_and_reprobed() {
     let Some(context) = context_for_tests() else { return };
     let mut setup = setup(&context, 1000);
     let camera = cameras(setup.half)[0].1;
-    let gated =
-        AdaptiveSettings { min_triangle_benefit: 1.0, low_benefit_frames: 2, reprobe_every: 3, ..Default::default() };
-    setup.culler.set_adaptive(gated);
+    let gated = GpuGating { min_triangle_benefit: 1.0, low_benefit_frames: 2, reprobe_every: 3, ..Default::default() };
+    setup.culler.set_gating(gated);
     let skipped: Vec<bool> =
         (0..10).map(|_| setup.run(&context, camera, &GpuCullSettings::default()).0.triangle_pass_skipped).collect();
     // Two low frames, three skipped, then the re-probe starts the count again.
     let expected = [false, false, true, true, true, false, false, true, true, true];
     assert_eq!(skipped, expected);
     // The default threshold (10%) keeps the pass on the street, where back faces alone are far more.
-    setup.culler.set_adaptive(AdaptiveSettings::default());
+    setup.culler.set_gating(GpuGating::default());
     let outputs: Vec<GpuFrameOutput> =
         (0..20).map(|_| setup.run(&context, camera, &GpuCullSettings::default()).0).collect();
     assert!(outputs.iter().all(|o| !o.triangle_pass_skipped && !o.cluster_pass_skipped));
@@ -385,13 +378,13 @@ fn only_changed_instances_are_uploaded() {
     assert!(moving > 0);
     let settings = GpuCullSettings::default();
     setup.flight.run_frame(0);
-    setup.culler.run_world(&context, &mut setup.flight.world, &settings);
+    setup.culler.run_world(&context, &mut setup.flight.world, &settings).unwrap();
     for frame in 1..4 {
         setup.flight.run_frame(frame);
-        setup.culler.run_world(&context, &mut setup.flight.world, &settings);
-        assert_eq!(setup.culler.scene.instances_written_last_update, moving, "frame {frame}");
+        setup.culler.run_world(&context, &mut setup.flight.world, &settings).unwrap();
+        assert_eq!(setup.culler.scene().instances_written_last_update, moving, "frame {frame}");
         let expected = instances_from_world(&setup.flight.world);
-        let bytes = context.read_buffer(&setup.culler.scene.instances, (expected.len() * 64) as u64);
+        let bytes = context.read_buffer(&setup.culler.scene().instances, (expected.len() * 64) as u64).unwrap();
         assert_eq!(bytemuck::cast_slice::<u8, cullet::gpu::scene::GpuInstance>(&bytes), &expected[..], "frame {frame}");
     }
 }
@@ -404,11 +397,11 @@ fn frames_split_into_batches_draw_the_same_image() {
     let mut setup = setup(&context, 3000);
     let camera = cameras(setup.half)[2].1;
     let (whole, _, _) = setup.run(&context, camera, &GpuCullSettings::default());
-    let image = setup.culler.read_image(&context);
+    let image = setup.culler.read_image(&context).unwrap();
     // About 40 000 triangles a batch: the overview's candidates need several.
     setup.culler.limit_batches(12 * 60_000);
     let (batched, _, _) = setup.run(&context, camera, &GpuCullSettings::default());
-    let batched_image = setup.culler.read_image(&context);
+    let batched_image = setup.culler.read_image(&context).unwrap();
     assert!(whole.counters.triangles_in > 100_000, "{:?}", whole.counters);
     assert_eq!(whole.counters, batched.counters);
     assert_eq!(image.depth, batched_image.depth);

@@ -3,11 +3,13 @@
 
 use bevy_ecs::entity::Entity;
 use cullet::bounds::LocalBounds;
+use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::cull_frustum;
 use cullet::mesh::Mesh;
+use cullet::occluder::OccluderInstance;
 use cullet::occlusion::test_occlusion;
-use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
-use cullet::{BoundsStore, Camera, VisibleSet, WorldBounds};
+use cullet::raster::{RasterMode, rasterize};
+use cullet::{BoundsStore, Camera, VisibleSet};
 use cullet_truth::occluders::ExactOccluderDepth;
 use glam::{Affine3A, Quat, Vec3};
 use proptest::prelude::*;
@@ -20,7 +22,7 @@ fn store_of(boxes: &[(Vec3, Vec3)]) -> BoundsStore {
     for (i, &(center, half_extent)) in boxes.iter().enumerate() {
         let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
         let local = LocalBounds { center: Vec3::ZERO, half_extent };
-        store.insert(entity, &WorldBounds::from_local(entity, &local, &Affine3A::from_translation(center)).unwrap());
+        store.update(entity, &local, &cullet::ObjectTransform(Affine3A::from_translation(center))).unwrap();
     }
     store
 }
@@ -265,13 +267,11 @@ fn city_street_view_is_occluded_conservatively() {
     use cullet::scene::city::{CityParams, CityScene};
 
     let city = CityScene::generate(CityParams::with_objects(20_000));
-    let mut world = World::new();
-    pipeline::init_world(&mut world);
+    let (mut world, mut schedule) = (World::new(), Schedule::default());
+    pipeline::install(&mut world, &mut schedule, pipeline::PipelineSettings::default());
     let entities = city.spawn(&mut world);
     let camera = city.benchmark_cameras()[0].1;
     world.insert_resource(camera);
-    let mut schedule = Schedule::default();
-    pipeline::add_systems(&mut schedule);
     schedule.run(&mut world);
     let stats = *world.resource::<CullStats>();
 
@@ -285,7 +285,7 @@ fn city_street_view_is_occluded_conservatively() {
     let store = world.resource::<cullet::BoundsStore>();
     let state = world.resource::<OcclusionState>();
     for slot in state.occluded.iter() {
-        let bounds = store.get(slot);
+        let bounds = store.get(slot).unwrap();
         assert!(
             !reference.box_visible(bounds.center, bounds.half_extent),
             "{:?} culled but visible",
@@ -297,7 +297,7 @@ fn city_street_view_is_occluded_conservatively() {
     let hidden = frustum_visible
         .iter()
         .filter(|&slot| {
-            let b = store.get(slot);
+            let b = store.get(slot).unwrap();
             !reference.box_visible(b.center, b.half_extent)
         })
         .count();

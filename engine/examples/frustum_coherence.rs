@@ -48,7 +48,7 @@ fn main() {
         let mut store = BoundsStore::default();
         for i in 0..bounds.len() {
             let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
-            store.insert(entity, &bounds[order(i)]);
+            store.insert(entity, &bounds[order(i)]).unwrap();
         }
         store
     };

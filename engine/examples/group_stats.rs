@@ -1,6 +1,5 @@
 //! Prints how the frustum stage's groups of 64 classify for the city's benchmark cameras.
 use cullet::BoundsStore;
-use cullet::bounds::WorldBounds;
 use cullet::frustum::GroupClass;
 use cullet::scene::city::{CityParams, CityScene};
 use std::time::Instant;
@@ -11,7 +10,7 @@ fn main() {
     for (i, object) in city.scene.objects.iter().enumerate() {
         let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
         let local = city.scene.mesh_bounds[object.mesh as usize];
-        store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
+        store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
     }
     let mut visible = cullet::VisibleSet::default();
     for (name, camera) in city.benchmark_cameras() {

@@ -2,11 +2,12 @@
 //! Prints the fastest of 30 runs of each part (the machine is noisy; the work is deterministic).
 //! `cargo run --release -p cullet --example occlusion_profile [objects]`
 use cullet::BoundsStore;
-use cullet::bounds::WorldBounds;
+use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::cull_frustum;
+use cullet::occluder::OccluderInstance;
 use cullet::occluder::select_occluders;
 use cullet::occlusion::test_occlusion;
-use cullet::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use cullet::raster::{RasterMode, rasterize};
 use cullet::scene::city::{CityParams, CityScene};
 use std::time::Instant;
 
@@ -18,9 +19,9 @@ fn main() {
     for (i, object) in city.scene.objects.iter().enumerate() {
         let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
         let local = city.scene.mesh_bounds[object.mesh as usize];
-        let slot = store.insert(entity, &WorldBounds::from_local(entity, &local, &object.transform).unwrap());
+        let slot = store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
         if let Some(occluder) = &object.occluder {
-            store.set_occluder(slot, true);
+            store.set_occluder(slot, true).unwrap();
             occluders.push((slot, occluder.clone(), object.transform));
         }
     }

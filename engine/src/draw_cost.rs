@@ -5,9 +5,10 @@
 //! Accounting only: it reads the stages' outputs after the frame and changes nothing, so it costs the
 //! pipeline nothing where it is not called.
 
-use crate::bounds::{BoundsStore, MeshRef};
+use crate::bounds::BoundsStore;
 use crate::gpu::frame::GpuFrameOutput;
 use crate::mesh::Mesh;
+use crate::mesh::MeshRef;
 use crate::pipeline::{FrustumVisible, OcclusionState};
 use crate::visible::VisibleSet;
 use bevy_ecs::world::World;

@@ -1,43 +1,100 @@
 //! # Cullet
 //!
 //! A data-oriented visibility-culling engine. Each frame, objects flow one way through the stages, each a
-//! module of its own:
+//! module of its own (their files are numbered in that order in `engine/src`):
 //!
 //! 1. [`bounds`]: world-space bounding boxes as linear SoA arrays in a `bevy_ecs` resource, updated only where
 //!    transforms changed;
 //! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset;
-//! 3. [`occluder`] selects artist occluders and [`raster`] rasterizes them into a small conservative depth
-//!    buffer and its farthest-depth pyramid;
-//! 4. [`occlusion`]: each frustum survivor's box tested against that pyramid;
-//! 5. [`gpu`]: on the GPU, the survivors' clusters and triangles culled against the frustum, normal cones and
-//!    an HZB primed from the occluder buffer, compacted, and drawn with one multi-draw-indirect.
+//! 3. [`occluder`]: the artist occluders, and which of them to rasterize this frame;
+//! 4. [`raster`]: those occluders rasterized into a small conservative [`depth::DepthBuffer`], reduced to its
+//!    farthest-depth [`depth::DepthPyramid`];
+//! 5. [`occlusion`]: each frustum survivor's box tested against that pyramid;
+//! 6. `gpu` (feature `gpu`): on the GPU, the survivors' clusters and triangles culled against the frustum,
+//!    normal cones and an HZB primed from the occluder buffer, compacted, and drawn with one
+//!    multi-draw-indirect.
 //!
-//! [`draw_cost`] accounts what each stage saved the draw (triangles removed, estimated draw time).
+//! [`pipeline`] wires stages 1 to 5 into a `bevy_ecs` schedule: [`install`] is the one call that sets a world
+//! up for culling. `gpu::GpuCuller::for_world` builds the GPU half for a scene. [`prelude`] has what a user
+//! names.
 //!
-//! [`scene`] is the input: meshes and the objects placing them, from the built-in city or a glTF file;
-//! [`pipeline`] wires the stages into a `bevy_ecs` schedule;
-//! [`camera`] holds the camera and camera paths; [`mesh`] the triangle meshes objects draw; [`flight`] flies a
-//! camera through a world, frame by frame.
+//! [`camera`] holds the camera and camera paths, [`mesh`] what objects draw, [`depth`] the occlusion stages'
+//! screen; [`scene`] is demo input (the built-in scenes with feature `scenes`, glTF with feature `gltf`) and
+//! [`scene::flight`] flies a camera through a world, frame by frame.
 //!
 //! Culling is conservative by default: no stage removes an object that could be visible.
+//!
+//! # Features
+//! - `gpu` (default): the GPU passes and the draw (`wgpu`, `meshopt`), and `draw_cost`;
+//! - `gltf` (default): glTF import and export, automatic occluders (`gltf`);
+//! - `scenes` (default): the built-in procedural scenes (`rand`).
+//!
+//! Without default features the CPU stages (bounds, frustum, occluders, raster, occlusion, the schedule)
+//! build on `bevy_ecs`, `glam` and `rayon` alone.
+//!
+//! # Example
+//! ```
+//! use bevy_ecs::prelude::*;
+//! use cullet::prelude::*;
+//! use glam::{Affine3A, Vec3};
+//!
+//! let (mut world, mut schedule) = (World::new(), Schedule::default());
+//! cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+//! world.insert_resource(Camera::looking_at(Vec3::new(0.0, 2.0, 10.0), Vec3::ZERO));
+//! let unit = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(0.5) };
+//! world.spawn((unit, ObjectTransform(Affine3A::IDENTITY)));
+//! schedule.run(&mut world);
+//! world.clear_trackers();
+//! assert_eq!(world.resource::<CullStats>().after_occlusion, 1);
+//! ```
 
 #![warn(missing_docs)]
 
+#[path = "1_bounds/mod.rs"]
 pub mod bounds;
-pub mod camera;
-pub mod draw_cost;
-pub mod flight;
+#[path = "2_frustum.rs"]
 pub mod frustum;
+#[cfg(feature = "gpu")]
+#[path = "6_gpu/mod.rs"]
 pub mod gpu;
-pub mod mesh;
+#[path = "3_occluder.rs"]
 pub mod occluder;
+#[path = "5_occlusion.rs"]
 pub mod occlusion;
-pub mod pipeline;
+#[path = "4_raster.rs"]
 pub mod raster;
+
+pub mod camera;
+pub mod depth;
+#[cfg(feature = "gpu")]
+pub mod draw_cost;
+pub mod mesh;
+pub mod pipeline;
 pub mod scene;
 pub mod visible;
 
-pub use bounds::{BoundsError, BoundsStore, LocalBounds, MeshRef, ObjectTransform, Occluder, Static, WorldBounds};
+pub use bounds::{BoundsError, BoundsStore, LocalBounds, ObjectTransform, Static, WorldBounds};
 pub use camera::{Camera, CameraPath};
 pub use frustum::{DepthConvention, Frustum, SimdBackend};
+pub use mesh::{MeshRef, ObjectColor};
+pub use occluder::Occluder;
+pub use pipeline::{PipelineSettings, install};
 pub use visible::VisibleSet;
+
+/// What a user of the engine names: the components to attach, the settings, the resources to read, and the
+/// GPU culler where feature `gpu` is on.
+pub mod prelude {
+    pub use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
+    pub use crate::camera::{Camera, CameraPath};
+    pub use crate::frustum::DepthConvention;
+    #[cfg(feature = "gpu")]
+    pub use crate::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError, GpuGating};
+    pub use crate::mesh::{Mesh, MeshRef, ObjectColor};
+    pub use crate::occluder::Occluder;
+    pub use crate::pipeline::{
+        AdaptiveSettings, CullStage, CullStats, FrustumSettings, FrustumVisible, OcclusionSettings, OcclusionState,
+        PipelineSettings, install,
+    };
+    pub use crate::raster::RasterMode;
+    pub use crate::visible::VisibleSet;
+}

@@ -1,7 +1,19 @@
-//! Triangle meshes: the geometry objects draw and later stages split into clusters.
+//! What an object draws: triangle [`Mesh`]es (which the GPU stages split into clusters), the [`MeshRef`]
+//! component naming an object's mesh, and its flat [`ObjectColor`].
 
 use crate::bounds::LocalBounds;
+use bevy_ecs::prelude::*;
 use glam::Vec3;
+
+/// Which mesh of the scene's mesh library the object draws (an index into the meshes the GPU culler was built
+/// with). An object without one has bounds but draws nothing.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct MeshRef(pub u32);
+
+/// Flat colour an object is drawn with, RGBA8 (alpha unused). Without it the draw pass picks a colour from the
+/// object's store slot.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ObjectColor(pub [u8; 4]);
 
 /// An indexed triangle list in the object's local space.
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -1,15 +1,16 @@
 //! The culling pipeline as `bevy_ecs` systems, one per stage, in a fixed order: data flows one way, each stage
-//! narrowing the [`VisibleSet`] of the stage before.
+//! narrowing the [`VisibleSet`] of the stage before. [`install`] puts it into a world and a schedule.
 
 use crate::bounds::{
-    BoundsStore, ObjectTransform, Occluder, on_bounds_inserted, on_bounds_removed, on_occluder_inserted,
-    on_occluder_removed, sync_bounds,
+    BoundsStore, ObjectTransform, on_bounds_inserted, on_bounds_removed, on_occluder_inserted, on_occluder_removed,
+    sync_bounds,
 };
 use crate::camera::Camera;
+use crate::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use crate::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum, cull_frustum_coherent};
-use crate::occluder::select_occluders;
+use crate::occluder::{Occluder, OccluderInstance, select_occluders};
 use crate::occlusion::{retest_occlusion, test_occlusion};
-use crate::raster::{DepthBuffer, DepthPyramid, OccluderInstance, RasterMode, ScreenView, rasterize};
+use crate::raster::{RasterMode, rasterize};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use std::time::{Duration, Instant};
@@ -102,22 +103,11 @@ pub struct AdaptiveSettings {
     /// The frustum stage tests first, for each block of 8 objects, the plane that rejected the whole block last
     /// frame ([`PlaneCoherence`]). The same result either way.
     pub plane_coherence: bool,
-    /// A frame whose candidates (the CPU stages' survivors) have at most this many clusters skips the GPU
-    /// cluster pass: the CPU lists every candidate cluster for the triangle pass (or the draw) instead. With so
-    /// few clusters the pass cannot save more than its own dispatch costs. 0 never skips.
-    pub tiny_scene_clusters: u32,
-    /// The GPU triangle pass is skipped once it has removed less than this fraction of the triangles it tested
-    /// for `low_benefit_frames` frames in a row, and re-probed every `reprobe_every` frames: the surviving
-    /// clusters are then drawn whole and the hardware culls their triangles. The pass reads and transforms
-    /// every triangle, about the work the hardware's vertex stage and culling do on it, so it pays only when it
-    /// removes a good share. 0 never skips.
-    pub min_triangle_benefit: f32,
 }
 
 impl Default for AdaptiveSettings {
-    /// Reuse of unchanged frames; occlusion skipped after 8 frames under 1% removed and the triangle pass after
-    /// 8 frames under 10%, each re-probed every 30 frames; no cluster pass for 64 clusters or fewer; plane
-    /// coherence on; hidden occluders are still selected.
+    /// Reuse of unchanged frames; occlusion skipped after 8 frames under 1% removed, re-probed every 30 frames;
+    /// plane coherence on; hidden occluders are still selected.
     fn default() -> Self {
         Self {
             reuse_unchanged: true,
@@ -126,8 +116,6 @@ impl Default for AdaptiveSettings {
             reprobe_every: 30,
             skip_hidden_occluders: false,
             plane_coherence: true,
-            tiny_scene_clusters: 64,
-            min_triangle_benefit: 0.1,
         }
     }
 }
@@ -142,8 +130,6 @@ impl AdaptiveSettings {
             reprobe_every: 0,
             skip_hidden_occluders: false,
             plane_coherence: false,
-            tiny_scene_clusters: 0,
-            min_triangle_benefit: 0.0,
         }
     }
 }
@@ -167,17 +153,24 @@ impl BenefitGate {
     }
 
     /// Records a frame the stage ran, removing `removed` of the `tested` items, against `min_benefit` (a
-    /// fraction) and the frame counts of `settings`. A frame with nothing tested says nothing and is not
-    /// counted.
-    pub fn record(&mut self, removed: usize, tested: usize, min_benefit: f32, settings: &AdaptiveSettings) {
+    /// fraction): after `low_benefit_frames` such frames in a row the stage is skipped for `reprobe_every`
+    /// frames. A frame with nothing tested says nothing and is not counted.
+    pub fn record(
+        &mut self,
+        removed: usize,
+        tested: usize,
+        min_benefit: f32,
+        low_benefit_frames: u32,
+        reprobe_every: u32,
+    ) {
         if tested == 0 {
             return;
         }
         if (removed as f32) < min_benefit * tested as f32 {
             self.low_frames += 1;
-            if self.low_frames >= settings.low_benefit_frames {
+            if self.low_frames >= low_benefit_frames {
                 self.low_frames = 0;
-                self.skip_left = settings.reprobe_every;
+                self.skip_left = reprobe_every;
             }
         } else {
             self.low_frames = 0;
@@ -249,10 +242,60 @@ pub struct OcclusionState {
     pub occluded: VisibleSet,
 }
 
+/// The settings of every CPU stage, installed together by [`install`]; each is a resource of the world
+/// afterwards, to change between frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PipelineSettings {
+    /// The frustum stage.
+    pub frustum: FrustumSettings,
+    /// The occlusion stage (buffer resolution, mode, triangle budget).
+    pub occlusion: OcclusionSettings,
+    /// What the pipeline may skip or reuse when it cannot pay off.
+    pub adaptive: AdaptiveSettings,
+}
+
+/// Installs the CPU culling pipeline: the [`BoundsStore`] and its observers, the stage outputs and `settings`
+/// as resources of `world`, and the stages, in order ([`CullStage`]), in `schedule`. Each
+/// `schedule.run(&mut world)` then culls one frame: entities with [`crate::bounds::LocalBounds`] and
+/// [`ObjectTransform`] (and optionally an [`Occluder`]) are culled against the [`Camera`] resource, which
+/// the caller inserts before the first run; [`OcclusionState::visible`] holds the result, [`CullStats`] the
+/// counts and times.
+///
+/// Call `world.clear_trackers()` after each run, as `bevy_ecs` apps do between frames, so that the next run's
+/// change detection sees only that frame's changes.
+///
+/// # Example
+/// ```
+/// use bevy_ecs::prelude::*;
+/// use cullet::prelude::*;
+/// use glam::{Affine3A, Vec3};
+///
+/// let (mut world, mut schedule) = (World::new(), Schedule::default());
+/// cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+/// world.insert_resource(Camera::looking_at(Vec3::new(0.0, 2.0, 10.0), Vec3::ZERO));
+/// let unit = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(0.5) };
+/// let in_view = world.spawn((unit, ObjectTransform(Affine3A::IDENTITY))).id();
+/// let behind = world.spawn((unit, ObjectTransform(Affine3A::from_translation(Vec3::new(0.0, 0.0, 50.0))))).id();
+///
+/// schedule.run(&mut world);
+/// world.clear_trackers();
+///
+/// let store = world.resource::<BoundsStore>();
+/// let visible = &world.resource::<OcclusionState>().visible;
+/// assert!(visible.contains(store.slot_of(in_view).unwrap()));
+/// assert!(!visible.contains(store.slot_of(behind).unwrap()));
+/// ```
+pub fn install(world: &mut World, schedule: &mut Schedule, settings: PipelineSettings) {
+    init_world(world);
+    world.insert_resource(settings.frustum);
+    world.insert_resource(settings.occlusion);
+    world.insert_resource(settings.adaptive);
+    add_systems(schedule);
+}
+
 /// Sets up a world for culling: the [`BoundsStore`], its insertion and removal observers, and the stage
-/// outputs. The
-/// [`Camera`] resource must be inserted by the caller.
-pub fn init_world(world: &mut World) {
+/// outputs with default settings.
+fn init_world(world: &mut World) {
     world.init_resource::<BoundsStore>();
     world.init_resource::<FrustumVisible>();
     world.init_resource::<CullStats>();
@@ -269,7 +312,7 @@ pub fn init_world(world: &mut World) {
 }
 
 /// Adds the culling stages to `schedule`, in order.
-pub fn add_systems(schedule: &mut Schedule) {
+fn add_systems(schedule: &mut Schedule) {
     schedule.configure_sets((CullStage::Bounds, CullStage::Frustum, CullStage::Occlusion).chain());
     schedule.add_systems((
         sync_bounds.in_set(CullStage::Bounds),
@@ -296,8 +339,8 @@ pub fn frustum_stage(
     changed_occluders: Query<(), Changed<Occluder>>,
 ) {
     let start = Instant::now();
-    stats.bounds_recomputed = store.recomputed_last_sync;
-    stats.bounds_time = store.last_sync_time;
+    stats.bounds_recomputed = store.recomputed_last_sync();
+    stats.bounds_time = store.last_sync_time();
     let moved = store.take_moved_slots();
     let view = (*camera, store.layout_generation(), *settings, *occlusion);
     let same_view = adaptive.reuse_unchanged && gate.last_view == Some(view) && changed_occluders.is_empty();
@@ -314,7 +357,9 @@ pub fn frustum_stage(
         && moved.iter().all(|&slot| !store.occluders().contains(slot as usize))
     {
         for &slot in &moved {
-            visible.0.set(slot as usize, frustum.intersects(&store.get(slot as usize)));
+            // Moved slots are stored (the layout is unchanged); one that were not would stay visible.
+            let visible_now = store.get(slot as usize).is_none_or(|bounds| frustum.intersects(&bounds));
+            visible.0.set(slot as usize, visible_now);
         }
         stats.after_frustum = visible.0.count();
         stats.retested = moved.len();
@@ -429,5 +474,11 @@ pub fn occlusion_stage(
         test_occlusion(&store, &frustum_visible.0, &view, &state.pyramid, &mut state.visible, &mut state.occluded);
     stats.after_occlusion = result.visible;
     stats.occlusion_time = start.elapsed();
-    gate.occlusion.record(stats.occlusion_removed(), stats.after_frustum, adaptive.min_occlusion_benefit, &adaptive);
+    gate.occlusion.record(
+        stats.occlusion_removed(),
+        stats.after_frustum,
+        adaptive.min_occlusion_benefit,
+        adaptive.low_benefit_frames,
+        adaptive.reprobe_every,
+    );
 }

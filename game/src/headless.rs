@@ -5,10 +5,7 @@ use crate::report::{
 };
 use crate::{Args, Prepared};
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
-use cullet::gpu::GpuContext;
-use cullet::gpu::clusters::ClusterLibrary;
-use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::gpu::scene::{GpuScene, instances_from_world};
+use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::raster::RasterMode;
 use cullet::{BoundsStore, Camera};
 use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
@@ -17,7 +14,6 @@ use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 /// screenshots, validation against the ground truth, and the summary.
 pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     let Prepared { scene, mut flight, occlusion, resolution: (width, height) } = prepared;
-    let (occlusion_width, occlusion_height) = (occlusion.width, occlusion.height);
     let mut gpu = if args.cpu_only {
         println!("--cpu-only: GPU cluster culling, triangle culling and the draw are skipped");
         None
@@ -26,9 +22,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             Ok(context) => {
                 let info = &context.adapter_info;
                 println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-                let scene =
-                    GpuScene::new(&context, ClusterLibrary::build(&scene.meshes), instances_from_world(&flight.world));
-                let culler = GpuCuller::new(&context, scene, width, height, occlusion_width, occlusion_height);
+                let culler = GpuCuller::for_world(&context, &flight.world, &scene.meshes, (width, height));
                 Some((context, culler))
             }
             Err(error) => {
@@ -111,9 +105,10 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         }
         let mut gpu_output: Option<GpuFrameOutput> = None;
         if let Some((context, culler)) = gpu.as_mut() {
-            let output = culler.run_world(context, &mut flight.world, &GpuCullSettings::default());
+            let output =
+                culler.run_world(context, &mut flight.world, &GpuCullSettings::default()).map_err(|e| e.to_string())?;
             if let Some(dir) = args.screenshots.as_ref().filter(|_| frame % args.every.max(1) == 0) {
-                let image = culler.read_image(context);
+                let image = culler.read_image(context).map_err(|e| e.to_string())?;
                 let pixels: Vec<u8> = image.color.iter().flatten().copied().collect();
                 let file = dir.join(format!("frame_{frame:05}.png"));
                 image::RgbaImage::from_raw(image.width, image.height, pixels)

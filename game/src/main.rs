@@ -9,12 +9,13 @@ mod window;
 
 use clap::Parser;
 use cullet::CameraPath;
-use cullet::flight::Flight;
+use cullet::gpu::GpuGating;
 use cullet::pipeline::{AdaptiveSettings, OcclusionSettings};
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
 use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::flight::Flight;
 use cullet::scene::gltf_import::load_gltf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -258,6 +259,7 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
     });
     if args.fixed_pipeline {
         flight.world.insert_resource(AdaptiveSettings::fixed());
+        flight.world.insert_resource(GpuGating::fixed());
     }
     println!(
         "{description}; loaded and spawned in {:.0} ms; camera path of {:.0} s",

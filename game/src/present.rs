@@ -1,10 +1,10 @@
-//! Showing a frame in the window (`shaders/present.wgsl`): the GPU draw's colour target, or a depth texture
+//! Showing a frame in the window (`present.wgsl`): the GPU draw's colour target, or a depth texture
 //! uploaded from the CPU (the software occlusion buffer, or a level of its pyramid), stretched over the
 //! window with nearest texels.
 
 use bytemuck::{Pod, Zeroable};
+use cullet::depth::DepthBuffer;
 use cullet::gpu::GpuContext;
-use cullet::raster::DepthBuffer;
 
 /// What the present pass shows.
 pub enum Source<'a> {
@@ -36,7 +36,7 @@ impl PresentPass {
         let device = &context.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("present"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/present.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(include_str!("present.wgsl").into()),
         });
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("present"),

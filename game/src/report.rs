@@ -1,7 +1,7 @@
 //! Statistics printed after a run, and the stats CSV's columns.
 
 use cullet::draw_cost::{DrawSavings, draw_ns_per_triangle};
-use cullet::gpu::frame::{GpuCounters, GpuFrameOutput, GpuPassTimes};
+use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::CullStats;
 use std::time::Duration;
 

@@ -7,13 +7,10 @@
 use crate::Prepared;
 use crate::present::{PresentPass, Source};
 use crate::report::{micros, print_gpu_summary, print_savings, print_summary};
+use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
-use cullet::gpu::GpuContext;
-use cullet::gpu::clusters::ClusterLibrary;
-use cullet::gpu::frame::{GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::gpu::scene::{GpuScene, instance_of, instances_from_world};
+use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::pipeline::{CullStats, FrustumSettings, FrustumVisible, OcclusionSettings, OcclusionState};
-use cullet::{BoundsStore, Camera};
 use glam::Vec3;
 use std::collections::HashSet;
 use std::sync::Arc;
@@ -112,7 +109,6 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
         gpu_frames: Vec::new(),
         slot_triangles,
         savings: Vec::new(),
-        tinted_last_frame: false,
         fps: 0.0,
         frame_limit: frames.map(|n| n as usize),
     };
@@ -163,8 +159,6 @@ struct Game {
     slot_triangles: SlotTriangles,
     /// What each stage saved the draw, per frame.
     savings: Vec<DrawSavings>,
-    /// The instance buffer holds tint colours and must be rewritten before a shaded frame.
-    tinted_last_frame: bool,
     /// Frames per second, smoothed.
     fps: f32,
     /// Close after this many frames.
@@ -206,14 +200,8 @@ impl Game {
             config.format = linear;
         }
         surface.configure(&context.device, &config);
-        let flight = &self.prepared.flight;
-        let scene = GpuScene::new(
-            &context,
-            ClusterLibrary::build(&self.prepared.scene.meshes),
-            instances_from_world(&flight.world),
-        );
-        let occlusion = *flight.world.resource::<OcclusionSettings>();
-        let culler = GpuCuller::new(&context, scene, self.size.0, self.size.1, occlusion.width, occlusion.height);
+        let culler =
+            GpuCuller::for_world(&context, &self.prepared.flight.world, &self.prepared.scene.meshes, self.size);
         let present = PresentPass::new(&context, config.format);
         Ok(Graphics { window, surface, config, context, culler, present })
     }
@@ -311,31 +299,28 @@ impl Game {
         let Some(graphics) = self.graphics.as_mut() else { return };
         let world = &mut self.prepared.flight.world;
         let (context, culler) = (&graphics.context, &mut graphics.culler);
-        let tinted = self.view == View::Tinted;
-        if tinted || self.tinted_last_frame {
-            // Every instance rewritten: with tints now, or with its own colour after tints.
-            world.resource_mut::<BoundsStore>().take_written_slots();
-            let store = world.resource::<BoundsStore>();
-            let all: Vec<u32> = (0..store.len() as u32).collect();
-            let frustum = &world.resource::<FrustumVisible>().0;
-            let occlusion = &world.resource::<OcclusionState>().visible;
-            culler.scene.write_instances(context, store.len(), &all, |slot| {
-                let instance = instance_of(world, slot);
-                let slot = slot as usize;
-                match (tinted, frustum.contains(slot), occlusion.contains(slot)) {
-                    (false, ..) | (true, true, true) => instance,
-                    (true, false, _) => instance.with_color(Some(FRUSTUM_TINT)),
-                    (true, true, false) => instance.with_color(Some(OCCLUSION_TINT)),
+        if self.view == View::Tinted {
+            // Every object drawn, tinted by the stage that culled it.
+            let frustum = world.resource::<FrustumVisible>().0.clone();
+            let occlusion = world.resource::<OcclusionState>().visible.clone();
+            culler.draw_all_recolored(context, world, &camera, |slot| {
+                match (frustum.contains(slot), occlusion.contains(slot)) {
+                    (false, _) => Some(FRUSTUM_TINT),
+                    (true, false) => Some(OCCLUSION_TINT),
+                    (true, true) => None,
                 }
             });
-        }
-        self.tinted_last_frame = tinted;
-        if tinted {
-            culler.draw_all(context, &camera, false);
         } else {
-            let output = culler.run_world_from(context, world, &camera, &self.gpu_settings);
-            self.savings.push(DrawSavings::of_frame(world, &self.slot_triangles, Some(&output)));
-            self.gpu_frames.push(output);
+            match culler.run_world_from(context, world, &camera, &self.gpu_settings) {
+                Ok(output) => {
+                    self.savings.push(DrawSavings::of_frame(world, &self.slot_triangles, Some(&output)));
+                    self.gpu_frames.push(output);
+                }
+                Err(error) => {
+                    eprintln!("{error}");
+                    return;
+                }
+            }
         }
 
         let frame = match graphics.surface.get_current_texture() {
@@ -348,7 +333,7 @@ impl Game {
         };
         let target = frame.texture.create_view(&wgpu::TextureViewDescriptor::default());
         let mut encoder = context.device.create_command_encoder(&Default::default());
-        let color = culler.targets.color_view();
+        let color = culler.targets().color_view();
         let state = world.resource::<OcclusionState>();
         let source = match self.view {
             View::Shaded | View::Tinted => Source::Color(&color),
@@ -465,8 +450,7 @@ impl ApplicationHandler for Game {
                     graphics.config.width = size.width;
                     graphics.config.height = size.height;
                     graphics.surface.configure(&graphics.context.device, &graphics.config);
-                    graphics.culler.targets =
-                        cullet::gpu::draw::RenderTargets::new(&graphics.context, size.width, size.height);
+                    graphics.culler.resize(&graphics.context, size.width, size.height);
                 }
             }
             WindowEvent::KeyboardInput {

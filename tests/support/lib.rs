@@ -34,7 +34,7 @@ pub fn fly_and_judge(
 ) -> cullet_truth::PathMetrics {
     use cullet_truth::{JudgeSettings, ReferenceSettings, judge_frame};
     let occlusion = cullet::pipeline::OcclusionSettings::default();
-    let mut flight = cullet::flight::Flight::new(path, 16.0 / 9.0, frame_count, occlusion, |world| {
+    let mut flight = cullet::scene::flight::Flight::new(path, 16.0 / 9.0, frame_count, occlusion, |world| {
         scene.spawn(world);
     });
     let settings = JudgeSettings {

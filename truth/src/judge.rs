@@ -102,7 +102,7 @@ pub fn occlusion_ideal(world: &World, reference: &ReferenceSettings) -> Occlusio
     let ideal_culled = frustum
         .iter()
         .filter(|&slot| {
-            let bounds = store.get(slot);
+            let bounds = store.get(slot).expect("a slot below the store length");
             !exact.box_visible(bounds.center, bounds.half_extent)
         })
         .count();

@@ -11,14 +11,11 @@
 use crate::judge::{judge_frame, render_world};
 use crate::{JudgeSettings, ReferenceSettings};
 use cullet::camera::CameraPath;
-use cullet::flight::Flight;
 use cullet::frustum::DepthConvention;
-use cullet::gpu::GpuContext;
-use cullet::gpu::clusters::ClusterLibrary;
-use cullet::gpu::frame::{GpuCullSettings, GpuCuller};
-use cullet::gpu::scene::{GpuScene, instances_from_world};
+use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError};
 use cullet::mesh::Mesh;
 use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
+use cullet::scene::flight::Flight;
 use cullet::scene::{Scene, SceneObject};
 use cullet::{Camera, Occluder};
 use glam::{Affine3A, DVec4, Quat, Vec3};
@@ -309,13 +306,14 @@ fn exact_planes(camera: &Camera) -> Vec<DVec4> {
 
 /// Triangles the exact rendering shows, of objects the CPU stages kept, that the GPU cluster and triangle
 /// passes culled, in the frame `flight` has just culled for `case` (its world's instances are uploaded here).
-pub fn gpu_false_negatives(case: &StressCase, flight: &mut Flight, context: &GpuContext) -> usize {
-    let library = ClusterLibrary::build(&case.scene.meshes);
-    let scene = GpuScene::new(context, library, instances_from_world(&flight.world));
-    let occlusion = *flight.world.resource::<OcclusionSettings>();
-    let mut culler = GpuCuller::new(context, scene, case.width, case.height, occlusion.width, occlusion.height);
-    culler.run_world(context, &mut flight.world, &GpuCullSettings::default());
-    let (_, indices) = culler.read_survivors(context);
+///
+/// # Errors
+/// [`GpuError::Lost`] when the device is lost.
+pub fn gpu_false_negatives(case: &StressCase, flight: &mut Flight, context: &GpuContext) -> Result<usize, GpuError> {
+    let size = (case.width, case.height);
+    let mut culler = GpuCuller::for_world(context, &flight.world, &case.scene.meshes, size);
+    culler.run_world(context, &mut flight.world, &GpuCullSettings::default())?;
+    let (_, indices) = culler.read_survivors(context)?;
     let survivors: std::collections::HashSet<[u32; 3]> = indices.chunks_exact(3).map(canonical).collect();
     // Global vertex index of each mesh's first vertex: the library appends meshes' vertices in order.
     let first_vertex: Vec<u32> = case
@@ -331,8 +329,8 @@ pub fn gpu_false_negatives(case: &StressCase, flight: &mut Flight, context: &Gpu
     let reference = ReferenceSettings { width: case.width, height: case.height, ..ReferenceSettings::default() };
     let truth = render_world(&flight.world, &case.scene.meshes, &reference);
     let kept = &flight.world.resource::<OcclusionState>().visible;
-    let instances = culler.scene.instances();
-    truth
+    let instances = culler.scene().instances();
+    Ok(truth
         .visible_triangles()
         .into_iter()
         .filter(|&(slot, _)| kept.contains(slot as usize))
@@ -341,7 +339,7 @@ pub fn gpu_false_negatives(case: &StressCase, flight: &mut Flight, context: &Gpu
             let corners = &case.scene.meshes[mesh].indices[3 * triangle as usize..][..3];
             !survivors.contains(&canonical(&corners.iter().map(|&i| first_vertex[mesh] + i).collect::<Vec<_>>()))
         })
-        .count()
+        .count())
 }
 
 /// A triangle's corners rotated to start at the smallest index, keeping the winding.

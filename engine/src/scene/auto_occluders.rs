@@ -9,8 +9,8 @@
 //! tessellated ones little.
 
 use super::Scene;
-use crate::bounds::Occluder;
 use crate::mesh::Mesh;
+use crate::occluder::Occluder;
 use glam::Vec3;
 use std::collections::HashMap;
 

@@ -3,9 +3,9 @@
 //! occluders (inner boxes), so occlusion can still hide the parts inside the assembly.
 
 use super::{Scene, SceneObject};
-use crate::bounds::Occluder;
 use crate::camera::{CameraKey, CameraPath};
 use crate::mesh::Mesh;
+use crate::occluder::Occluder;
 use glam::{Affine3A, Quat, Vec3};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;

@@ -5,9 +5,9 @@
 //! the frustum stage then tend to be all-in or all-out.
 
 use super::{Scene, SceneObject};
-use crate::bounds::Occluder;
 use crate::camera::{Camera, CameraKey, CameraPath};
 use crate::mesh::Mesh;
+use crate::occluder::Occluder;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec3};
 use rand::{RngExt, SeedableRng};

@@ -18,8 +18,8 @@
 //! positions) are returned as warnings. Nothing in here panics on any input.
 
 use super::{Scene, SceneObject};
-use crate::bounds::Occluder;
 use crate::mesh::Mesh;
+use crate::occluder::Occluder;
 use base64::Engine as _;
 use glam::{Affine3A, Mat4, Vec3};
 use std::path::{Path, PathBuf};

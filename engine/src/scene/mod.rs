@@ -1,33 +1,42 @@
 //! Scenes: the input of the pipeline. A [`Scene`] is a library of triangle meshes and the objects that place
 //! them, spawned into a `bevy_ecs` world as the components the culling stages read.
 //!
-//! - [`city`] generates the built-in procedural city (dense, occluded), [`field`] an open field (nothing to
-//!   occlude), [`cad`] an assembly always entirely on screen (nothing for the frustum to cull);
-//! - [`gltf_import`] loads a glTF 2.0 file (`.gltf` or `.glb`), artist occluders included;
-//! - [`gltf_export`] writes a scene as glTF, so the project ships test scenes its own generator made;
-//! - [`auto_occluders`] gives occluders to large meshes of scenes that have none.
+//! - `city` generates the built-in procedural city (dense, occluded), `field` an open field (nothing to
+//!   occlude), `cad` an assembly always entirely on screen (nothing for the frustum to cull): feature
+//!   `scenes`;
+//! - `gltf_import` loads a glTF 2.0 file (`.gltf` or `.glb`), artist occluders included; `gltf_export` writes
+//!   a scene as glTF, so the project ships test scenes its own generator made; `auto_occluders` gives
+//!   occluders to large meshes of scenes that have none: feature `gltf`;
+//! - [`flight`] flies a camera along a path through a spawned scene, frame by frame, moving the objects that
+//!   have a [`Velocity`] (the demo's movers): the sample game, the tests and the benchmarks drive the
+//!   pipeline through it.
 
+#[cfg(feature = "gltf")]
 pub mod auto_occluders;
+#[cfg(feature = "scenes")]
 pub mod cad;
+#[cfg(feature = "scenes")]
 pub mod city;
+#[cfg(feature = "scenes")]
 pub mod field;
+pub mod flight;
+#[cfg(feature = "gltf")]
 pub mod gltf_export;
+#[cfg(feature = "gltf")]
 pub mod gltf_import;
 
-use crate::bounds::{LocalBounds, MeshRef, ObjectTransform, Occluder, Static};
+pub use flight::{Flight, FrameDelta};
+
+use crate::bounds::{LocalBounds, ObjectTransform, Static};
 use crate::camera::{CameraKey, CameraPath};
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, MeshRef, ObjectColor};
+use crate::occluder::Occluder;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Vec3};
 
-/// Velocity of a moving object, in units per second.
+/// Velocity of a moving object of a demo scene, in units per second; [`flight::move_objects`] moves it.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct Velocity(pub Vec3);
-
-/// Flat colour an object is drawn with, RGBA8 (alpha unused). Without it the draw pass picks a colour from the
-/// object's index.
-#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ObjectColor(pub [u8; 4]);
 
 /// One object of a scene.
 #[derive(Clone, Debug, PartialEq)]

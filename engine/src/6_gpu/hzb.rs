@@ -1,18 +1,17 @@
-//! The GPU hierarchical z-buffer: each frame the CPU occluder depth buffer ([`crate::raster::DepthBuffer`],
-//! `1/w`, 0 where no occluder) is uploaded as level 0, and one compute pass per level (`shaders/hzb_build.wgsl`)
+//! The GPU hierarchical z-buffer: each frame the CPU occluder depth buffer ([`crate::depth::DepthBuffer`],
+//! `1/w`, 0 where no occluder) is uploaded as level 0, and one compute pass per level (`hzb_build.wgsl`)
 //! reduces it to the farthest-depth pyramid, ceil-halving so that odd sizes drop no row or column: the same
-//! pyramid as the CPU's [`crate::raster::DepthPyramid`], value for value.
+//! pyramid as the CPU's [`crate::depth::DepthPyramid`], value for value.
 //!
 //! Only what the CPU buffer proves hidden is culled: the HZB is as conservative as the mode it was rasterized
 //! in (conservative by default). Last frame's depth is not used.
 
 use super::GpuContext;
-use crate::raster::DepthBuffer;
+use crate::depth::DepthBuffer;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-/// Most pyramid levels (a 32768-texel side).
-pub const MAX_HZB_LEVELS: usize = 16;
+pub use super::interface::MAX_HZB_LEVELS;
 
 /// One level's size and place in the pyramid buffer (`HzbLevel` in the shaders).
 #[repr(C)]
@@ -66,8 +65,7 @@ impl Hzb {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let pipeline = context.compute_pipeline("hzb build", include_str!("../../../shaders/hzb_build.wgsl"));
-        let layout = pipeline.get_bind_group_layout(0);
+        let pipeline = context.compute_pipeline("hzb build", include_str!("../../shaders/hzb_build.wgsl"));
         let level_bind_groups = levels
             .windows(2)
             .map(|pair| {
@@ -76,14 +74,7 @@ impl Hzb {
                     contents: bytemuck::cast_slice(pair),
                     usage: wgpu::BufferUsages::UNIFORM,
                 });
-                device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("hzb level"),
-                    layout: &layout,
-                    entries: &[
-                        wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
-                        wgpu::BindGroupEntry { binding: 1, resource: uniform.as_entire_binding() },
-                    ],
-                })
+                context.bind_buffers("hzb level", &pipeline, 0, &[(1, &buffer), (2, &uniform)])
             })
             .collect();
         Self { buffer, levels, pipeline, level_bind_groups }
@@ -121,12 +112,16 @@ impl Hzb {
     }
 
     /// Reads the whole pyramid back, level by level.
-    pub fn read(&self, context: &GpuContext) -> Vec<Vec<f32>> {
-        let bytes = context.read_buffer(&self.buffer, self.buffer.size());
+    ///
+    /// # Errors
+    /// [`super::GpuError::Lost`] when the device is lost.
+    pub fn read(&self, context: &GpuContext) -> Result<Vec<Vec<f32>>, super::GpuError> {
+        let bytes = context.read_buffer(&self.buffer, self.buffer.size())?;
         let texels: &[f32] = bytemuck::cast_slice(&bytes);
-        self.levels
+        Ok(self
+            .levels
             .iter()
             .map(|l| texels[l.offset as usize..(l.offset + l.width * l.height) as usize].to_vec())
-            .collect()
+            .collect())
     }
 }

@@ -1,74 +1,29 @@
-//! One frame of the GPU pipeline: the view uniform, the HZB build, cluster culling, the dispatch of the
-//! triangle pass, triangle culling and the draw, then the counters read back.
+//! One frame of the GPU pipeline, orchestrated: the view uniform, then the passes in order (HZB build, cluster
+//! culling, triangle culling, draw), each recorded by its own module, then the counters read back. Frames whose
+//! candidates exceed the device's largest storage binding run in batches.
 
-use super::GpuContext;
-use super::cluster_cull::ClusterVerdict;
+use super::cluster_cull::{ClusterCullBuffers, ClusterCullPass, ClusterVerdict};
+use super::clusters::ClusterLibrary;
 use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws};
-use super::hzb::{Hzb, HzbLevel, MAX_HZB_LEVELS};
-use super::scene::GpuScene;
-use super::triangle_cull::TriangleVerdict;
+use super::hzb::{Hzb, HzbLevel};
+use super::interface::{
+    GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
+    VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM, counter,
+};
+use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
+use super::triangle_cull::{TriangleCullBuffers, TriangleCullPass, TriangleVerdict};
+use super::{GpuContext, GpuError};
+use crate::bounds::BoundsStore;
 use crate::camera::Camera;
+use crate::depth::DepthBuffer;
 use crate::frustum::DepthConvention;
-use crate::pipeline::{AdaptiveSettings, BenefitGate};
-use crate::raster::DepthBuffer;
-use bytemuck::{Pod, Zeroable};
-use glam::{Mat4, Vec4};
+use crate::mesh::Mesh;
+use crate::pipeline::{BenefitGate, OcclusionSettings, OcclusionState};
+use bevy_ecs::prelude::*;
+use bytemuck::Zeroable;
+use glam::Vec4;
 use std::time::{Duration, Instant};
 use wgpu::util::DeviceExt;
-
-/// View flag: normal-cone test of clusters.
-pub const VIEW_CONE: u32 = 1;
-/// View flag: HZB test of clusters.
-pub const VIEW_HZB: u32 = 2;
-/// View flag: small-cluster test (lossy).
-pub const VIEW_SMALL_CLUSTER: u32 = 4;
-/// View flag: back-face test of triangles.
-pub const VIEW_BACKFACE: u32 = 8;
-/// View flag: small-triangle test (eq. 19.4).
-pub const VIEW_SMALL_TRIANGLE: u32 = 16;
-/// View flag: viewport test of triangles.
-pub const VIEW_TRIANGLE_FRUSTUM: u32 = 32;
-/// View flag: the triangle pass is skipped; the cluster pass writes each surviving cluster's draw.
-pub const VIEW_DRAW_CLUSTERS: u32 = 64;
-
-/// The per-frame uniform every pass reads (`View` in `shaders/common.wgsl`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
-pub struct GpuView {
-    /// Clip from camera-relative world space, columns.
-    pub clip_from_relative: [[f32; 4]; 4],
-    /// Camera-relative frustum planes, unit inward normals; unused ones `(0, 0, 0, 1)`.
-    pub planes: [[f32; 4]; 6],
-    /// Camera position in xyz.
-    pub camera: [f32; 4],
-    /// Render-target size in pixels.
-    pub viewport: [f32; 2],
-    /// HZB level-0 size in texels.
-    pub hzb_size: [f32; 2],
-    /// HZB level sizes and offsets.
-    pub hzb_levels: [HzbLevel; MAX_HZB_LEVELS],
-    /// Number of HZB levels.
-    pub hzb_level_count: u32,
-    /// Instances in the visible list.
-    pub visible_count: u32,
-    /// `VIEW_*` flags.
-    pub flags: u32,
-    /// Near-plane distance.
-    pub near: f32,
-    /// 1 when clip z must be mapped from -1..1 to 0..1.
-    pub depth_from_negative_one: u32,
-    /// Pixels per unit at unit distance, vertically.
-    pub focal_pixels: f32,
-    /// Padding.
-    pub _pad: [u32; 2],
-}
-
-impl GpuView {
-    /// `clip_from_relative` as a matrix.
-    pub fn clip_from_relative(&self) -> Mat4 {
-        Mat4::from_cols_array_2d(&self.clip_from_relative)
-    }
-}
 
 /// Which GPU tests run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -134,30 +89,29 @@ pub struct GpuCounters {
     pub draws: u32,
 }
 
-/// Counter slots, as in `shaders/common.wgsl`.
-const COUNTER_COUNT: usize = 16;
-const CLUSTERS_IN_SLOT: usize = 0;
-const CLUSTERS_OUT_SLOT: usize = 5;
-const TRIANGLES_OUT_SLOT: usize = 11;
-const DRAWS_SLOT: u64 = 12;
+/// Bytes of the counter buffer.
+const COUNTER_BYTES: u64 = counter::COUNTER_COUNT as u64 * 4;
 
 impl GpuCounters {
+    /// The counters of `instances` instances from the counter buffer's slots `c` (see [`counter`]).
     fn from_slots(instances: u32, c: &[u32]) -> Self {
+        use counter::*;
+        let slot = |index: u32| c[index as usize];
         Self {
             instances,
-            clusters_in: c[0],
-            clusters_frustum: c[1],
-            clusters_cone: c[2],
-            clusters_hzb: c[3],
-            clusters_small: c[4],
-            clusters_out: c[5],
-            triangles_in: c[6],
-            triangles_degenerate: c[7],
-            triangles_backface: c[8],
-            triangles_frustum: c[9],
-            triangles_small: c[10],
-            triangles_out: c[11],
-            draws: c[12],
+            clusters_in: slot(CLUSTERS_IN),
+            clusters_frustum: slot(CLUSTERS_FRUSTUM),
+            clusters_cone: slot(CLUSTERS_CONE),
+            clusters_hzb: slot(CLUSTERS_HZB),
+            clusters_small: slot(CLUSTERS_SMALL),
+            clusters_out: slot(CLUSTERS_OUT),
+            triangles_in: slot(TRIANGLES_IN),
+            triangles_degenerate: slot(TRIANGLES_DEGENERATE),
+            triangles_backface: slot(TRIANGLES_BACKFACE),
+            triangles_frustum: slot(TRIANGLES_FRUSTUM),
+            triangles_small: slot(TRIANGLES_SMALL),
+            triangles_out: slot(TRIANGLES_OUT),
+            draws: slot(DRAWS),
         }
     }
 
@@ -183,7 +137,10 @@ impl GpuCounters {
 
     /// The inverse of [`GpuCounters::to_array`].
     fn from_array(c: [u32; 14]) -> Self {
-        Self::from_slots(c[0], &c[1..])
+        let [instances, counters @ ..] = c;
+        let mut slots = [0; counter::COUNTER_COUNT as usize];
+        slots[..counters.len()].copy_from_slice(&counters);
+        Self::from_slots(instances, &slots)
     }
 
     /// How many clusters `verdict` accounts for.
@@ -300,13 +257,13 @@ impl PassTimer {
         }
     }
 
-    fn read(&self, context: &GpuContext) -> GpuPassTimes {
-        let bytes = context.read_buffer(&self.resolve, self.resolve.size());
+    fn read(&self, context: &GpuContext) -> Result<GpuPassTimes, GpuError> {
+        let bytes = context.read_buffer(&self.resolve, self.resolve.size())?;
         let ticks: &[u64] = bytemuck::cast_slice(&bytes);
         let span = |pass: usize| {
             Duration::from_nanos((ticks[2 * pass + 1].saturating_sub(ticks[2 * pass]) as f64 * self.period) as u64)
         };
-        GpuPassTimes { hzb: span(0), clusters: span(1), triangles: span(2), draw: span(3) }
+        Ok(GpuPassTimes { hzb: span(0), clusters: span(1), triangles: span(2), draw: span(3) })
     }
 }
 
@@ -319,11 +276,11 @@ pub struct GpuFrameOutput {
     pub pass_times: Option<GpuPassTimes>,
     /// Wall time from submitting the frame until its counters were back on the CPU.
     pub wall_time: Duration,
-    /// The frame had too few clusters for the cluster pass to pay ([`AdaptiveSettings::tiny_scene_clusters`]):
+    /// The frame had too few clusters for the cluster pass to pay ([`GpuGating::tiny_scene_clusters`]):
     /// every candidate cluster went on to the next pass.
     pub cluster_pass_skipped: bool,
     /// The triangle pass was skipped for removing too little lately
-    /// ([`AdaptiveSettings::min_triangle_benefit`]): the surviving clusters were drawn whole.
+    /// ([`GpuGating::min_triangle_benefit`]): the surviving clusters were drawn whole.
     pub triangle_pass_skipped: bool,
 }
 
@@ -348,25 +305,64 @@ impl GpuFrameOutput {
     }
 }
 
-/// The GPU pipeline for one scene: passes, per-frame buffers and render targets.
+/// Which GPU passes a frame may skip where they cannot pay off. Insert it as a resource of the world to have
+/// [`GpuCuller::run_world`] use it (the default otherwise), or give it with [`GpuCuller::set_gating`]. Skipping
+/// a pass keeps everything it would have tested, so gating adds no false negative.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct GpuGating {
+    /// A frame whose candidates (the CPU stages' survivors) have at most this many clusters skips the cluster
+    /// pass: the CPU lists every candidate cluster for the triangle pass (or the draw) instead. With so few
+    /// clusters the pass cannot save more than its own dispatch costs. 0 never skips.
+    pub tiny_scene_clusters: u32,
+    /// The triangle pass is skipped once it has removed less than this fraction of the triangles it tested
+    /// for `low_benefit_frames` frames in a row, and re-probed every `reprobe_every` frames: the surviving
+    /// clusters are then drawn whole and the hardware culls their triangles. The pass reads and transforms
+    /// every triangle, about the work the hardware's vertex stage and culling do on it, so it pays only when it
+    /// removes a good share. 0 never skips.
+    pub min_triangle_benefit: f32,
+    /// See `min_triangle_benefit`.
+    pub low_benefit_frames: u32,
+    /// See `min_triangle_benefit`.
+    pub reprobe_every: u32,
+}
+
+impl Default for GpuGating {
+    /// No cluster pass for 64 clusters or fewer; the triangle pass skipped after 8 frames under 10% removed,
+    /// re-probed every 30 frames.
+    fn default() -> Self {
+        Self { tiny_scene_clusters: 64, min_triangle_benefit: 0.1, low_benefit_frames: 8, reprobe_every: 30 }
+    }
+}
+
+impl GpuGating {
+    /// No gating: every pass runs every frame (the fixed pipeline, for comparison).
+    pub fn fixed() -> Self {
+        Self { tiny_scene_clusters: 0, min_triangle_benefit: 0.0, low_benefit_frames: u32::MAX, reprobe_every: 0 }
+    }
+}
+
+/// A frame's surviving `(instance, cluster)` pairs and the global vertex indices of the triangles it drew (see
+/// [`GpuCuller::read_survivors`]).
+pub type Survivors = (Vec<(u32, u32)>, Vec<u32>);
+
+/// The GPU pipeline for one scene: the scene's buffers, the passes, per-frame buffers and render targets.
+///
+/// Build it with [`GpuCuller::for_world`]; each frame, after the CPU stages ran,
+/// [`GpuCuller::run_world`] brings the instances up to date, culls and draws. A renderer of its own draws
+/// from [`GpuCuller::draw_buffers`] instead of (or after) the culler's draw.
 pub struct GpuCuller {
-    /// The scene buffers.
-    pub scene: GpuScene,
-    /// The HZB.
-    pub hzb: Hzb,
-    cluster_pipeline: wgpu::ComputePipeline,
-    prepare_pipeline: wgpu::ComputePipeline,
-    triangle_pipeline: wgpu::ComputePipeline,
+    scene: GpuScene,
+    hzb: Hzb,
+    cluster_pass: ClusterCullPass,
+    triangle_pass: TriangleCullPass,
     draw: DrawPass,
-    /// The render targets.
-    pub targets: RenderTargets,
+    targets: RenderTargets,
     view: wgpu::Buffer,
     /// The view the draw pass renders from: the culling view, or another camera's (see [`GpuCuller::run_from`]).
     draw_view: wgpu::Buffer,
     counters: wgpu::Buffer,
     dispatch: wgpu::Buffer,
-    /// The last frame's view uniform (for the CPU twins in tests).
-    pub last_view: GpuView,
+    last_view: GpuView,
     frame: Option<FrameBuffers>,
     timer: Option<PassTimer>,
     last_counters: GpuCounters,
@@ -375,10 +371,37 @@ pub struct GpuCuller {
     /// A smaller storage-binding budget than the device's, to split frames into batches (see
     /// [`GpuCuller::limit_batches`]).
     batch_bytes: Option<u64>,
-    /// Which GPU passes a frame may skip (see [`GpuCuller::set_adaptive`]).
-    adaptive: AdaptiveSettings,
+    /// Which GPU passes a frame may skip (see [`GpuCuller::set_gating`]).
+    gating: GpuGating,
     /// When the triangle pass is skipped for removing too little.
     triangle_gate: BenefitGate,
+    /// The instance buffer holds colours other than the objects' own ([`GpuCuller::draw_all_recolored`]):
+    /// the next [`GpuCuller::run_world`] rewrites every instance.
+    recolored: bool,
+}
+
+/// What a renderer needs to draw the last frame's survivors itself, with one
+/// `multi_draw_indexed_indirect_count`: vertex positions pulled by the compacted indices, one
+/// `DrawIndexedIndirectArgs` per drawn cluster whose `first_instance` names the instance (store slot) in
+/// `instances`, and the draw count in `count` at byte offset `count_offset`.
+#[derive(Clone, Copy, Debug)]
+pub struct DrawBuffers<'a> {
+    /// Vertex positions, three `f32` per vertex (vertex buffer).
+    pub positions: &'a wgpu::Buffer,
+    /// Triangle indices into `positions` (index buffer, `u32`).
+    pub indices: &'a wgpu::Buffer,
+    /// `DrawIndexedIndirectArgs` per draw (indirect buffer).
+    pub args: &'a wgpu::Buffer,
+    /// Holds the draw count (indirect buffer).
+    pub count: &'a wgpu::Buffer,
+    /// Byte offset of the draw count in `count`.
+    pub count_offset: u64,
+    /// Most draws `args` holds: the `max_count` of the multi-draw.
+    pub max_draws: u32,
+    /// [`GpuInstance`] per store slot (storage buffer, 64 bytes each): each object's transform and colour.
+    pub instances: &'a wgpu::Buffer,
+    /// The [`GpuView`] uniform the frame was culled with (`view` in `common.wgsl`).
+    pub view: &'a wgpu::Buffer,
 }
 
 /// Which passes one frame skips.
@@ -421,8 +444,22 @@ fn view_buffer(context: &GpuContext, label: &str) -> wgpu::Buffer {
 }
 
 impl GpuCuller {
-    /// The pipeline for `scene`, drawing into `width` x `height` targets, with an HZB for occlusion buffers of
-    /// `hzb_width` x `hzb_height`.
+    /// The GPU pipeline for the objects of `world` (set up by [`crate::install`], its objects spawned), which
+    /// draw `meshes` through their [`crate::mesh::MeshRef`], rendering into `target_size` (width, height in
+    /// pixels) targets. The HZB is sized for the world's [`OcclusionSettings`] (it follows their changes
+    /// frame by frame). Builds the clusters of every mesh (meshoptimizer) and uploads them with the
+    /// instances.
+    ///
+    /// # Panics
+    /// If `world` was not set up by [`crate::install`] (it has no [`BoundsStore`]).
+    pub fn for_world(context: &GpuContext, world: &World, meshes: &[Mesh], target_size: (u32, u32)) -> Self {
+        let occlusion = world.get_resource::<OcclusionSettings>().copied().unwrap_or_default();
+        let scene = GpuScene::new(context, ClusterLibrary::build(meshes), instances_from_world(world));
+        Self::new(context, scene, target_size.0, target_size.1, occlusion.width, occlusion.height)
+    }
+
+    /// The pipeline for `scene` (its buffers already uploaded), drawing into `width` x `height` targets, with
+    /// an HZB for occlusion buffers of `hzb_width` x `hzb_height`. [`GpuCuller::for_world`] is the usual way in.
     pub fn new(
         context: &GpuContext,
         scene: GpuScene,
@@ -431,18 +468,16 @@ impl GpuCuller {
         hzb_width: u32,
         hzb_height: u32,
     ) -> Self {
-        let compute = |label, source| context.compute_pipeline(label, source);
         Self {
             scene,
             hzb: Hzb::new(context, hzb_width, hzb_height),
-            cluster_pipeline: compute("cluster cull", include_str!("../../../shaders/cluster_cull.wgsl")),
-            prepare_pipeline: compute("prepare triangles", include_str!("../../../shaders/prepare_triangles.wgsl")),
-            triangle_pipeline: compute("triangle cull", include_str!("../../../shaders/triangle_cull.wgsl")),
+            cluster_pass: ClusterCullPass::new(context),
+            triangle_pass: TriangleCullPass::new(context),
             draw: DrawPass::new(context),
             targets: RenderTargets::new(context, width, height),
             view: view_buffer(context, "view"),
             draw_view: view_buffer(context, "draw view"),
-            counters: storage_buffer(context, "counters", (COUNTER_COUNT * 4) as u64, wgpu::BufferUsages::INDIRECT),
+            counters: storage_buffer(context, "counters", COUNTER_BYTES, wgpu::BufferUsages::INDIRECT),
             dispatch: storage_buffer(context, "triangle dispatch", 12, wgpu::BufferUsages::INDIRECT),
             last_view: GpuView::zeroed(),
             frame: None,
@@ -450,9 +485,53 @@ impl GpuCuller {
             last_counters: GpuCounters::default(),
             last_gate: PassGate::default(),
             batch_bytes: None,
-            adaptive: AdaptiveSettings::default(),
+            gating: GpuGating::default(),
             triangle_gate: BenefitGate::default(),
+            recolored: false,
         }
+    }
+
+    /// The scene's buffers and cluster library.
+    pub fn scene(&self) -> &GpuScene {
+        &self.scene
+    }
+
+    /// The HZB of the last frame.
+    pub fn hzb(&self) -> &Hzb {
+        &self.hzb
+    }
+
+    /// The render targets the culler draws into.
+    pub fn targets(&self) -> &RenderTargets {
+        &self.targets
+    }
+
+    /// The last frame's view uniform (for the CPU twins in tests).
+    pub fn last_view(&self) -> &GpuView {
+        &self.last_view
+    }
+
+    /// Makes new `width` x `height` render targets (a resized window); the next frame draws into them.
+    pub fn resize(&mut self, context: &GpuContext, width: u32, height: u32) {
+        if self.targets.size() != (width, height) {
+            self.targets = RenderTargets::new(context, width, height);
+        }
+    }
+
+    /// The buffers of the last frame's draw, to draw the survivors from a render pass of your own; `None`
+    /// before the first frame. Valid until the next frame (which may grow and so replace them).
+    pub fn draw_buffers(&self) -> Option<DrawBuffers<'_>> {
+        let frame = self.frame.as_ref()?;
+        Some(DrawBuffers {
+            positions: &self.scene.positions,
+            indices: if self.last_gate.skip_triangles { &self.scene.cluster_indices } else { &frame.draw_indices },
+            args: &frame.draw_args,
+            count: &self.counters,
+            count_offset: u64::from(counter::DRAWS) * 4,
+            max_draws: frame.max_clusters,
+            instances: &self.scene.instances,
+            view: &self.view,
+        })
     }
 
     /// The view uniform for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
@@ -541,7 +620,13 @@ impl GpuCuller {
 
     /// Culls and draws one frame: `visible` lists the instances (store slots) the CPU stages kept, `depth` is
     /// the CPU occluder buffer (empty for none). Returns the counters and timings; the survivors stay on the
-    /// GPU ([`GpuCuller::read_survivors`]).
+    /// GPU ([`GpuCuller::read_survivors`], [`GpuCuller::draw_buffers`]).
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    ///
+    /// # Panics
+    /// If a slot of `visible` is not an instance of the scene.
     pub fn run(
         &mut self,
         context: &GpuContext,
@@ -549,12 +634,15 @@ impl GpuCuller {
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
-    ) -> GpuFrameOutput {
+    ) -> Result<GpuFrameOutput, GpuError> {
         self.run_from(context, camera, camera, visible, depth, settings)
     }
 
     /// [`GpuCuller::run`] culling for `camera` but drawing the survivors as `draw_camera` sees them: with
     /// culling frozen at one camera, flying another shows what was culled.
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
     pub fn run_from(
         &mut self,
         context: &GpuContext,
@@ -563,7 +651,7 @@ impl GpuCuller {
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
-    ) -> GpuFrameOutput {
+    ) -> Result<GpuFrameOutput, GpuError> {
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
@@ -572,12 +660,13 @@ impl GpuCuller {
         let candidate_clusters: usize =
             visible.iter().map(|&slot| library.cluster_range(instances[slot as usize].mesh).len()).sum();
         let gate = PassGate {
-            skip_clusters: candidate_clusters <= self.adaptive.tiny_scene_clusters as usize,
+            skip_clusters: candidate_clusters <= self.gating.tiny_scene_clusters as usize,
             skip_triangles: self.triangle_gate.skip_this_frame(),
         };
         let mut total: Option<GpuFrameOutput> = None;
         for (i, batch) in self.batches(context, visible).into_iter().enumerate() {
-            let output = self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, i == 0);
+            let output =
+                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, i == 0)?;
             total = Some(match total {
                 None => output,
                 Some(sum) => sum.plus(&output),
@@ -587,22 +676,23 @@ impl GpuCuller {
         if !gate.skip_triangles {
             let c = total.counters;
             let removed = c.triangles_in - c.triangles_out;
+            let g = self.gating;
             self.triangle_gate.record(
                 removed as usize,
                 c.triangles_in as usize,
-                self.adaptive.min_triangle_benefit,
-                &self.adaptive,
+                g.min_triangle_benefit,
+                g.low_benefit_frames,
+                g.reprobe_every,
             );
         }
-        total
+        Ok(total)
     }
 
-    /// Sets which GPU passes a frame may skip: [`AdaptiveSettings::tiny_scene_clusters`] and
-    /// [`AdaptiveSettings::min_triangle_benefit`] (the default settings until set). New settings start the
-    /// triangle pass's benefit count afresh. [`GpuCuller::run_world`] sets the world's.
-    pub fn set_adaptive(&mut self, adaptive: AdaptiveSettings) {
-        if adaptive != self.adaptive {
-            self.adaptive = adaptive;
+    /// Sets which GPU passes a frame may skip (the default [`GpuGating`] until set). New settings start the
+    /// triangle pass's benefit count afresh. [`GpuCuller::run_world`] sets the world's, where it has one.
+    pub fn set_gating(&mut self, gating: GpuGating) {
+        if gating != self.gating {
+            self.gating = gating;
             self.triangle_gate = BenefitGate::default();
         }
     }
@@ -654,7 +744,7 @@ impl GpuCuller {
         settings: &GpuCullSettings,
         gate: PassGate,
         first: bool,
-    ) -> GpuFrameOutput {
+    ) -> Result<GpuFrameOutput, GpuError> {
         let mut view = self.view_for(camera, settings, visible.len() as u32);
         if gate.skip_triangles {
             view.flags |= VIEW_DRAW_CLUSTERS;
@@ -681,80 +771,52 @@ impl GpuCuller {
         if first {
             self.hzb.build(context, depth, &mut encoder, timer.map(|t| t.compute(0)));
         }
-        let bind = |pipeline: &wgpu::ComputePipeline, buffers: &[&wgpu::Buffer]| {
-            let entries: Vec<_> = buffers
-                .iter()
-                .enumerate()
-                .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-                .collect();
-            context.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: None,
-                layout: &pipeline.get_bind_group_layout(0),
-                entries: &entries,
-            })
-        };
         let scene = &self.scene;
-        let cluster_group = bind(
-            &self.cluster_pipeline,
-            &[
-                &self.view,
-                &scene.instances,
-                &scene.meshes,
-                &scene.clusters,
-                &frame.visible,
-                &self.hzb.buffer,
-                &self.counters,
-                &frame.survivors,
-                &frame.draw_args,
-            ],
+        let cluster_buffers = ClusterCullBuffers {
+            view: &self.view,
+            instances: &scene.instances,
+            meshes: &scene.meshes,
+            clusters: &scene.clusters,
+            visible: &frame.visible,
+            hzb: &self.hzb.buffer,
+            counters: &self.counters,
+            survivors: &frame.survivors,
+            draws: &frame.draw_args,
+        };
+        let instance_count = visible.len() as u32;
+        self.cluster_pass.record(
+            context,
+            &mut encoder,
+            &cluster_buffers,
+            instance_count,
+            gate.skip_clusters,
+            timer.map(|t| t.compute(1)),
         );
-        let prepare_group = bind(&self.prepare_pipeline, &[&self.counters, &self.dispatch]);
-        let triangle_group = bind(
-            &self.triangle_pipeline,
-            &[
-                &self.view,
-                &scene.instances,
-                &scene.clusters,
-                &scene.positions,
-                &scene.cluster_indices,
-                &frame.survivors,
-                &self.counters,
-                &frame.draw_indices,
-                &frame.draw_args,
-            ],
+        let triangle_buffers = TriangleCullBuffers {
+            view: &self.view,
+            instances: &scene.instances,
+            clusters: &scene.clusters,
+            positions: &scene.positions,
+            cluster_indices: &scene.cluster_indices,
+            survivors: &frame.survivors,
+            counters: &self.counters,
+            dispatch: &self.dispatch,
+            draw_indices: &frame.draw_indices,
+            draws: &frame.draw_args,
+        };
+        self.triangle_pass.record(
+            context,
+            &mut encoder,
+            &triangle_buffers,
+            gate.skip_triangles,
+            timer.map(|t| t.compute(2)),
         );
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("cluster cull"),
-                timestamp_writes: timer.map(|t| t.compute(1)),
-            });
-            if !visible.is_empty() && !gate.skip_clusters {
-                let n = visible.len() as u32;
-                pass.set_pipeline(&self.cluster_pipeline);
-                pass.set_bind_group(0, &cluster_group, &[]);
-                pass.dispatch_workgroups(n.min(65535), n.div_ceil(65535), 1);
-            }
-        }
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("triangle cull"),
-                timestamp_writes: timer.map(|t| t.compute(2)),
-            });
-            if !gate.skip_triangles {
-                pass.set_pipeline(&self.prepare_pipeline);
-                pass.set_bind_group(0, &prepare_group, &[]);
-                pass.dispatch_workgroups(1, 1, 1);
-                pass.set_pipeline(&self.triangle_pipeline);
-                pass.set_bind_group(0, &triangle_group, &[]);
-                pass.dispatch_workgroups_indirect(&self.dispatch, 0);
-            }
-        }
         let source = DrawSource::Culled {
             // Without the triangle pass, the draws index the clusters' own triangles.
             indices: if gate.skip_triangles { &scene.cluster_indices } else { &frame.draw_indices },
             args: &frame.draw_args,
             count: &self.counters,
-            count_offset: DRAWS_SLOT * 4,
+            count_offset: u64::from(counter::DRAWS) * 4,
             max_draws: frame.max_clusters,
         };
         self.record_draw(context, &mut encoder, camera.depth, source, first, timer.map(|t| t.render(3)));
@@ -763,19 +825,19 @@ impl GpuCuller {
         }
         let start = Instant::now();
         context.queue.submit([encoder.finish()]);
-        let counter_bytes = context.read_buffer(&self.counters, (COUNTER_COUNT * 4) as u64);
+        let counter_bytes = context.read_buffer(&self.counters, COUNTER_BYTES)?;
         let wall_time = start.elapsed();
         let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
         self.last_counters = counters;
         self.last_gate = gate;
-        let pass_times = timer.map(|t| t.read(context));
-        GpuFrameOutput {
+        let pass_times = timer.map(|t| t.read(context)).transpose()?;
+        Ok(GpuFrameOutput {
             counters,
             pass_times,
             wall_time,
             cluster_pass_skipped: gate.skip_clusters,
             triangle_pass_skipped: gate.skip_triangles,
-        }
+        })
     }
 
     /// Stands in for the cluster pass of a tiny frame: every cluster of the `visible` instances survives, and
@@ -794,13 +856,13 @@ impl GpuCuller {
             .iter()
             .flat_map(|&slot| library.cluster_range(instances[slot as usize].mesh).map(move |c| [slot, c]))
             .collect();
-        let mut counters = [0u32; COUNTER_COUNT];
-        counters[CLUSTERS_IN_SLOT] = survivors.len() as u32;
-        counters[CLUSTERS_OUT_SLOT] = survivors.len() as u32;
+        let mut counters = [0u32; counter::COUNTER_COUNT as usize];
+        counters[counter::CLUSTERS_IN as usize] = survivors.len() as u32;
+        counters[counter::CLUSTERS_OUT as usize] = survivors.len() as u32;
         let draws = if draw_clusters { cluster_draws(library, instances, visible.iter().copied()) } else { Vec::new() };
         if draw_clusters {
-            counters[TRIANGLES_OUT_SLOT] = draws.iter().map(|d| d.index_count / 3).sum();
-            counters[DRAWS_SLOT as usize] = draws.len() as u32;
+            counters[counter::TRIANGLES_OUT as usize] = draws.iter().map(|d| d.index_count / 3).sum();
+            counters[counter::DRAWS as usize] = draws.len() as u32;
         }
         if !survivors.is_empty() {
             context.queue.write_buffer(&frame.survivors, 0, bytemuck::cast_slice(&survivors));
@@ -819,10 +881,13 @@ impl GpuCuller {
     /// The last frame's surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order, and the
     /// global vertex indices of the triangles it drew: its compacted index buffer, or where the triangle pass
     /// was skipped, the surviving clusters' own triangles.
-    pub fn read_survivors(&self, context: &GpuContext) -> (Vec<(u32, u32)>, Vec<u32>) {
-        let (Some(frame), counters) = (self.frame.as_ref(), self.last_counters) else { return Default::default() };
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn read_survivors(&self, context: &GpuContext) -> Result<Survivors, GpuError> {
+        let (Some(frame), counters) = (self.frame.as_ref(), self.last_counters) else { return Ok(Default::default()) };
         let clusters = if counters.clusters_out > 0 {
-            let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out));
+            let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out))?;
             bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()
         } else {
             Vec::new()
@@ -839,51 +904,103 @@ impl GpuCuller {
                 })
                 .collect()
         } else if counters.triangles_out > 0 {
-            bytemuck::cast_slice(&context.read_buffer(&frame.draw_indices, 12 * u64::from(counters.triangles_out)))
+            bytemuck::cast_slice(&context.read_buffer(&frame.draw_indices, 12 * u64::from(counters.triangles_out))?)
                 .to_vec()
         } else {
             Vec::new()
         };
-        (clusters, indices)
+        Ok((clusters, indices))
     }
 
     /// Runs the GPU passes after the CPU stages of `world`'s frame: instances brought up to date (only the
-    /// store slots written since the last call are copied), the occlusion stage's survivors culled and drawn
-    /// against its depth buffer, from the world's [`Camera`].
+    /// store slots written since the last call are copied, from each object's [`crate::mesh::MeshRef`],
+    /// [`crate::ObjectTransform`] and [`crate::mesh::ObjectColor`]), the occlusion stage's survivors culled and
+    /// drawn against its depth buffer, from the world's [`Camera`], with the world's [`GpuGating`] if it has
+    /// one.
+    ///
+    /// The culler drains [`BoundsStore::take_written_slots`]: nothing else should.
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    ///
+    /// # Panics
+    /// If `world` was not set up by [`crate::install`] or has no [`Camera`].
     pub fn run_world(
         &mut self,
         context: &GpuContext,
-        world: &mut bevy_ecs::world::World,
+        world: &mut World,
         settings: &GpuCullSettings,
-    ) -> GpuFrameOutput {
+    ) -> Result<GpuFrameOutput, GpuError> {
         let camera = *world.resource::<Camera>();
         self.run_world_from(context, world, &camera, settings)
     }
 
     /// [`GpuCuller::run_world`] drawing from `draw_camera` (see [`GpuCuller::run_from`]).
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
     pub fn run_world_from(
         &mut self,
         context: &GpuContext,
-        world: &mut bevy_ecs::world::World,
+        world: &mut World,
         draw_camera: &Camera,
         settings: &GpuCullSettings,
-    ) -> GpuFrameOutput {
-        if let Some(&adaptive) = world.get_resource::<AdaptiveSettings>() {
-            self.set_adaptive(adaptive);
+    ) -> Result<GpuFrameOutput, GpuError> {
+        if let Some(&gating) = world.get_resource::<GpuGating>() {
+            self.set_gating(gating);
         }
-        let written = world.resource_mut::<crate::bounds::BoundsStore>().take_written_slots();
-        let count = world.resource::<crate::bounds::BoundsStore>().len();
-        self.scene.write_instances(context, count, &written, |slot| super::scene::instance_of(world, slot));
-        let state = world.resource::<crate::pipeline::OcclusionState>();
+        self.sync_instances(context, world, |_, instance| instance);
+        self.recolored = false;
+        let state = world.resource::<OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
         self.run_from(context, &camera, draw_camera, &visible, &state.depth, settings)
     }
 
+    /// Copies to the GPU the instances of the store slots written since the last call (every slot after a
+    /// recolouring), each as `recolor` makes it from its slot and the object's own instance.
+    fn sync_instances(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        recolor: impl Fn(usize, GpuInstance) -> GpuInstance,
+    ) {
+        let written = world.resource_mut::<BoundsStore>().take_written_slots();
+        let count = world.resource::<BoundsStore>().len();
+        let slots = if self.recolored { (0..count as u32).collect() } else { written };
+        self.scene.write_instances(context, count, &slots, |slot| recolor(slot as usize, instance_of(world, slot)));
+    }
+
+    /// Draws every object of `world` with no culling, each in the colour `color_of(slot)` gives it (its own
+    /// for `None`), as `camera` sees it: for debug views, such as tinting each object by the stage that culled
+    /// it. The next [`GpuCuller::run_world`] restores every object's own colour.
+    pub fn draw_all_recolored(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        camera: &Camera,
+        color_of: impl Fn(usize) -> Option<[u8; 4]>,
+    ) {
+        self.recolored = true;
+        self.sync_instances(context, world, |slot, instance| match color_of(slot) {
+            Some(color) => instance.with_color(Some(color)),
+            None => instance,
+        });
+        self.draw_all(context, camera, false);
+    }
+
     /// Draws every cluster of every instance with no culling at all, for comparison; `reversed` draws them in
     /// the opposite order, which shows where the image depends on draw order (coplanar surfaces of different
     /// objects at exactly the same depth).
-    pub fn draw_unculled(&self, context: &GpuContext, camera: &Camera, reversed: bool) -> RenderedImage {
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn draw_unculled(
+        &self,
+        context: &GpuContext,
+        camera: &Camera,
+        reversed: bool,
+    ) -> Result<RenderedImage, GpuError> {
         self.draw_all(context, camera, reversed);
         self.targets.read(context)
     }
@@ -938,7 +1055,10 @@ impl GpuCuller {
     }
 
     /// Reads the render targets of the last frame.
-    pub fn read_image(&self, context: &GpuContext) -> RenderedImage {
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn read_image(&self, context: &GpuContext) -> Result<RenderedImage, GpuError> {
         self.targets.read(context)
     }
 }

@@ -7,8 +7,8 @@ struct LevelPair {
     coarse: HzbLevel,
 }
 
-@group(0) @binding(0) var<storage, read_write> hzb: array<f32>;
-@group(0) @binding(1) var<uniform> pair: LevelPair;
+@group(0) @binding(1) var<storage, read_write> pyramid: array<f32>;
+@group(0) @binding(2) var<uniform> pair: LevelPair;
 
 @compute @workgroup_size(8, 8)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
@@ -21,7 +21,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let y0 = 2u * id.y;
     let x1 = min(x0 + 1u, fine.width - 1u);
     let y1 = min(y0 + 1u, fine.height - 1u);
-    let top = min(hzb[fine.offset + y0 * fine.width + x0], hzb[fine.offset + y0 * fine.width + x1]);
-    let bottom = min(hzb[fine.offset + y1 * fine.width + x0], hzb[fine.offset + y1 * fine.width + x1]);
-    hzb[coarse.offset + id.y * coarse.width + id.x] = min(top, bottom);
+    let top = min(pyramid[fine.offset + y0 * fine.width + x0], pyramid[fine.offset + y0 * fine.width + x1]);
+    let bottom = min(pyramid[fine.offset + y1 * fine.width + x0], pyramid[fine.offset + y1 * fine.width + x1]);
+    pyramid[coarse.offset + id.y * coarse.width + id.x] = min(top, bottom);
 }

@@ -1,10 +1,10 @@
 //! A scene flown through along a camera path: the world, its culling schedule and the camera, advanced one
 //! frame at a time. The sample game, the tests and the benchmarks all drive the pipeline through it.
 
+use super::Velocity;
 use crate::bounds::ObjectTransform;
 use crate::camera::CameraPath;
-use crate::pipeline::{self, CullStage, CullStats, OcclusionSettings};
-use crate::scene::Velocity;
+use crate::pipeline::{self, AdaptiveSettings, CullStage, CullStats, OcclusionSettings, PipelineSettings};
 use bevy_ecs::prelude::*;
 
 /// Seconds simulated by the current frame.
@@ -34,8 +34,8 @@ pub struct Flight {
 }
 
 impl Flight {
-    /// A world set up for culling ([`pipeline::init_world`]) with `occlusion` settings, filled by `spawn`,
-    /// with the camera at the start of `path`.
+    /// A world with the culling pipeline installed ([`pipeline::install`]) with `occlusion` settings, filled by
+    /// `spawn`, with the camera at the start of `path`.
     pub fn new(
         path: CameraPath,
         aspect: f32,
@@ -43,14 +43,12 @@ impl Flight {
         occlusion: OcclusionSettings,
         spawn: impl FnOnce(&mut World),
     ) -> Self {
-        let mut world = World::new();
-        pipeline::init_world(&mut world);
+        let (mut world, mut schedule) = (World::new(), Schedule::default());
+        let settings = PipelineSettings { occlusion, adaptive: AdaptiveSettings::default(), ..Default::default() };
+        pipeline::install(&mut world, &mut schedule, settings);
         spawn(&mut world);
         world.insert_resource(path.camera_at(0.0, aspect));
-        world.insert_resource(occlusion);
         world.init_resource::<FrameDelta>();
-        let mut schedule = Schedule::default();
-        pipeline::add_systems(&mut schedule);
         schedule.add_systems(move_objects.before(CullStage::Bounds));
         Self { world, schedule, path, aspect, frames }
     }

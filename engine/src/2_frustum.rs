@@ -23,7 +23,7 @@
 //! bounds the `f32` rounding error of the test (relative `2^-20` of the magnitudes involved). The f64 property
 //! tests check that nothing an exact test keeps is ever culled.
 
-use crate::bounds::{BoundsStore, GROUPS_PER_SUPERGROUP, GroupBounds, SIMD_LANES, WorldBounds};
+use crate::bounds::{BoundsStore, GROUPS_PER_SUPERGROUP, GroupBounds, SIMD_LANES, SoaSlices, WorldBounds};
 use crate::visible::VisibleSet;
 use glam::{DMat4, DVec4, Mat4, Vec3};
 use rayon::prelude::*;
@@ -310,17 +310,18 @@ impl Frustum {
     }
 
     fn cull_word_scalar(&self, store: &BoundsStore, base: usize) -> u64 {
+        let soa = store.soa();
         let mut word = 0;
         for lane in 0..64 {
             let i = base + lane;
             let visible = self.test_lane(
-                store.center_x[i],
-                store.center_y[i],
-                store.center_z[i],
-                store.extent_x[i],
-                store.extent_y[i],
-                store.extent_z[i],
-                store.radius[i],
+                soa.center_x[i],
+                soa.center_y[i],
+                soa.center_z[i],
+                soa.extent_x[i],
+                soa.extent_y[i],
+                soa.extent_z[i],
+                soa.radius[i],
             );
             word |= (visible as u64) << lane;
         }
@@ -402,7 +403,8 @@ fn cull(
                     let groups = &store.groups()[group..(group + SIMD_LANES).min(store.groups().len())];
                     let (outside, inside) = match backend {
                         #[cfg(target_arch = "x86_64")]
-                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2.
+                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2; the function reads
+                        // `groups` through safe indexing only.
                         SimdBackend::Avx2 => unsafe { avx2::classify_groups(frustum, groups) },
                         _ => frustum.classify_groups(groups),
                     };
@@ -419,7 +421,11 @@ fn cull(
                     GroupClass::Inside => u64::MAX,
                     GroupClass::Crossing => match backend {
                         #[cfg(target_arch = "x86_64")]
-                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2.
+                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2 (the target feature).
+                        // `base + 64 <= store.padded_len()`: `visible` has `len.div_ceil(64)` words and `base` is
+                        // 64 times one of their indices, while the store's SoA layout invariant (`BoundsStore`,
+                        // established and checked in `insert` and `remove`) makes every array `len` rounded up to
+                        // a multiple of 64 long.
                         SimdBackend::Avx2 => unsafe {
                             let mut none = [NO_PLANE; BLOCKS_PER_WORD];
                             let planes = match planes.as_deref_mut() {
@@ -462,24 +468,31 @@ mod avx2 {
     /// of each of its 8 blocks (see [`PlaneCoherence`]), read and updated.
     ///
     /// # Safety
-    /// The processor must support AVX2, and `base + 64 <= store.padded_len()`.
+    /// The processor must support AVX2, and `base + 64 <= store.padded_len()` (the length of every SoA array,
+    /// by the store's layout invariant).
     #[target_feature(enable = "avx2")]
     pub unsafe fn cull_word(frustum: &Frustum, store: &BoundsStore, base: usize, planes: &mut [u8]) -> u64 {
         debug_assert!(base + 64 <= store.padded_len());
+        let soa = store.soa();
         let mut word = 0u64;
         for (block, plane) in planes.iter_mut().enumerate().take(BLOCKS_PER_WORD) {
             let i = base + block * SIMD_LANES;
-            // SAFETY: the caller guarantees `i + 8 <= padded_len` for every array of the store.
-            let bits = unsafe { cull_block(frustum, store, i, plane) };
+            // SAFETY: AVX2 is available (this function's own contract), and `i + 8 <= base + 64 <= padded_len`,
+            // the length of every array of `soa` (the caller's contract).
+            let bits = unsafe { cull_block(frustum, &soa, i, plane) };
             word |= (bits as u64) << (block * SIMD_LANES);
         }
         word
     }
 
+    /// The 8 values of `array` from `i`.
+    ///
+    /// # Safety
+    /// The processor must support AVX2, and `i + 8 <= array.len()`.
     #[target_feature(enable = "avx2")]
     unsafe fn load(array: &[f32], i: usize) -> __m256 {
         debug_assert!(i + SIMD_LANES <= array.len());
-        // SAFETY: bounds guaranteed by the caller of `cull_word`.
+        // SAFETY: `i + 8 <= array.len()` (this function's contract): the unaligned load reads inside `array`.
         unsafe { _mm256_loadu_ps(array.as_ptr().add(i)) }
     }
 
@@ -488,14 +501,18 @@ mod avx2 {
         _mm256_andnot_ps(_mm256_set1_ps(-0.0), v)
     }
 
+    /// The visibility bits of the 8 objects from slot `i`; `coherent_plane` as in [`cull_word`].
+    ///
+    /// # Safety
+    /// The processor must support AVX2, and `i + 8 <=` the length of every array of `soa`.
     #[target_feature(enable = "avx2")]
     #[inline]
-    unsafe fn cull_block(frustum: &Frustum, store: &BoundsStore, i: usize, coherent_plane: &mut u8) -> u8 {
+    unsafe fn cull_block(frustum: &Frustum, soa: &SoaSlices<'_>, i: usize, coherent_plane: &mut u8) -> u8 {
         let zero = _mm256_setzero_ps();
         let tolerance = _mm256_set1_ps(PLANE_TEST_TOLERANCE);
-        let (cx, cy, cz, r) = unsafe {
-            (load(&store.center_x, i), load(&store.center_y, i), load(&store.center_z, i), load(&store.radius, i))
-        };
+        // SAFETY: `i + 8` is within every array of `soa` (this function's contract).
+        let (cx, cy, cz, r) =
+            unsafe { (load(soa.center_x, i), load(soa.center_y, i), load(soa.center_z, i), load(soa.radius, i)) };
         let rx = _mm256_sub_ps(cx, _mm256_set1_ps(frustum.origin.x));
         let ry = _mm256_sub_ps(cy, _mm256_set1_ps(frustum.origin.y));
         let rz = _mm256_sub_ps(cz, _mm256_set1_ps(frustum.origin.z));
@@ -547,7 +564,8 @@ mod avx2 {
             // Early out: every sphere is fully inside or outside, the boxes cannot change the answer.
             return sphere_in_bits;
         }
-        let (ex, ey, ez) = unsafe { (load(&store.extent_x, i), load(&store.extent_y, i), load(&store.extent_z, i)) };
+        // SAFETY: as for the centres above.
+        let (ex, ey, ez) = unsafe { (load(soa.extent_x, i), load(soa.extent_y, i), load(soa.extent_z, i)) };
         let mut box_out = zero;
         for (p, plane) in frustum.planes.iter().enumerate() {
             let n = plane.normal.abs();

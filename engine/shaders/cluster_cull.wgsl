@@ -3,69 +3,14 @@
 // to a compact list. Where the triangle pass is skipped (VIEW_DRAW_CLUSTERS), each survivor's draw is written
 // here instead, over the cluster's own indices. The engine's `cluster_cull::cull_cluster` is the same test on the CPU.
 
-@group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 @group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
 @group(0) @binding(3) var<storage, read> clusters: array<Cluster>;
 @group(0) @binding(4) var<storage, read> visible: array<u32>;
-@group(0) @binding(5) var<storage, read> hzb: array<f32>;
-@group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;
-@group(0) @binding(7) var<storage, read_write> survivors: array<vec2<u32>>;
-@group(0) @binding(8) var<storage, read_write> draws: array<DrawArgs>;
-
-// Cone test slack: a cluster is called back-facing only this far past meshoptimizer's cutoff.
-const CONE_SLACK: f32 = 1e-3;
-// HZB rectangle margin in texels and relative depth margin: cover the f32 rounding of the projection.
-const RECT_MARGIN: f32 = 1e-3;
-const DEPTH_MARGIN: f32 = 1e-5;
-// Small-cluster test (lossy): a bounding sphere under this many pixels across is culled.
-const SMALL_CLUSTER_PIXELS: f32 = 1.0;
-
-const KEEP: u32 = 0xffffffffu;
-
-fn hzb_texel(level: HzbLevel, x: u32, y: u32) -> f32 {
-    return hzb[level.offset + min(y, level.height - 1u) * level.width + min(x, level.width - 1u)];
-}
-
-// Whether the box `center ± extent` (camera-relative) lies wholly behind the HZB; see eq. 19.5.
-fn hidden_by_hzb(center: vec3<f32>, extent: f32) -> bool {
-    var lo = vec2<f32>(3.4e38);
-    var hi = vec2<f32>(-3.4e38);
-    var nearest = 0.0;
-    for (var corner = 0u; corner < 8u; corner++) {
-        let sign = vec3<f32>(
-            select(-1.0, 1.0, (corner & 1u) != 0u),
-            select(-1.0, 1.0, (corner & 2u) != 0u),
-            select(-1.0, 1.0, (corner & 4u) != 0u),
-        );
-        let clip = view.clip_from_relative * vec4<f32>(center + sign * extent, 1.0);
-        if (clip.w <= view.near) {
-            return false; // Reaches the near plane: visible.
-        }
-        let inv_w = 1.0 / clip.w;
-        let screen = vec2<f32>(
-            (clip.x * inv_w * 0.5 + 0.5) * view.hzb_size.x,
-            (0.5 - clip.y * inv_w * 0.5) * view.hzb_size.y,
-        );
-        lo = min(lo, screen);
-        hi = max(hi, screen);
-        nearest = max(nearest, inv_w);
-    }
-    let size = view.hzb_size - vec2<f32>(1.0);
-    let lo_texel = vec2<u32>(clamp(floor(lo - RECT_MARGIN), vec2<f32>(0.0), size));
-    let hi_texel = vec2<u32>(clamp(floor(hi + RECT_MARGIN), vec2<f32>(0.0), size));
-    let span = max(hi_texel.x - lo_texel.x, hi_texel.y - lo_texel.y) + 1u;
-    // Eq. 19.5: the lowest level where the rectangle spans at most 2x2 texels.
-    let level_index = min(firstLeadingBit(max(span, 1u) * 2u - 1u), view.hzb_level_count - 1u);
-    let level = view.hzb_levels[level_index];
-    let a = lo_texel >> vec2<u32>(level_index);
-    let b = hi_texel >> vec2<u32>(level_index);
-    let farthest = min(
-        min(hzb_texel(level, a.x, a.y), hzb_texel(level, b.x, a.y)),
-        min(hzb_texel(level, a.x, b.y), hzb_texel(level, b.x, b.y)),
-    );
-    return nearest * (1.0 + DEPTH_MARGIN) < farthest;
-}
+@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;
+@group(0) @binding(6) var<storage, read_write> survivors: array<vec2<u32>>;
+@group(0) @binding(7) var<storage, read_write> draws: array<DrawArgs>;
+// The HZB is `hzb` of common.wgsl, group 1.
 
 // KEEP, or the counter slot of the test that culled the cluster.
 fn cull_cluster(instance: Instance, cluster: Cluster) -> u32 {
@@ -98,13 +43,13 @@ fn cull_cluster(instance: Instance, cluster: Cluster) -> u32 {
     return KEEP;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(CLUSTER_WORKGROUP_SIZE)
 fn main(
     @builtin(workgroup_id) workgroup: vec3<u32>,
     @builtin(num_workgroups) workgroups: vec3<u32>,
     @builtin(local_invocation_index) thread: u32,
 ) {
-    let slot = workgroup.x + workgroup.y * workgroups.x;
+    let slot = workgroup_index(workgroup, workgroups);
     if (slot >= view.visible_count) {
         return;
     }
@@ -114,7 +59,7 @@ fn main(
         return; // No mesh: nothing to draw.
     }
     let mesh = meshes[instance.mesh];
-    for (var c = thread; c < mesh.cluster_count; c += 64u) {
+    for (var c = thread; c < mesh.cluster_count; c += CLUSTER_WORKGROUP_SIZE) {
         let cluster_index = mesh.first_cluster + c;
         atomicAdd(&counters[CLUSTERS_IN], 1u);
         let cluster = clusters[cluster_index];

@@ -1,21 +1,97 @@
-//! Cluster culling (`shaders/cluster_cull.wgsl`): for every cluster of every instance the CPU stages kept, the
+//! Cluster culling (`cluster_cull.wgsl`): for every cluster of every instance the CPU stages kept, the
 //! frustum test on its bounding sphere, the normal-cone back-face test (meshoptimizer's cone, tested in mesh
 //! space with the camera brought there, for any transform that does not mirror), the HZB test (the sphere's box against the pyramid at the eq.
 //! 19.5 level, 2x2 texels) and, opt-in and lossy, a small-cluster test. Survivors are appended to a compact
 //! `(instance, cluster)` list with an atomic counter.
 //!
-//! [`cull_cluster`] is the same test on the CPU, operation for operation, for the tests to compare against.
+//! [`ClusterCullPass`] records the pass; [`cull_cluster`] is the same test on the CPU, operation for operation,
+//! for the tests to compare against.
 
+use super::GpuContext;
 use super::clusters::GpuCluster;
-use super::frame::{GpuView, VIEW_CONE, VIEW_HZB, VIEW_SMALL_CLUSTER};
-use super::scene::{GpuInstance, INSTANCE_CONE_SAFE};
+use super::interface::{
+    CONE_SLACK, DEPTH_MARGIN, GpuView, INSTANCE_CONE_SAFE, RECT_MARGIN, SMALL_CLUSTER_PIXELS, VIEW_CONE, VIEW_HZB,
+    VIEW_SMALL_CLUSTER, workgroup_grid,
+};
+use super::scene::GpuInstance;
 use glam::{Vec2, Vec3, Vec4};
 
-/// Must match `cluster_cull.wgsl`.
-const CONE_SLACK: f32 = 1e-3;
-const RECT_MARGIN: f32 = 1e-3;
-const DEPTH_MARGIN: f32 = 1e-5;
-const SMALL_CLUSTER_PIXELS: f32 = 1.0;
+/// The buffers the cluster pass reads and writes.
+pub(crate) struct ClusterCullBuffers<'a> {
+    /// The [`GpuView`] uniform.
+    pub view: &'a wgpu::Buffer,
+    /// [`GpuInstance`] per store slot.
+    pub instances: &'a wgpu::Buffer,
+    /// [`super::clusters::GpuMesh`] table.
+    pub meshes: &'a wgpu::Buffer,
+    /// [`GpuCluster`] table.
+    pub clusters: &'a wgpu::Buffer,
+    /// The store slots the CPU stages kept.
+    pub visible: &'a wgpu::Buffer,
+    /// The HZB levels.
+    pub hzb: &'a wgpu::Buffer,
+    /// The counter slots.
+    pub counters: &'a wgpu::Buffer,
+    /// `(instance, cluster)` survivors, appended.
+    pub survivors: &'a wgpu::Buffer,
+    /// Whole-cluster draws, where the triangle pass is skipped.
+    pub draws: &'a wgpu::Buffer,
+}
+
+/// The cluster pass's pipeline.
+pub(crate) struct ClusterCullPass {
+    pipeline: wgpu::ComputePipeline,
+}
+
+impl ClusterCullPass {
+    /// Compiles the pass.
+    pub fn new(context: &GpuContext) -> Self {
+        Self { pipeline: context.compute_pipeline("cluster cull", include_str!("../../shaders/cluster_cull.wgsl")) }
+    }
+
+    /// Records the pass over `instance_count` visible instances (one workgroup each) into its own compute pass,
+    /// with `timestamps` at its start and end if given. With no instance, or `skip`, the pass is empty (it
+    /// still writes its timestamps).
+    pub fn record(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        buffers: &ClusterCullBuffers<'_>,
+        instance_count: u32,
+        skip: bool,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("cluster cull"),
+            timestamp_writes: timestamps,
+        });
+        if instance_count == 0 || skip {
+            return;
+        }
+        let b = buffers;
+        let frame_group = context.bind_buffers(
+            "cluster cull",
+            &self.pipeline,
+            0,
+            &[
+                (0, b.view),
+                (1, b.instances),
+                (2, b.meshes),
+                (3, b.clusters),
+                (4, b.visible),
+                (5, b.counters),
+                (6, b.survivors),
+                (7, b.draws),
+            ],
+        );
+        let hzb_group = context.bind_buffers("cluster cull hzb", &self.pipeline, 1, &[(0, b.hzb)]);
+        let (x, y) = workgroup_grid(instance_count);
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &frame_group, &[]);
+        pass.set_bind_group(1, &hzb_group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+}
 
 /// What the cluster test decided.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -64,6 +140,7 @@ pub fn cull_cluster(view: &GpuView, hzb: &[f32], instance: &GpuInstance, cluster
     ClusterVerdict::Keep
 }
 
+/// The HZB test of `common.wgsl`'s `hidden_by_hzb` on the CPU.
 fn hidden_by_hzb(view: &GpuView, hzb: &[f32], center: Vec3, extent: f32) -> bool {
     let matrix = view.clip_from_relative();
     let size = Vec2::from(view.hzb_size);

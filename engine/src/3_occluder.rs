@@ -1,4 +1,5 @@
-//! Stage 3a, occluder selection: which artist occluders to rasterize this frame.
+//! Stage 3, occluders: the [`Occluder`] component an artist gives an object, the [`OccluderInstance`] the
+//! raster stage draws, and the selection of which occluders to rasterize this frame:
 //!
 //! 1. Frustum: an occluder lies inside its object's bounds, so one whose object the frustum stage culled is
 //!    skipped.
@@ -11,9 +12,70 @@
 //!    is skipped and smaller ones after it may still fill the budget (see [`select_occluders`]).
 
 use crate::bounds::BoundsStore;
-use crate::raster::OccluderInstance;
 use crate::visible::VisibleSet;
+use bevy_ecs::prelude::*;
 use glam::Vec3;
+use std::sync::Arc;
+
+/// Marks an edge of an [`Occluder`] triangle without a neighbouring triangle.
+pub const NO_NEIGHBOUR: u32 = u32::MAX;
+
+/// An artist occluder: triangles in the entity's local space, meant to lie inside the rendered geometry, that
+/// the software occlusion stage rasterizes to hide what is behind them. Triangles are counter-clockwise seen
+/// from outside; closed meshes occlude best, since the raster covers the union of their front faces.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct Occluder {
+    /// Triangle list: every three vertices form one triangle, in the entity's local space. Shared, since many
+    /// objects of one shape carry the same occluder.
+    pub triangles: Arc<[Vec3]>,
+    /// For edge `e` of triangle `t` (from vertex `e` to vertex `e + 1`), at `3 * t + e`: the triangle sharing
+    /// that edge in the opposite direction, or [`NO_NEIGHBOUR`]. Built once by [`Occluder::new`].
+    pub neighbours: Arc<[u32]>,
+}
+
+impl Occluder {
+    /// An occluder from a triangle list (a trailing partial triangle is ignored). Edges are matched by exact
+    /// vertex positions; an edge shared by more than two triangles counts as having no neighbour.
+    pub fn new(triangles: impl Into<Arc<[Vec3]>>) -> Self {
+        let triangles: Arc<[Vec3]> = triangles.into();
+        let key = |p: Vec3| p.to_array().map(f32::to_bits);
+        let mut edges: std::collections::HashMap<([u32; 3], [u32; 3]), Vec<u32>> = std::collections::HashMap::new();
+        let count = triangles.len() / 3;
+        for t in 0..count {
+            for e in 0..3 {
+                let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
+                edges.entry((key(a), key(b))).or_default().push(t as u32);
+            }
+        }
+        let mut neighbours = vec![NO_NEIGHBOUR; 3 * count];
+        for t in 0..count {
+            for e in 0..3 {
+                let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
+                let forward = edges.get(&(key(a), key(b))).map_or(0, Vec::len);
+                if let Some([other]) = edges.get(&(key(b), key(a))).map(Vec::as_slice)
+                    && forward == 1
+                {
+                    neighbours[3 * t + e] = *other;
+                }
+            }
+        }
+        Self { triangles: Arc::from(&triangles[..3 * count]), neighbours: neighbours.into() }
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len() / 3
+    }
+}
+
+/// One occluder to rasterize: its mesh and its world transform.
+#[derive(Clone, Copy, Debug)]
+pub struct OccluderInstance<'a> {
+    /// The occluder mesh, with its edge adjacency.
+    pub occluder: &'a Occluder,
+    /// Local-to-world transform.
+    pub transform: glam::Affine3A,
+}
 
 /// Candidates ordered per round of selection: enough to fill most budgets in one round.
 const ROUND: usize = 1024;
@@ -33,6 +95,7 @@ pub fn select_occluders<'a>(
     occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
     let mut ranked: Vec<(f32, u32)> = Vec::new();
+    let soa = store.soa();
     for (word_index, (&visible, &occluders)) in
         frustum_visible.words().iter().zip(store.occluders().words()).enumerate()
     {
@@ -40,13 +103,13 @@ pub fn select_occluders<'a>(
         while bits != 0 {
             let slot = word_index * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
-            let offset = Vec3::new(store.center_x[slot], store.center_y[slot], store.center_z[slot]) - camera_position;
-            let extent = Vec3::new(store.extent_x[slot], store.extent_y[slot], store.extent_z[slot]);
+            let offset = Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]) - camera_position;
+            let extent = Vec3::new(soa.extent_x[slot], soa.extent_y[slot], soa.extent_z[slot]);
             let distance_squared = offset.length_squared();
             if offset.abs().cmple(extent).all() || distance_squared <= 0.0 {
                 continue; // The camera is inside the object.
             }
-            ranked.push((store.radius[slot] * store.radius[slot] / distance_squared, slot as u32));
+            ranked.push((soa.radius[slot] * soa.radius[slot] / distance_squared, slot as u32));
         }
     }
     let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0);

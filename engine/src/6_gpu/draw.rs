@@ -1,4 +1,4 @@
-//! Draw (`shaders/draw.wgsl`): the culled survivors with one `multi_draw_indexed_indirect_count` (or
+//! Draw (`draw.wgsl`): the culled survivors with one `multi_draw_indexed_indirect_count` (or
 //! `multi_draw_indexed_indirect` where the count feature is missing), or every cluster of every instance with
 //! culling off, through the same shader, into colour, object-ID and depth targets that are read back as an
 //! image. Back faces are culled by the rasterizer; depth follows the camera's convention.
@@ -78,7 +78,10 @@ impl RenderTargets {
     }
 
     /// Reads all three targets back.
-    pub fn read(&self, context: &GpuContext) -> RenderedImage {
+    ///
+    /// # Errors
+    /// [`super::GpuError::Lost`] when the device is lost.
+    pub fn read(&self, context: &GpuContext) -> Result<RenderedImage, super::GpuError> {
         let row_bytes = (self.width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let size = u64::from(row_bytes * self.height);
         let read = |texture: &wgpu::Texture, aspect| {
@@ -95,23 +98,23 @@ impl RenderTargets {
                     },
                     wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
                 )
-            });
+            })?;
             let mut out = Vec::with_capacity((self.width * self.height * 4) as usize);
             for row in bytes.chunks_exact(row_bytes as usize) {
                 out.extend_from_slice(&row[..(self.width * 4) as usize]);
             }
-            out
+            Ok(out)
         };
-        let color = read(&self.color, wgpu::TextureAspect::All);
-        let object = read(&self.object, wgpu::TextureAspect::All);
-        let depth = read(&self.depth, wgpu::TextureAspect::DepthOnly);
-        RenderedImage {
+        let color = read(&self.color, wgpu::TextureAspect::All)?;
+        let object = read(&self.object, wgpu::TextureAspect::All)?;
+        let depth = read(&self.depth, wgpu::TextureAspect::DepthOnly)?;
+        Ok(RenderedImage {
             width: self.width,
             height: self.height,
             color: bytemuck::cast_slice(&color).to_vec(),
             object: bytemuck::cast_slice(&object).to_vec(),
             depth: bytemuck::cast_slice(&depth).to_vec(),
-        }
+        })
     }
 }
 
@@ -150,7 +153,7 @@ pub struct DrawPass {
 impl DrawPass {
     /// Builds the pipelines (one per depth direction).
     pub fn new(context: &GpuContext) -> Self {
-        let module = context.shader("draw", include_str!("../../../shaders/draw.wgsl"));
+        let module = context.shader("draw", include_str!("../../shaders/draw.wgsl"));
         let attributes = wgpu::vertex_attr_array![0 => Float32x3];
         let pipeline = |compare| {
             context.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {

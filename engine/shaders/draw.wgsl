@@ -1,7 +1,6 @@
 // Draw: survivors of the culling passes, or every cluster with culling off, through the same shader into
 // colour, object ID and depth. The instance index comes from the indirect draw's first instance.
 
-@group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 
 struct Varyings {

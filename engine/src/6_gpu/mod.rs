@@ -9,18 +9,48 @@
 //!    into an index buffer with one indirect draw per cluster;
 //! 6. [`draw`]: `multi_draw_indexed_indirect_count` into colour, object-ID and depth targets, read back.
 //!
-//! [`GpuContext`] opens a device without a window; [`frame::GpuCuller`] runs the passes of one frame.
-//! Each compute test has a CPU twin in its module, which the tests compare the GPU against.
+//! Each pass's module owns its pipeline, bind groups, dispatch and CPU twin (which the tests compare the GPU
+//! against); [`frame`] only orchestrates them. [`interface`] holds what Rust and WGSL share, once.
+//! [`GpuContext`] opens a device; [`GpuCuller::for_world`] builds the passes for a scene and
+//! [`GpuCuller::run_world`] runs one frame after the CPU stages.
+//!
+//! # Example: culling and drawing a frame
+//! ```no_run
+//! use bevy_ecs::prelude::*;
+//! use cullet::prelude::*;
+//! use cullet::scene::city::{CityParams, CityScene};
+//!
+//! let city = CityScene::generate(CityParams::with_objects(1_000));
+//! let (mut world, mut schedule) = (World::new(), Schedule::default());
+//! cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+//! city.spawn(&mut world);
+//! world.insert_resource(city.benchmark_cameras()[0].1);
+//!
+//! let context = GpuContext::new()?;
+//! let mut culler = GpuCuller::for_world(&context, &world, &city.scene.meshes, (1280, 720));
+//! schedule.run(&mut world);
+//! world.clear_trackers();
+//! let frame = culler.run_world(&context, &mut world, &GpuCullSettings::default())?;
+//! println!("{} triangles drawn in {} draws", frame.counters.triangles_out, frame.counters.draws);
+//! # Ok::<(), GpuError>(())
+//! ```
 
 pub mod cluster_cull;
 pub mod clusters;
 pub mod draw;
 pub mod frame;
 pub mod hzb;
+pub mod interface;
 pub mod scene;
 pub mod triangle_cull;
 
+pub use frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, GpuPassTimes};
+
 use thiserror::Error;
+
+/// The WGSL every stage shares (structs, bindings of the view and the HZB, the HZB test); it follows the
+/// generated [`interface::wgsl_prelude`] in every shader.
+const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 
 /// Why no GPU pipeline could be made.
 #[derive(Debug, Error)]
@@ -39,6 +69,9 @@ pub enum GpuError {
     /// The device could not be opened.
     #[error("could not open the GPU device: {0}")]
     Device(String),
+    /// The device was lost, or a read-back from it failed, mid-frame: make a new [`GpuContext`] and culler.
+    #[error("the GPU device was lost or a read-back failed: {0}")]
+    Lost(String),
 }
 
 /// A device and queue opened without a window, with the features the pipeline uses.
@@ -130,22 +163,47 @@ impl GpuContext {
         })
     }
 
-    /// A shader module from a stage's WGSL, with `shaders/common.wgsl` prepended.
+    /// A shader module from a stage's WGSL, assembled by [`shader_source`].
     pub(crate) fn shader(&self, label: &str, stage_source: &str) -> wgpu::ShaderModule {
-        let source = format!("{}\n{}", include_str!("../../../shaders/common.wgsl"), stage_source);
         self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(label),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
+            source: wgpu::ShaderSource::Wgsl(shader_source(stage_source).into()),
+        })
+    }
+
+    /// A bind group of `pipeline`'s group `group` with `buffers` as `(binding, buffer)` pairs, each bound whole.
+    pub(crate) fn bind_buffers(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        group: u32,
+        buffers: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<_> = buffers
+            .iter()
+            .map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &pipeline.get_bind_group_layout(group),
+            entries: &entries,
         })
     }
 
     /// Reads a buffer back (it must have `COPY_SRC`), waiting for the GPU.
-    pub fn read_buffer(&self, buffer: &wgpu::Buffer, size: u64) -> Vec<u8> {
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost or the buffer cannot be mapped.
+    pub fn read_buffer(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
         self.read_back(size, |encoder, staging| encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size))
     }
 
     /// Reads back `size` bytes that `copy` records into a staging buffer, waiting for the GPU.
-    pub(crate) fn read_back(&self, size: u64, copy: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer)) -> Vec<u8> {
+    pub(crate) fn read_back(
+        &self,
+        size: u64,
+        copy: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer),
+    ) -> Result<Vec<u8>, GpuError> {
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size,
@@ -159,18 +217,28 @@ impl GpuContext {
     }
 
     /// Maps a `MAP_READ` buffer after the queue's work is done and copies it out.
-    fn map_and_read(&self, staging: &wgpu::Buffer) -> Vec<u8> {
+    fn map_and_read(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+        let lost = |what: &str, error: &dyn std::fmt::Display| GpuError::Lost(format!("{what}: {error}"));
         let slice = staging.slice(..);
         let (sender, receiver) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |result| {
             let _ = sender.send(result);
         });
-        self.device.poll(wgpu::PollType::wait_indefinitely()).expect("GPU wait failed");
-        receiver.recv().expect("map callback dropped").expect("buffer map failed");
-        let bytes = slice.get_mapped_range().expect("mapped range").to_vec();
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| lost("waiting for the GPU", &e))?;
+        receiver
+            .recv()
+            .map_err(|e| lost("buffer map callback dropped", &e))?
+            .map_err(|e| lost("buffer map failed", &e))?;
+        let bytes = slice.get_mapped_range().map_err(|e| lost("mapped range", &e))?.to_vec();
         staging.unmap();
-        bytes
+        Ok(bytes)
     }
+}
+
+/// The full WGSL of a stage: the generated constants ([`interface::wgsl_prelude`]), `common.wgsl`, then the
+/// stage's own source.
+pub fn shader_source(stage_source: &str) -> String {
+    format!("{}\n{}\n{}", interface::wgsl_prelude(), COMMON_WGSL, stage_source)
 }
 
 /// Opens a [`GpuContext`] for a test, or says why it cannot: with `CULLET_REQUIRE_GPU` set (as CI sets it)

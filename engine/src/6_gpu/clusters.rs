@@ -14,7 +14,7 @@ pub const MAX_CLUSTER_TRIANGLES: usize = 124;
 /// meshoptimizer's cone weight: 0.25 trades a little cluster compactness for tighter normal cones.
 const CONE_WEIGHT: f32 = 0.25;
 
-/// A cluster as the shaders read it (`Cluster` in `shaders/common.wgsl`): bounds in mesh space, and where its
+/// A cluster as the shaders read it (`Cluster` in `common.wgsl`): bounds in mesh space, and where its
 /// triangles are in [`ClusterLibrary::indices`].
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]

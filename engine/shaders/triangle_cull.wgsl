@@ -4,7 +4,6 @@
 // vertex at w <= 0 skips the screen-space tests and is kept. The engine's `triangle_cull::cull_triangle` is
 // the same test on the CPU.
 
-@group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 @group(0) @binding(2) var<storage, read> clusters: array<Cluster>;
 @group(0) @binding(3) var<storage, read> positions: array<f32>;
@@ -13,11 +12,6 @@
 @group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;
 @group(0) @binding(7) var<storage, read_write> draw_indices: array<u32>;
 @group(0) @binding(8) var<storage, read_write> draws: array<DrawArgs>;
-
-// Pixels a vertex may move when the rasterizer snaps it to its sub-pixel grid (1/256 on common hardware):
-// screen-space tests keep everything within this margin.
-const SNAP: f32 = 1.0 / 128.0;
-const KEEP: u32 = 0xffffffffu;
 
 var<workgroup> survivor_total: u32;
 var<workgroup> kept_count: atomic<u32>;
@@ -29,7 +23,7 @@ fn position(index: u32) -> vec3<f32> {
 
 // Pixel coordinates, y up (pixel centres at k + 0.5 on both axes either way).
 fn to_pixels(clip: vec4<f32>) -> vec2<f32> {
-    return (clip.xy / clip.w * 0.5 + 0.5) * view.viewport;
+    return pixels_from_ndc(clip.xy / clip.w, view.viewport);
 }
 
 fn no_sample_between(lo: f32, hi: f32) -> bool {
@@ -78,7 +72,7 @@ fn cull_triangle(instance: Instance, p: array<vec3<f32>, 3>) -> u32 {
     return KEEP;
 }
 
-@compute @workgroup_size(128)
+@compute @workgroup_size(TRIANGLE_WORKGROUP_SIZE)
 fn main(
     @builtin(workgroup_id) workgroup: vec3<u32>,
     @builtin(num_workgroups) workgroups: vec3<u32>,
@@ -89,7 +83,7 @@ fn main(
         atomicStore(&kept_count, 0u);
     }
     let total = workgroupUniformLoad(&survivor_total);
-    let slot = workgroup.x + workgroup.y * workgroups.x;
+    let slot = workgroup_index(workgroup, workgroups);
     if (slot >= total) {
         return;
     }

@@ -8,10 +8,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{Affine3A, Vec3};
 use wgpu::util::DeviceExt;
 
-/// Set in [`GpuInstance::flags`] when the transform is invertible and does not mirror: the cone test, run in
-/// mesh space with the camera brought there, is then valid (which side of a plane a point lies on survives
-/// such a transform, non-uniform scale included).
-pub const INSTANCE_CONE_SAFE: u32 = 1;
+pub use super::interface::INSTANCE_CONE_SAFE;
 
 /// [`GpuInstance::mesh`] of an object with no mesh: it has no clusters and draws nothing.
 pub const NO_MESH: u32 = u32::MAX;
@@ -22,17 +19,17 @@ pub fn instances_from_world(world: &bevy_ecs::world::World) -> Vec<GpuInstance> 
     (0..store.len() as u32).map(|slot| instance_of(world, slot)).collect()
 }
 
-/// The instance in store slot `slot` of `world`: its [`crate::bounds::MeshRef`] with its
+/// The instance in store slot `slot` of `world`: its [`crate::mesh::MeshRef`] with its
 /// [`crate::bounds::ObjectTransform`]; an object without a mesh gets [`NO_MESH`].
 pub fn instance_of(world: &bevy_ecs::world::World, slot: u32) -> GpuInstance {
     let entity = world.resource::<crate::bounds::BoundsStore>().entities()[slot as usize];
     let transform = world.get::<crate::bounds::ObjectTransform>(entity).map_or(Affine3A::IDENTITY, |t| t.0);
-    let mesh = world.get::<crate::bounds::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
-    let color = world.get::<crate::scene::ObjectColor>(entity).map(|c| c.0);
+    let mesh = world.get::<crate::mesh::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
+    let color = world.get::<crate::mesh::ObjectColor>(entity).map(|c| c.0);
     GpuInstance::new(&transform, mesh).with_color(color)
 }
 
-/// One drawn object as the shaders read it (`Instance` in `shaders/common.wgsl`).
+/// One drawn object as the shaders read it (`Instance` in `common.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuInstance {

@@ -11,8 +11,8 @@
 //! error, so the test culls only what the pyramid provably hides.
 
 use crate::bounds::BoundsStore;
+use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
-use crate::raster::{DepthPyramid, ScreenView};
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
 
@@ -187,16 +187,17 @@ fn test_word_with(
 /// quotients of those interval ends, which gives the screen rectangle with two reciprocals per box.
 #[inline(always)]
 fn project_boxes(store: &BoundsStore, view: &ScreenView, base: usize, lanes: &[usize]) -> [ScreenRect; LANES] {
+    let soa = store.soa();
     let mut c = [[0f32; LANES]; 3];
     let mut e = [[0f32; LANES]; 3];
     for (i, &lane) in lanes.iter().enumerate() {
         let slot = base + lane;
-        c[0][i] = store.center_x[slot] - view.origin.x;
-        c[1][i] = store.center_y[slot] - view.origin.y;
-        c[2][i] = store.center_z[slot] - view.origin.z;
-        e[0][i] = store.extent_x[slot];
-        e[1][i] = store.extent_y[slot];
-        e[2][i] = store.extent_z[slot];
+        c[0][i] = soa.center_x[slot] - view.origin.x;
+        c[1][i] = soa.center_y[slot] - view.origin.y;
+        c[2][i] = soa.center_z[slot] - view.origin.z;
+        e[0][i] = soa.extent_x[slot];
+        e[1][i] = soa.extent_y[slot];
+        e[2][i] = soa.extent_z[slot];
     }
     let m = view.clip_from_relative_f32;
     let rows = [0, 1, 3].map(|r| [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]]);
@@ -308,7 +309,7 @@ mod avx2 {
     use std::arch::x86_64::*;
 
     /// # Safety
-    /// The processor must support AVX2; every `base + lane` must be a slot of `store`.
+    /// The processor must support AVX2. (Slots are read with checked indexing: one past the store panics.)
     #[target_feature(enable = "avx2")]
     pub unsafe fn project_boxes(
         store: &BoundsStore,
@@ -317,13 +318,14 @@ mod avx2 {
         lanes: &[usize],
     ) -> [ScreenRect; LANES] {
         let mut gathered = [[0f32; LANES]; 6];
-        let arrays =
-            [&store.center_x, &store.center_y, &store.center_z, &store.extent_x, &store.extent_y, &store.extent_z];
+        let soa = store.soa();
+        let arrays = [soa.center_x, soa.center_y, soa.center_z, soa.extent_x, soa.extent_y, soa.extent_z];
         for (i, &lane) in lanes.iter().enumerate() {
             for (values, array) in gathered.iter_mut().zip(arrays) {
                 values[i] = array[base + lane];
             }
         }
+        // SAFETY: each array holds exactly the 8 lanes an unaligned load reads.
         let load = |values: &[f32; LANES]| unsafe { _mm256_loadu_ps(values.as_ptr()) };
         let splat = |value: f32| _mm256_set1_ps(value);
         let abs = |v: __m256| _mm256_andnot_ps(_mm256_set1_ps(-0.0), v);
@@ -383,11 +385,13 @@ mod avx2 {
         let visible_mask = !_mm256_movemask_ps(_mm256_and_ps(valid, _mm256_castsi256_ps(nonempty))) as u8;
         let store_i32 = |v: __m256i| {
             let mut out = [0i32; LANES];
+            // SAFETY: `out` is 8 i32s, the 32 bytes the unaligned store writes.
             unsafe { _mm256_storeu_si256(out.as_mut_ptr().cast(), v) };
             out
         };
         let (x0, x1, y0, y1) = (store_i32(x0), store_i32(x1), store_i32(y0), store_i32(y1));
         let mut nearest = [0f32; LANES];
+        // SAFETY: `nearest` is 8 f32s, the 32 bytes the unaligned store writes.
         unsafe { _mm256_storeu_ps(nearest.as_mut_ptr(), inv_near) };
         std::array::from_fn(|i| ScreenRect {
             x0: x0[i] as u32,
@@ -416,12 +420,14 @@ mod tests {
         let mut store = BoundsStore::default();
         for i in 0..512u32 {
             let f = i as f32;
-            let bounds = WorldBounds {
-                center: Vec3::new((f * 0.37).sin() * 40.0, (f * 0.11).cos() * 10.0, -(f * 0.7) % 90.0 + 20.0),
-                half_extent: Vec3::new(0.1 + (f * 0.3) % 4.0, 0.2 + (f * 0.7) % 3.0, 0.05 + (f * 0.13) % 5.0),
-                radius: 0.0,
-            };
-            store.insert(bevy_ecs::entity::Entity::from_raw_u32(i + 1).unwrap(), &bounds);
+            let entity = bevy_ecs::entity::Entity::from_raw_u32(i + 1).unwrap();
+            let bounds = WorldBounds::new(
+                entity,
+                Vec3::new((f * 0.37).sin() * 40.0, (f * 0.11).cos() * 10.0, -(f * 0.7) % 90.0 + 20.0),
+                Vec3::new(0.1 + (f * 0.3) % 4.0, 0.2 + (f * 0.7) % 3.0, 0.05 + (f * 0.13) % 5.0),
+            )
+            .unwrap();
+            store.insert(entity, &bounds).unwrap();
         }
         let camera = Camera::looking_at(Vec3::new(1.0, 2.0, 30.0), Vec3::new(0.0, 0.0, 0.0));
         let view = ScreenView::new(&camera, 256, 144);

@@ -1,0 +1,192 @@
+//! A renderer's use of the GPU culler: cull a frame of the built-in city, then draw the survivors from a
+//! render pass of your own with one `multi_draw_indexed_indirect_count` over the culler's outputs (compacted
+//! indices, indirect arguments, draw count), and compare with drawing everything.
+//!
+//! Your shader starts with the engine's declarations (`cullet::gpu::shader_source`): the `Instance` struct,
+//! the `view` uniform at group 0 binding 0 and `relative_point`. Each indirect draw's `first_instance` is the
+//! object's store slot, so `instance_index` picks its transform.
+//!
+//! `cargo run --release -p cullet --example own_render_pass` (needs a GPU adapter; Mesa's lavapipe will do).
+
+use bevy_ecs::prelude::*;
+use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError};
+use cullet::prelude::*;
+use cullet::scene::city::{CityParams, CityScene};
+
+/// Flat orange, depth-tested: just enough to show where the survivors cover the screen.
+const SHADER: &str = "
+@group(0) @binding(1) var<storage, read> instances: array<Instance>;
+
+@vertex
+fn vs(@location(0) position: vec3<f32>, @builtin(instance_index) instance: u32) -> @builtin(position) vec4<f32> {
+    let relative = relative_point(instances[instance], position, view.camera.xyz);
+    return view.clip_from_relative * vec4<f32>(relative, 1.0);
+}
+
+@fragment
+fn fs() -> @location(0) vec4<f32> {
+    return vec4<f32>(1.0, 0.5, 0.1, 1.0);
+}
+";
+
+const SIZE: (u32, u32) = (640, 360);
+const COLOR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+fn main() -> Result<(), GpuError> {
+    // The CPU stages, then the GPU passes, for one frame of a 10 000-object city.
+    let city = CityScene::generate(CityParams::with_objects(10_000));
+    let (mut world, mut schedule) = (World::new(), Schedule::default());
+    cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+    city.spawn(&mut world);
+    let camera = Camera { aspect: SIZE.0 as f32 / SIZE.1 as f32, ..city.benchmark_cameras()[0].1 };
+    world.insert_resource(camera);
+    let context = GpuContext::new()?;
+    let mut culler = GpuCuller::for_world(&context, &world, &city.scene.meshes, SIZE);
+    schedule.run(&mut world);
+    world.clear_trackers();
+    let frame = culler.run_world(&context, &mut world, &GpuCullSettings::default())?;
+    let buffers = culler.draw_buffers().expect("a frame ran");
+
+    // Your own pipeline over the culler's buffers.
+    let device = &context.device;
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("my draw"),
+        source: wgpu::ShaderSource::Wgsl(cullet::gpu::shader_source(SHADER).into()),
+    });
+    let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("my draw"),
+        layout: None,
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("vs"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+            })],
+        },
+        primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
+        // The camera's default depth is reversed: nearer is greater, cleared to 0.
+        depth_stencil: Some(wgpu::DepthStencilState {
+            format: DEPTH,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Greater),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }),
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs"),
+            compilation_options: Default::default(),
+            targets: &[Some(COLOR.into())],
+        }),
+        multiview_mask: None,
+        cache: None,
+    });
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("my draw"),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry { binding: 0, resource: buffers.view.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: buffers.instances.as_entire_binding() },
+        ],
+    });
+    let texture = |format, usage| {
+        device.create_texture(&wgpu::TextureDescriptor {
+            label: None,
+            size: wgpu::Extent3d { width: SIZE.0, height: SIZE.1, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    };
+    let color = texture(COLOR, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
+    let depth = texture(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT);
+    let (color_view, depth_view) = (color.create_view(&Default::default()), depth.create_view(&Default::default()));
+
+    let mut encoder = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("my draw"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &color_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &depth_view,
+                depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+                stencil_ops: None,
+            }),
+            ..Default::default()
+        });
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.set_vertex_buffer(0, buffers.positions.slice(..));
+        pass.set_index_buffer(buffers.indices.slice(..), wgpu::IndexFormat::Uint32);
+        if context.has_draw_count {
+            pass.multi_draw_indexed_indirect_count(
+                buffers.args,
+                0,
+                buffers.count,
+                buffers.count_offset,
+                buffers.max_draws,
+            );
+        } else {
+            // Without the count feature the culler zeroes the unused draws: draw them all.
+            pass.multi_draw_indexed_indirect(buffers.args, 0, buffers.max_draws);
+        }
+    }
+    context.queue.submit([encoder.finish()]);
+
+    // Read the image back and count the pixels the survivors cover.
+    let covered = covered_pixels(&context, &color)?;
+    let c = frame.counters;
+    println!(
+        "{} objects; the CPU kept {}, the GPU kept {} of {} clusters and {} of {} triangles in {} draws",
+        world.resource::<BoundsStore>().len(),
+        c.instances,
+        c.clusters_out,
+        c.clusters_in,
+        c.triangles_out,
+        c.triangles_in,
+        c.draws
+    );
+    println!("my render pass covered {covered} of {} pixels", SIZE.0 * SIZE.1);
+    assert!(covered > 0, "the survivors cover part of the screen");
+    Ok(())
+}
+
+/// Pixels of `color` that are not the black it was cleared to.
+fn covered_pixels(context: &GpuContext, color: &wgpu::Texture) -> Result<usize, GpuError> {
+    let row_bytes = (SIZE.0 * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+    let staging = context.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: u64::from(row_bytes * SIZE.1),
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    let mut encoder = context.device.create_command_encoder(&Default::default());
+    encoder.copy_texture_to_buffer(
+        color.as_image_copy(),
+        wgpu::TexelCopyBufferInfo {
+            buffer: &staging,
+            layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row_bytes), rows_per_image: None },
+        },
+        wgpu::Extent3d { width: SIZE.0, height: SIZE.1, depth_or_array_layers: 1 },
+    );
+    context.queue.submit([encoder.finish()]);
+    let bytes = context.read_buffer(&staging, staging.size())?;
+    Ok(bytes
+        .chunks_exact(row_bytes as usize)
+        .flat_map(|row| row[..SIZE.0 as usize * 4].chunks_exact(4))
+        .filter(|pixel| pixel[..3] != [0, 0, 0])
+        .count())
+}
