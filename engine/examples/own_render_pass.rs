@@ -9,6 +9,7 @@
 //! `cargo run --release -p cullet --example own_render_pass` (needs a GPU adapter; Mesa's lavapipe will do).
 
 use bevy_ecs::prelude::*;
+use cullet::gpu::draw::NO_OBJECT;
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError};
 use cullet::prelude::*;
 use cullet::scene::city::{CityParams, CityScene};
@@ -159,8 +160,12 @@ fn main() -> Result<(), GpuError> {
         c.triangles_in,
         c.draws
     );
-    println!("my render pass covered {covered} of {} pixels", SIZE.0 * SIZE.1);
+    // The culler drew the same survivors into its own targets: the same pixels are covered.
+    let culler_image = culler.read_image(&context)?;
+    let culler_covered = culler_image.object.iter().filter(|&&object| object != NO_OBJECT).count();
+    println!("my render pass covered {covered} of {} pixels, the culler's own draw {culler_covered}", SIZE.0 * SIZE.1);
     assert!(covered > 0, "the survivors cover part of the screen");
+    assert_eq!(covered, culler_covered, "the same draws cover the same pixels");
     Ok(())
 }
 

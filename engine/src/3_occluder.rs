@@ -86,7 +86,7 @@ const ROUND: usize = 1024;
 /// their occluders, best first.
 ///
 /// Candidates are found with a bitwise AND and ranked from the store's arrays; only the best are ordered, a
-/// round of [`ROUND`] at a time, until the budget is full or a whole round fits nothing more.
+/// round of `ROUND` (1024) at a time, until the budget is full or a whole round fits nothing more.
 pub fn select_occluders<'a>(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,

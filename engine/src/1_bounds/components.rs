@@ -47,13 +47,13 @@ pub struct ObjectTransform(pub Affine3A);
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct MeshRef(pub u32);
 
-/// Marks an object that never moves: [`sync_bounds`] never scans it, and later stages skip per-frame work for
+/// Marks an object that never moves: [`super::sync_bounds`] never scans it, and later stages skip per-frame work for
 /// it. To move a static object anyway, insert a new [`ObjectTransform`] (an insert, not a mutation).
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct Static;
 
 /// Inserted on an entity whose bounds were rejected, with the reason. The entity is not in the store, so no
-/// stage culls or draws it; the error was also logged and kept in [`BoundsStore::errors`].
+/// stage culls or draws it; the error was also logged and kept for [`super::BoundsStore::take_errors`].
 #[derive(Component, Clone, Debug, PartialEq)]
 pub struct BoundsRejected(pub BoundsError);
 

@@ -8,7 +8,7 @@
 //! - the group flags and the occluder bitset cover `padded_len` slots.
 //!
 //! The SIMD kernels of the frustum stage read 8 lanes at a time without bounds checks: they rely on this
-//! invariant, which `insert` and `remove` establish and check with [`BoundsStore::check_layout`] whenever they
+//! invariant, which `insert` and `remove` establish and check (`BoundsStore::check_layout`) whenever they
 //! resize the arrays. Every bound written passed [`WorldBounds::validate`].
 
 use super::components::{BoundsError, LocalBounds, ObjectTransform, WorldBounds};
@@ -223,7 +223,7 @@ impl BoundsStore {
     }
 
     /// Recomputes the boxes of all groups that were loosened by moves and removals. Group boxes are always
-    /// conservative; this only makes them tight again. [`sync_bounds`] tightens [`TIGHTEN_BUDGET`] a frame.
+    /// conservative; this only makes them tight again. [`super::sync_bounds`] tightens [`super::TIGHTEN_BUDGET`] a frame.
     pub fn tighten_groups(&mut self) {
         self.tighten_some_groups(usize::MAX);
     }

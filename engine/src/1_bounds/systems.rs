@@ -38,7 +38,7 @@ fn report(
 /// scanned. (New objects were stored already by [`on_bounds_inserted`]; their first run counts them again.)
 ///
 /// Invalid input is never stored: the entity gets [`BoundsRejected`], the error is logged and kept in
-/// [`BoundsStore::errors`], and an entity that was stored before is removed from the store.
+/// [`BoundsStore::take_errors`], and an entity that was stored before is removed from the store.
 #[allow(clippy::type_complexity)]
 pub fn sync_bounds(
     mut commands: Commands,

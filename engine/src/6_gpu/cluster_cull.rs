@@ -4,7 +4,7 @@
 //! 19.5 level, 2x2 texels) and, opt-in and lossy, a small-cluster test. Survivors are appended to a compact
 //! `(instance, cluster)` list with an atomic counter.
 //!
-//! [`ClusterCullPass`] records the pass; [`cull_cluster`] is the same test on the CPU, operation for operation,
+//! `ClusterCullPass` records the pass; [`cull_cluster`] is the same test on the CPU, operation for operation,
 //! for the tests to compare against.
 
 use super::GpuContext;

@@ -6,7 +6,7 @@
 //! cover no sample, so culling stays conservative. Survivors are compacted into the draw index buffer and each
 //! cluster with survivors becomes one `DrawIndexedIndirectArgs` whose first instance names its instance.
 //!
-//! [`TriangleCullPass`] records the pass; [`cull_triangle`] is the same test on the CPU.
+//! `TriangleCullPass` records the pass; [`cull_triangle`] is the same test on the CPU.
 
 use super::GpuContext;
 use super::interface::{GpuView, SNAP, VIEW_BACKFACE, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM};
