@@ -44,12 +44,9 @@ fn cull_cluster(instance: Instance, cluster: Cluster) -> u32 {
 }
 
 @compute @workgroup_size(CLUSTER_WORKGROUP_SIZE)
-fn main(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) thread: u32,
-) {
-    let slot = workgroup_index(workgroup, workgroups);
+fn main(invocation: Invocation) {
+    let thread = invocation.thread;
+    let slot = item_index(invocation);
     if (slot >= view.visible_count) {
         return;
     }

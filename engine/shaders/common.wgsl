@@ -100,9 +100,17 @@ fn camera_in_mesh_space(instance: Instance, camera: vec3<f32>) -> vec3<f32> {
 // binding 0 of group 0 free.)
 @group(0) @binding(0) var<uniform> view: View;
 
-// The index of this workgroup in a dispatch spread over y past MAX_WORKGROUPS_X (`interface::workgroup_grid`).
-fn workgroup_index(workgroup: vec3<u32>, workgroups: vec3<u32>) -> u32 {
-    return workgroup.x + workgroup.y * workgroups.x;
+// What a culling pass's entry point is given: one workgroup per item (instance, cluster), spread over y past
+// MAX_WORKGROUPS_X (`interface::workgroup_grid`), its threads over the item's parts.
+struct Invocation {
+    @builtin(workgroup_id) workgroup: vec3<u32>,
+    @builtin(num_workgroups) workgroups: vec3<u32>,
+    @builtin(local_invocation_index) thread: u32,
+}
+
+// The item this workgroup works on: its index in the dispatch.
+fn item_index(invocation: Invocation) -> u32 {
+    return invocation.workgroup.x + invocation.workgroup.y * invocation.workgroups.x;
 }
 
 // Pixel coordinates of a point in normalized device coordinates on a `size` target, y up (pixel centres at

@@ -73,17 +73,14 @@ fn cull_triangle(instance: Instance, p: array<vec3<f32>, 3>) -> u32 {
 }
 
 @compute @workgroup_size(TRIANGLE_WORKGROUP_SIZE)
-fn main(
-    @builtin(workgroup_id) workgroup: vec3<u32>,
-    @builtin(num_workgroups) workgroups: vec3<u32>,
-    @builtin(local_invocation_index) thread: u32,
-) {
+fn main(invocation: Invocation) {
+    let thread = invocation.thread;
     if (thread == 0u) {
         survivor_total = atomicLoad(&counters[CLUSTERS_OUT]);
         atomicStore(&kept_count, 0u);
     }
     let total = workgroupUniformLoad(&survivor_total);
-    let slot = workgroup_index(workgroup, workgroups);
+    let slot = item_index(invocation);
     if (slot >= total) {
         return;
     }

@@ -114,6 +114,10 @@ impl Camera {
     }
 
     /// The camera-relative culling frustum, its planes extracted from the f64 matrices.
+    ///
+    /// # Errors
+    /// [`FrustumError`] for a camera whose matrices are not finite or degenerate (a zero `forward`, a field of
+    /// view outside (0, pi), a zero aspect); the frustum stage then keeps every object and reports it.
     pub fn frustum(&self) -> Result<Frustum, FrustumError> {
         Frustum::from_clip_from_relative_f64(self.position, self.clip_from_relative_f64(), self.depth)
     }

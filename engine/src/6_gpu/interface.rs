@@ -87,7 +87,7 @@ pub const CLUSTER_WORKGROUP_SIZE: u32 = 64;
 /// Threads per workgroup of the triangle pass (one workgroup per cluster, one thread per triangle): at least
 /// [`super::clusters::MAX_CLUSTER_TRIANGLES`].
 pub const TRIANGLE_WORKGROUP_SIZE: u32 = 128;
-/// Most workgroups along x of one dispatch; larger counts spread over y (the shaders' `workgroup_index`).
+/// Most workgroups along x of one dispatch; larger counts spread over y (the shaders' `item_index`).
 pub const MAX_WORKGROUPS_X: u32 = 65535;
 
 /// The per-frame uniform every pass reads (`View` in `common.wgsl`).
@@ -130,7 +130,7 @@ impl GpuView {
 }
 
 /// The workgroup grid for `count` workgroups: at most [`MAX_WORKGROUPS_X`] along x, the rest along y (the
-/// shaders' `workgroup_index` undoes it; workgroups past `count` return at once).
+/// shaders' `item_index` undoes it; workgroups past `count` return at once).
 pub fn workgroup_grid(count: u32) -> (u32, u32) {
     (count.clamp(1, MAX_WORKGROUPS_X), count.div_ceil(MAX_WORKGROUPS_X).max(1))
 }

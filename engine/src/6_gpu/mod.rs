@@ -93,7 +93,13 @@ pub struct GpuContext {
 
 impl GpuContext {
     /// Opens the default adapter of the primary backends (Vulkan, Metal, DX12; `WGPU_BACKEND` and the other
-    /// wgpu environment variables override). Requires indirect draws with a first instance: each indirect draw names its instance there.
+    /// wgpu environment variables override). Requires indirect draws with a first instance: each indirect draw
+    /// names its instance there.
+    ///
+    /// # Errors
+    /// [`GpuError::NoAdapter`] without a usable driver (install Mesa's `mesa-vulkan-drivers` on a machine
+    /// without a GPU), [`GpuError::Unsupported`] for an adapter without `INDIRECT_FIRST_INSTANCE`,
+    /// [`GpuError::Device`] when the device cannot be opened.
     pub fn new() -> Result<Self, GpuError> {
         futures_lite::future::block_on(Self::new_async())
     }
@@ -113,6 +119,9 @@ impl GpuContext {
 
     /// Opens the default adapter of `instance` that can present to `surface` (for a window; see
     /// [`GpuContext::instance`]), with the same requirements as [`GpuContext::new`].
+    ///
+    /// # Errors
+    /// As [`GpuContext::new`].
     pub fn for_surface(instance: &wgpu::Instance, surface: &wgpu::Surface<'_>) -> Result<Self, GpuError> {
         futures_lite::future::block_on(Self::open(instance, Some(surface)))
     }
