@@ -6,7 +6,7 @@
 //! pipeline nothing where it is not called.
 
 use crate::bounds::BoundsStore;
-use crate::gpu::frame::GpuFrameOutput;
+use crate::gpu::GpuFrameOutput;
 use crate::mesh::Mesh;
 use crate::mesh::MeshRef;
 use crate::pipeline::{FrustumVisible, OcclusionState};

@@ -4,16 +4,17 @@
 //! 19.5 level, 2x2 texels) and, opt-in and lossy, a small-cluster test. Survivors are appended to a compact
 //! `(instance, cluster)` list with an atomic counter.
 //!
-//! `ClusterCullPass` records the pass; [`cull_cluster`] is the same test on the CPU, operation for operation,
+//! `ClusterCullPass` records the pass, and `write_all_candidates` stands in for it on a tiny frame; [`cull_cluster`] is the same test on the CPU, operation for operation,
 //! for the tests to compare against.
 
 use super::GpuContext;
 use super::clusters::GpuCluster;
+use super::draw::cluster_draws;
 use super::interface::{
     CONE_SLACK, DEPTH_MARGIN, GpuView, INSTANCE_CONE_SAFE, RECT_MARGIN, SMALL_CLUSTER_PIXELS, VIEW_CONE, VIEW_HZB,
-    VIEW_SMALL_CLUSTER, workgroup_grid,
+    VIEW_SMALL_CLUSTER, counter, workgroup_grid,
 };
-use super::scene::GpuInstance;
+use super::scene::{GpuInstance, GpuScene};
 use glam::{Vec2, Vec3, Vec4};
 
 /// The buffers the cluster pass reads and writes.
@@ -90,6 +91,55 @@ impl ClusterCullPass {
         pass.set_bind_group(0, &frame_group, &[]);
         pass.set_bind_group(1, &hzb_group, &[]);
         pass.dispatch_workgroups(x, y, 1);
+    }
+}
+
+/// The buffers [`write_all_candidates`] fills in place of the cluster pass.
+pub(crate) struct CandidateBuffers<'a> {
+    /// `(instance, cluster)` survivors.
+    pub survivors: &'a wgpu::Buffer,
+    /// The counter slots.
+    pub counters: &'a wgpu::Buffer,
+    /// Whole-cluster draws, where the triangle pass is skipped too.
+    pub draws: &'a wgpu::Buffer,
+    /// Bytes of `draws`: without a draw count every slot is drawn, so the unused ones are zeroed.
+    pub draw_capacity: u64,
+}
+
+/// Stands in for the cluster pass of a tiny frame ([`super::GpuGating::tiny_scene_clusters`]): every cluster of
+/// the `visible` instances survives, and with `draw_clusters` each is also drawn whole (no triangle pass).
+/// Written before the frame's commands run, so these buffers are not cleared on the GPU.
+pub(crate) fn write_all_candidates(
+    context: &GpuContext,
+    scene: &GpuScene,
+    visible: &[u32],
+    buffers: &CandidateBuffers<'_>,
+    draw_clusters: bool,
+) {
+    let (library, instances) = (&scene.library, scene.instances());
+    let survivors: Vec<[u32; 2]> = visible
+        .iter()
+        .flat_map(|&slot| library.cluster_range(instances[slot as usize].mesh).map(move |c| [slot, c]))
+        .collect();
+    let mut counters = [0u32; counter::COUNTER_COUNT as usize];
+    counters[counter::CLUSTERS_IN as usize] = survivors.len() as u32;
+    counters[counter::CLUSTERS_OUT as usize] = survivors.len() as u32;
+    let draws = if draw_clusters { cluster_draws(library, instances, visible.iter().copied()) } else { Vec::new() };
+    if draw_clusters {
+        counters[counter::TRIANGLES_OUT as usize] = draws.iter().map(|d| d.index_count / 3).sum();
+        counters[counter::DRAWS as usize] = draws.len() as u32;
+    }
+    if !survivors.is_empty() {
+        context.queue.write_buffer(buffers.survivors, 0, bytemuck::cast_slice(&survivors));
+    }
+    context.queue.write_buffer(buffers.counters, 0, bytemuck::cast_slice(&counters));
+    // Without a draw count every slot is drawn: the unused ones must be empty draws.
+    let mut args: Vec<u8> = draws.iter().flat_map(|d| d.as_bytes().to_vec()).collect();
+    if !context.has_draw_count {
+        args.resize(buffers.draw_capacity as usize, 0);
+    }
+    if !args.is_empty() {
+        context.queue.write_buffer(buffers.draws, 0, &args);
     }
 }
 

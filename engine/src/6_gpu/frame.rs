@@ -2,7 +2,7 @@
 //! culling, triangle culling, draw), each recorded by its own module, then the counters read back. Frames whose
 //! candidates exceed the device's largest storage binding run in batches.
 
-use super::cluster_cull::{ClusterCullBuffers, ClusterCullPass, ClusterVerdict};
+use super::cluster_cull::{CandidateBuffers, ClusterCullBuffers, ClusterCullPass, write_all_candidates};
 use super::clusters::ClusterLibrary;
 use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws};
 use super::hzb::{Hzb, HzbLevel};
@@ -10,8 +10,9 @@ use super::interface::{
     GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
     VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM, counter,
 };
+use super::output::{COUNTER_BYTES, GpuCounters, GpuFrameOutput, PassTimer, TIMED_PASSES};
 use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
-use super::triangle_cull::{TriangleCullBuffers, TriangleCullPass, TriangleVerdict};
+use super::triangle_cull::{TriangleCullBuffers, TriangleCullPass};
 use super::{GpuContext, GpuError};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
@@ -22,7 +23,7 @@ use crate::pipeline::{BenefitGate, OcclusionSettings, OcclusionState};
 use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
 use glam::Vec4;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 use wgpu::util::DeviceExt;
 
 /// Which GPU tests run.
@@ -52,255 +53,6 @@ impl Default for GpuCullSettings {
             triangle_backface: true,
             triangle_frustum: true,
             small_triangles: true,
-        }
-    }
-}
-
-/// Counters of one frame, read back from the GPU.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct GpuCounters {
-    /// Instances submitted (the CPU stages' survivors).
-    pub instances: u32,
-    /// Clusters tested.
-    pub clusters_in: u32,
-    /// Clusters culled by the frustum, cone, HZB and small tests.
-    pub clusters_frustum: u32,
-    /// See `clusters_frustum`.
-    pub clusters_cone: u32,
-    /// See `clusters_frustum`.
-    pub clusters_hzb: u32,
-    /// See `clusters_frustum`.
-    pub clusters_small: u32,
-    /// Clusters kept.
-    pub clusters_out: u32,
-    /// Triangles tested.
-    pub triangles_in: u32,
-    /// Triangles culled as degenerate, back-facing, off-screen and small.
-    pub triangles_degenerate: u32,
-    /// See `triangles_degenerate`.
-    pub triangles_backface: u32,
-    /// See `triangles_degenerate`.
-    pub triangles_frustum: u32,
-    /// See `triangles_degenerate`.
-    pub triangles_small: u32,
-    /// Triangles kept.
-    pub triangles_out: u32,
-    /// Indirect draws issued (clusters with surviving triangles), all in one multi-draw.
-    pub draws: u32,
-}
-
-/// Bytes of the counter buffer.
-const COUNTER_BYTES: u64 = counter::COUNTER_COUNT as u64 * 4;
-
-impl GpuCounters {
-    /// The counters of `instances` instances from the counter buffer's slots `c` (see [`counter`]).
-    fn from_slots(instances: u32, c: &[u32]) -> Self {
-        use counter::*;
-        let slot = |index: u32| c[index as usize];
-        Self {
-            instances,
-            clusters_in: slot(CLUSTERS_IN),
-            clusters_frustum: slot(CLUSTERS_FRUSTUM),
-            clusters_cone: slot(CLUSTERS_CONE),
-            clusters_hzb: slot(CLUSTERS_HZB),
-            clusters_small: slot(CLUSTERS_SMALL),
-            clusters_out: slot(CLUSTERS_OUT),
-            triangles_in: slot(TRIANGLES_IN),
-            triangles_degenerate: slot(TRIANGLES_DEGENERATE),
-            triangles_backface: slot(TRIANGLES_BACKFACE),
-            triangles_frustum: slot(TRIANGLES_FRUSTUM),
-            triangles_small: slot(TRIANGLES_SMALL),
-            triangles_out: slot(TRIANGLES_OUT),
-            draws: slot(DRAWS),
-        }
-    }
-
-    /// Every counter, `instances` first, then in the order of the counter slots.
-    fn to_array(self) -> [u32; 14] {
-        [
-            self.instances,
-            self.clusters_in,
-            self.clusters_frustum,
-            self.clusters_cone,
-            self.clusters_hzb,
-            self.clusters_small,
-            self.clusters_out,
-            self.triangles_in,
-            self.triangles_degenerate,
-            self.triangles_backface,
-            self.triangles_frustum,
-            self.triangles_small,
-            self.triangles_out,
-            self.draws,
-        ]
-    }
-
-    /// The inverse of [`GpuCounters::to_array`].
-    fn from_array(c: [u32; 14]) -> Self {
-        let [instances, counters @ ..] = c;
-        let mut slots = [0; counter::COUNTER_COUNT as usize];
-        slots[..counters.len()].copy_from_slice(&counters);
-        Self::from_slots(instances, &slots)
-    }
-
-    /// How many clusters `verdict` accounts for.
-    pub fn clusters(&self, verdict: ClusterVerdict) -> u32 {
-        match verdict {
-            ClusterVerdict::Keep => self.clusters_out,
-            ClusterVerdict::Frustum => self.clusters_frustum,
-            ClusterVerdict::Cone => self.clusters_cone,
-            ClusterVerdict::Hzb => self.clusters_hzb,
-            ClusterVerdict::Small => self.clusters_small,
-        }
-    }
-
-    /// How many triangles `verdict` accounts for.
-    pub fn triangles(&self, verdict: TriangleVerdict) -> u32 {
-        match verdict {
-            TriangleVerdict::Keep => self.triangles_out,
-            TriangleVerdict::Degenerate => self.triangles_degenerate,
-            TriangleVerdict::Backface => self.triangles_backface,
-            TriangleVerdict::Frustum => self.triangles_frustum,
-            TriangleVerdict::Small => self.triangles_small,
-        }
-    }
-}
-
-/// GPU time of each pass of a frame, from timestamp queries.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct GpuPassTimes {
-    /// HZB upload reduction.
-    pub hzb: Duration,
-    /// Cluster culling.
-    pub clusters: Duration,
-    /// Triangle-pass dispatch and triangle culling.
-    pub triangles: Duration,
-    /// The draw.
-    pub draw: Duration,
-}
-
-impl GpuPassTimes {
-    /// The mean over `frames`, or `None` unless every frame was timed.
-    pub fn mean(frames: &[GpuFrameOutput]) -> Option<Self> {
-        let times: Option<Vec<&Self>> = frames.iter().map(|f| f.pass_times.as_ref()).collect();
-        let times = times.filter(|t| !t.is_empty())?;
-        let n = times.len() as u32;
-        let sum = |f: fn(&Self) -> Duration| times.iter().map(|t| f(t)).sum::<Duration>() / n;
-        Some(Self {
-            hzb: sum(|t| t.hzb),
-            clusters: sum(|t| t.clusters),
-            triangles: sum(|t| t.triangles),
-            draw: sum(|t| t.draw),
-        })
-    }
-}
-
-impl std::fmt::Display for GpuPassTimes {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let us = |d: Duration| d.as_secs_f64() * 1e6;
-        write!(
-            f,
-            "HZB {:.1} us, clusters {:.1} us, triangles {:.1} us, draw {:.1} us",
-            us(self.hzb),
-            us(self.clusters),
-            us(self.triangles),
-            us(self.draw)
-        )
-    }
-}
-
-/// Timestamp queries around each pass, where the adapter has them.
-struct PassTimer {
-    queries: wgpu::QuerySet,
-    resolve: wgpu::Buffer,
-    /// Nanoseconds per tick.
-    period: f64,
-}
-
-/// Passes timed, two timestamps each.
-const TIMED_PASSES: u32 = 4;
-
-impl PassTimer {
-    fn new(context: &GpuContext) -> Option<Self> {
-        if !context.has_timestamps {
-            return None;
-        }
-        Some(Self {
-            queries: context.device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("pass timestamps"),
-                ty: wgpu::QueryType::Timestamp,
-                count: 2 * TIMED_PASSES,
-            }),
-            resolve: context.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("timestamp resolve"),
-                size: 8 * u64::from(2 * TIMED_PASSES),
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            }),
-            period: f64::from(context.queue.get_timestamp_period()),
-        })
-    }
-
-    fn compute(&self, pass: u32) -> wgpu::ComputePassTimestampWrites<'_> {
-        wgpu::ComputePassTimestampWrites {
-            query_set: &self.queries,
-            beginning_of_pass_write_index: Some(2 * pass),
-            end_of_pass_write_index: Some(2 * pass + 1),
-        }
-    }
-
-    fn render(&self, pass: u32) -> wgpu::RenderPassTimestampWrites<'_> {
-        wgpu::RenderPassTimestampWrites {
-            query_set: &self.queries,
-            beginning_of_pass_write_index: Some(2 * pass),
-            end_of_pass_write_index: Some(2 * pass + 1),
-        }
-    }
-
-    fn read(&self, context: &GpuContext) -> Result<GpuPassTimes, GpuError> {
-        let bytes = context.read_buffer(&self.resolve, self.resolve.size())?;
-        let ticks: &[u64] = bytemuck::cast_slice(&bytes);
-        let span = |pass: usize| {
-            Duration::from_nanos((ticks[2 * pass + 1].saturating_sub(ticks[2 * pass]) as f64 * self.period) as u64)
-        };
-        Ok(GpuPassTimes { hzb: span(0), clusters: span(1), triangles: span(2), draw: span(3) })
-    }
-}
-
-/// What one frame produced, read back.
-#[derive(Clone, Debug, Default)]
-pub struct GpuFrameOutput {
-    /// The counters.
-    pub counters: GpuCounters,
-    /// GPU time per pass, where the adapter has timestamp queries.
-    pub pass_times: Option<GpuPassTimes>,
-    /// Wall time from submitting the frame until its counters were back on the CPU.
-    pub wall_time: Duration,
-    /// The frame had too few clusters for the cluster pass to pay ([`GpuGating::tiny_scene_clusters`]):
-    /// every candidate cluster went on to the next pass.
-    pub cluster_pass_skipped: bool,
-    /// The triangle pass was skipped for removing too little lately
-    /// ([`GpuGating::min_triangle_benefit`]): the surviving clusters were drawn whole.
-    pub triangle_pass_skipped: bool,
-}
-
-impl GpuFrameOutput {
-    /// Both outputs added up: counters, pass times and wall time (the batches of one frame).
-    pub fn plus(&self, other: &GpuFrameOutput) -> GpuFrameOutput {
-        let (a, b) = (self.counters.to_array(), other.counters.to_array());
-        let counters = GpuCounters::from_array(std::array::from_fn(|i| a[i] + b[i]));
-        let pass_times = self.pass_times.zip(other.pass_times).map(|(a, b)| GpuPassTimes {
-            hzb: a.hzb + b.hzb,
-            clusters: a.clusters + b.clusters,
-            triangles: a.triangles + b.triangles,
-            draw: a.draw + b.draw,
-        });
-        GpuFrameOutput {
-            counters,
-            pass_times,
-            wall_time: self.wall_time + other.wall_time,
-            cluster_pass_skipped: self.cluster_pass_skipped || other.cluster_pass_skipped,
-            triangle_pass_skipped: self.triangle_pass_skipped || other.triangle_pass_skipped,
         }
     }
 }
@@ -760,7 +512,13 @@ impl GpuCuller {
         }
         let mut encoder = context.device.create_command_encoder(&Default::default());
         if gate.skip_clusters {
-            self.write_candidate_clusters(context, frame, visible, gate.skip_triangles);
+            let buffers = CandidateBuffers {
+                survivors: &frame.survivors,
+                counters: &self.counters,
+                draws: &frame.draw_args,
+                draw_capacity: frame.draw_args.size(),
+            };
+            write_all_candidates(context, &self.scene, visible, &buffers, gate.skip_triangles);
         } else {
             encoder.clear_buffer(&self.counters, 0, None);
             if !context.has_draw_count {
@@ -838,44 +596,6 @@ impl GpuCuller {
             cluster_pass_skipped: gate.skip_clusters,
             triangle_pass_skipped: gate.skip_triangles,
         })
-    }
-
-    /// Stands in for the cluster pass of a tiny frame: every cluster of the `visible` instances survives, and
-    /// with `draw_clusters` each is also drawn whole (no triangle pass). Written before the frame's commands
-    /// run, so these buffers are not cleared on the GPU.
-    fn write_candidate_clusters(
-        &self,
-        context: &GpuContext,
-        frame: &FrameBuffers,
-        visible: &[u32],
-        draw_clusters: bool,
-    ) {
-        let library = &self.scene.library;
-        let instances = self.scene.instances();
-        let survivors: Vec<[u32; 2]> = visible
-            .iter()
-            .flat_map(|&slot| library.cluster_range(instances[slot as usize].mesh).map(move |c| [slot, c]))
-            .collect();
-        let mut counters = [0u32; counter::COUNTER_COUNT as usize];
-        counters[counter::CLUSTERS_IN as usize] = survivors.len() as u32;
-        counters[counter::CLUSTERS_OUT as usize] = survivors.len() as u32;
-        let draws = if draw_clusters { cluster_draws(library, instances, visible.iter().copied()) } else { Vec::new() };
-        if draw_clusters {
-            counters[counter::TRIANGLES_OUT as usize] = draws.iter().map(|d| d.index_count / 3).sum();
-            counters[counter::DRAWS as usize] = draws.len() as u32;
-        }
-        if !survivors.is_empty() {
-            context.queue.write_buffer(&frame.survivors, 0, bytemuck::cast_slice(&survivors));
-        }
-        context.queue.write_buffer(&self.counters, 0, bytemuck::cast_slice(&counters));
-        // Without a draw count every slot is drawn: the unused ones must be empty draws.
-        let mut args: Vec<u8> = draws.iter().flat_map(|d| d.as_bytes().to_vec()).collect();
-        if !context.has_draw_count {
-            args.resize(frame.draw_args.size() as usize, 0);
-        }
-        if !args.is_empty() {
-            context.queue.write_buffer(&frame.draw_args, 0, &args);
-        }
     }
 
     /// The last frame's surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order, and the

@@ -10,7 +10,8 @@
 //! 6. [`draw`]: `multi_draw_indexed_indirect_count` into colour, object-ID and depth targets, read back.
 //!
 //! Each pass's module owns its pipeline, bind groups, dispatch and CPU twin (which the tests compare the GPU
-//! against); [`frame`] only orchestrates them. [`interface`] holds what Rust and WGSL share, once.
+//! against); [`frame`] only orchestrates them, and [`output`] is what a frame reads back. [`interface`] holds
+//! what Rust and WGSL share, once.
 //! [`GpuContext`] opens a device; [`GpuCuller::for_world`] builds the passes for a scene and
 //! [`GpuCuller::run_world`] runs one frame after the CPU stages.
 //!
@@ -41,10 +42,12 @@ pub mod draw;
 pub mod frame;
 pub mod hzb;
 pub mod interface;
+pub mod output;
 pub mod scene;
 pub mod triangle_cull;
 
-pub use frame::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, GpuPassTimes};
+pub use frame::{DrawBuffers, GpuCullSettings, GpuCuller, GpuGating, Survivors};
+pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 
 use thiserror::Error;
 

@@ -1,0 +1,257 @@
+//! What a GPU frame produces, read back: the [`GpuCounters`] of every test, the [`GpuPassTimes`] from
+//! timestamp queries where the adapter has them, and both with the gating flags in a [`GpuFrameOutput`].
+
+use super::cluster_cull::ClusterVerdict;
+use super::interface::counter;
+use super::triangle_cull::TriangleVerdict;
+use super::{GpuContext, GpuError};
+use std::time::Duration;
+
+/// Counters of one frame, read back from the GPU.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GpuCounters {
+    /// Instances submitted (the CPU stages' survivors).
+    pub instances: u32,
+    /// Clusters tested.
+    pub clusters_in: u32,
+    /// Clusters culled by the frustum, cone, HZB and small tests.
+    pub clusters_frustum: u32,
+    /// See `clusters_frustum`.
+    pub clusters_cone: u32,
+    /// See `clusters_frustum`.
+    pub clusters_hzb: u32,
+    /// See `clusters_frustum`.
+    pub clusters_small: u32,
+    /// Clusters kept.
+    pub clusters_out: u32,
+    /// Triangles tested.
+    pub triangles_in: u32,
+    /// Triangles culled as degenerate, back-facing, off-screen and small.
+    pub triangles_degenerate: u32,
+    /// See `triangles_degenerate`.
+    pub triangles_backface: u32,
+    /// See `triangles_degenerate`.
+    pub triangles_frustum: u32,
+    /// See `triangles_degenerate`.
+    pub triangles_small: u32,
+    /// Triangles kept.
+    pub triangles_out: u32,
+    /// Indirect draws issued (clusters with surviving triangles), all in one multi-draw.
+    pub draws: u32,
+}
+
+/// Bytes of the counter buffer.
+pub(crate) const COUNTER_BYTES: u64 = counter::COUNTER_COUNT as u64 * 4;
+
+impl GpuCounters {
+    /// The counters of `instances` instances from the counter buffer's slots `c` (see [`counter`]).
+    pub(crate) fn from_slots(instances: u32, c: &[u32]) -> Self {
+        use counter::*;
+        let slot = |index: u32| c[index as usize];
+        Self {
+            instances,
+            clusters_in: slot(CLUSTERS_IN),
+            clusters_frustum: slot(CLUSTERS_FRUSTUM),
+            clusters_cone: slot(CLUSTERS_CONE),
+            clusters_hzb: slot(CLUSTERS_HZB),
+            clusters_small: slot(CLUSTERS_SMALL),
+            clusters_out: slot(CLUSTERS_OUT),
+            triangles_in: slot(TRIANGLES_IN),
+            triangles_degenerate: slot(TRIANGLES_DEGENERATE),
+            triangles_backface: slot(TRIANGLES_BACKFACE),
+            triangles_frustum: slot(TRIANGLES_FRUSTUM),
+            triangles_small: slot(TRIANGLES_SMALL),
+            triangles_out: slot(TRIANGLES_OUT),
+            draws: slot(DRAWS),
+        }
+    }
+
+    /// Every counter, `instances` first, then in the order of the counter slots.
+    fn to_array(self) -> [u32; 14] {
+        [
+            self.instances,
+            self.clusters_in,
+            self.clusters_frustum,
+            self.clusters_cone,
+            self.clusters_hzb,
+            self.clusters_small,
+            self.clusters_out,
+            self.triangles_in,
+            self.triangles_degenerate,
+            self.triangles_backface,
+            self.triangles_frustum,
+            self.triangles_small,
+            self.triangles_out,
+            self.draws,
+        ]
+    }
+
+    /// The inverse of [`GpuCounters::to_array`].
+    fn from_array(c: [u32; 14]) -> Self {
+        let [instances, counters @ ..] = c;
+        let mut slots = [0; counter::COUNTER_COUNT as usize];
+        slots[..counters.len()].copy_from_slice(&counters);
+        Self::from_slots(instances, &slots)
+    }
+
+    /// How many clusters `verdict` accounts for.
+    pub fn clusters(&self, verdict: ClusterVerdict) -> u32 {
+        match verdict {
+            ClusterVerdict::Keep => self.clusters_out,
+            ClusterVerdict::Frustum => self.clusters_frustum,
+            ClusterVerdict::Cone => self.clusters_cone,
+            ClusterVerdict::Hzb => self.clusters_hzb,
+            ClusterVerdict::Small => self.clusters_small,
+        }
+    }
+
+    /// How many triangles `verdict` accounts for.
+    pub fn triangles(&self, verdict: TriangleVerdict) -> u32 {
+        match verdict {
+            TriangleVerdict::Keep => self.triangles_out,
+            TriangleVerdict::Degenerate => self.triangles_degenerate,
+            TriangleVerdict::Backface => self.triangles_backface,
+            TriangleVerdict::Frustum => self.triangles_frustum,
+            TriangleVerdict::Small => self.triangles_small,
+        }
+    }
+}
+
+/// GPU time of each pass of a frame, from timestamp queries.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GpuPassTimes {
+    /// HZB upload reduction.
+    pub hzb: Duration,
+    /// Cluster culling.
+    pub clusters: Duration,
+    /// Triangle-pass dispatch and triangle culling.
+    pub triangles: Duration,
+    /// The draw.
+    pub draw: Duration,
+}
+
+impl GpuPassTimes {
+    /// The mean over `frames`, or `None` unless every frame was timed.
+    pub fn mean(frames: &[GpuFrameOutput]) -> Option<Self> {
+        let times: Option<Vec<&Self>> = frames.iter().map(|f| f.pass_times.as_ref()).collect();
+        let times = times.filter(|t| !t.is_empty())?;
+        let n = times.len() as u32;
+        let sum = |f: fn(&Self) -> Duration| times.iter().map(|t| f(t)).sum::<Duration>() / n;
+        Some(Self {
+            hzb: sum(|t| t.hzb),
+            clusters: sum(|t| t.clusters),
+            triangles: sum(|t| t.triangles),
+            draw: sum(|t| t.draw),
+        })
+    }
+}
+
+impl std::fmt::Display for GpuPassTimes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let us = |d: Duration| d.as_secs_f64() * 1e6;
+        write!(
+            f,
+            "HZB {:.1} us, clusters {:.1} us, triangles {:.1} us, draw {:.1} us",
+            us(self.hzb),
+            us(self.clusters),
+            us(self.triangles),
+            us(self.draw)
+        )
+    }
+}
+
+/// Timestamp queries around each pass, where the adapter has them.
+pub(crate) struct PassTimer {
+    pub(crate) queries: wgpu::QuerySet,
+    pub(crate) resolve: wgpu::Buffer,
+    /// Nanoseconds per tick.
+    period: f64,
+}
+
+/// Passes timed, two timestamps each.
+pub(crate) const TIMED_PASSES: u32 = 4;
+
+impl PassTimer {
+    pub(crate) fn new(context: &GpuContext) -> Option<Self> {
+        if !context.has_timestamps {
+            return None;
+        }
+        Some(Self {
+            queries: context.device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("pass timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2 * TIMED_PASSES,
+            }),
+            resolve: context.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp resolve"),
+                size: 8 * u64::from(2 * TIMED_PASSES),
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            }),
+            period: f64::from(context.queue.get_timestamp_period()),
+        })
+    }
+
+    pub(crate) fn compute(&self, pass: u32) -> wgpu::ComputePassTimestampWrites<'_> {
+        wgpu::ComputePassTimestampWrites {
+            query_set: &self.queries,
+            beginning_of_pass_write_index: Some(2 * pass),
+            end_of_pass_write_index: Some(2 * pass + 1),
+        }
+    }
+
+    pub(crate) fn render(&self, pass: u32) -> wgpu::RenderPassTimestampWrites<'_> {
+        wgpu::RenderPassTimestampWrites {
+            query_set: &self.queries,
+            beginning_of_pass_write_index: Some(2 * pass),
+            end_of_pass_write_index: Some(2 * pass + 1),
+        }
+    }
+
+    pub(crate) fn read(&self, context: &GpuContext) -> Result<GpuPassTimes, GpuError> {
+        let bytes = context.read_buffer(&self.resolve, self.resolve.size())?;
+        let ticks: &[u64] = bytemuck::cast_slice(&bytes);
+        let span = |pass: usize| {
+            Duration::from_nanos((ticks[2 * pass + 1].saturating_sub(ticks[2 * pass]) as f64 * self.period) as u64)
+        };
+        Ok(GpuPassTimes { hzb: span(0), clusters: span(1), triangles: span(2), draw: span(3) })
+    }
+}
+
+/// What one frame produced, read back.
+#[derive(Clone, Debug, Default)]
+pub struct GpuFrameOutput {
+    /// The counters.
+    pub counters: GpuCounters,
+    /// GPU time per pass, where the adapter has timestamp queries.
+    pub pass_times: Option<GpuPassTimes>,
+    /// Wall time from submitting the frame until its counters were back on the CPU.
+    pub wall_time: Duration,
+    /// The frame had too few clusters for the cluster pass to pay ([`super::GpuGating::tiny_scene_clusters`]):
+    /// every candidate cluster went on to the next pass.
+    pub cluster_pass_skipped: bool,
+    /// The triangle pass was skipped for removing too little lately
+    /// ([`super::GpuGating::min_triangle_benefit`]): the surviving clusters were drawn whole.
+    pub triangle_pass_skipped: bool,
+}
+
+impl GpuFrameOutput {
+    /// Both outputs added up: counters, pass times and wall time (the batches of one frame).
+    pub fn plus(&self, other: &GpuFrameOutput) -> GpuFrameOutput {
+        let (a, b) = (self.counters.to_array(), other.counters.to_array());
+        let counters = GpuCounters::from_array(std::array::from_fn(|i| a[i] + b[i]));
+        let pass_times = self.pass_times.zip(other.pass_times).map(|(a, b)| GpuPassTimes {
+            hzb: a.hzb + b.hzb,
+            clusters: a.clusters + b.clusters,
+            triangles: a.triangles + b.triangles,
+            draw: a.draw + b.draw,
+        });
+        GpuFrameOutput {
+            counters,
+            pass_times,
+            wall_time: self.wall_time + other.wall_time,
+            cluster_pass_skipped: self.cluster_pass_skipped || other.cluster_pass_skipped,
+            triangle_pass_skipped: self.triangle_pass_skipped || other.triangle_pass_skipped,
+        }
+    }
+}
