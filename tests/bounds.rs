@@ -328,3 +328,36 @@ fn every_write_path_refuses_invalid_bounds_and_changes_nothing() {
     assert_eq!(store.set_occluder(0, true), Ok(()));
     assert!(store.occluders().contains(0));
 }
+
+/// `update_many` (the parallel path `sync_bounds` takes) stores exactly what `update` one by one stores, and
+/// returns the same outcomes, also when a refused object's removal moves another object mid-batch.
+#[test]
+fn update_many_equals_update_one_by_one() {
+    let entity = |i: u32| Entity::from_raw_u32(i + 1).unwrap();
+    let unit = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(0.5) };
+    let mut one_by_one = BoundsStore::default();
+    for i in 0..3000 {
+        one_by_one
+            .update(entity(i), &unit, &ObjectTransform(Affine3A::from_translation(Vec3::splat(i as f32))))
+            .unwrap();
+    }
+    let mut many = one_by_one.clone();
+    let nan = LocalBounds { center: Vec3::NAN, ..unit };
+    // Moves of early and late objects, a refused one in the middle (its removal moves the last object into its
+    // slot), then a move of that last object and a new object.
+    let batch: Vec<(Entity, LocalBounds, Affine3A)> = (0..2000)
+        .map(|i| (entity(i), unit, Affine3A::from_translation(Vec3::new(i as f32, -1.0, 0.0))))
+        .chain([(entity(2500), nan, Affine3A::IDENTITY)])
+        .chain([(entity(2999), unit, Affine3A::from_translation(Vec3::X)), (entity(5000), unit, Affine3A::IDENTITY)])
+        .collect();
+    let expected: Vec<_> =
+        batch.iter().map(|(e, local, t)| one_by_one.update(*e, local, &ObjectTransform(*t))).collect();
+    let outcomes = many.update_many(&batch);
+    // Compared as slots and refusals: the refusal carries a NaN, which equals nothing.
+    let slots = |outcomes: &[Result<usize, BoundsError>]| outcomes.iter().map(|o| o.ok()).collect::<Vec<_>>();
+    assert_eq!(slots(&outcomes), slots(&expected));
+    assert!(matches!(outcomes[2000], Err(BoundsError::NonFiniteLocal { .. })));
+    assert_eq!(many.entities(), one_by_one.entities());
+    assert_eq!(many.soa().all(), one_by_one.soa().all());
+    assert_eq!(many.groups(), one_by_one.groups());
+}

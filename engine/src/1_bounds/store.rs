@@ -16,7 +16,8 @@ use super::groups::{GROUPS_PER_SUPERGROUP, GroupBounds, outward_range};
 use crate::visible::VisibleSet;
 use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
-use glam::Vec3;
+use glam::{Affine3A, Vec3};
+use rayon::prelude::*;
 use std::time::Duration;
 
 /// Objects per SIMD block; every SoA array is padded to a multiple of [`SOA_PADDING`] (a visibility word).
@@ -416,6 +417,37 @@ impl BoundsStore {
                 Err(error)
             }
         }
+    }
+
+    /// [`BoundsStore::update`] of many objects, each `(entity, local bounds, transform)`: their world bounds are
+    /// computed and their slots looked up in parallel (rayon), then stored one by one in the order given, as
+    /// `update` would. Returns each object's outcome in that order. The same entity must not appear twice.
+    pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
+        let computed: Vec<(Option<usize>, Result<WorldBounds, BoundsError>)> = objects
+            .par_iter()
+            .with_min_len(1024)
+            .map(|(entity, local, transform)| {
+                (self.slot_of(*entity), WorldBounds::from_local(*entity, local, transform))
+            })
+            .collect();
+        objects
+            .iter()
+            .zip(computed)
+            .map(|(&(entity, ..), (slot, bounds))| match bounds {
+                // `from_local` validated the bounds; a removal earlier in this loop may have moved the object.
+                Ok(bounds) => match slot.filter(|&slot| self.entities.get(slot) == Some(&entity)) {
+                    Some(slot) => {
+                        self.overwrite(slot, &bounds);
+                        Ok(slot)
+                    }
+                    None => self.insert(entity, &bounds),
+                },
+                Err(error) => {
+                    self.remove(entity);
+                    Err(error)
+                }
+            })
+            .collect()
     }
 
     /// Changes so far: two equal generations mean no bounds or occluder mark changed in between (the stages
