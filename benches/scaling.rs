@@ -322,6 +322,26 @@ fn stage_color(stage: usize) -> RGBColor {
     [RGBColor(230, 120, 0), BLUE, RGBColor(0, 150, 0), MAGENTA, BLACK][stage]
 }
 
+/// Stage `stage`'s `points` as a line with dots, in its colour, with a legend entry.
+fn draw_stage<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    stage: usize,
+    points: Vec<(f64, f64)>,
+) -> Result<(), Box<dyn std::error::Error>>
+where
+    DB: DrawingBackend + 'a,
+    DB::ErrorType: 'static,
+    CT: CoordTranslate<From = (f64, f64)>,
+{
+    let color = stage_color(stage);
+    chart
+        .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))?
+        .label(STAGES[stage])
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(2)));
+    chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, color.filled())))?;
+    Ok(())
+}
+
 /// Speedup and efficiency against threads for the largest city measured on several threads, and weak-scaling
 /// efficiency.
 fn plot_scaling(strong: &[Strong], weak: &[Strong], path: &Path) -> Result<(), Box<dyn std::error::Error>> {
@@ -359,14 +379,8 @@ fn plot_scaling(strong: &[Strong], weak: &[Strong], path: &Path) -> Result<(), B
             vec![(1.0, 1.0), (max_threads, 1.0)]
         };
         chart.draw_series(LineSeries::new(ideal, BLACK.mix(0.3).stroke_width(1)))?;
-        for (s, stage) in STAGES.iter().enumerate() {
-            let points: Vec<(f64, f64)> = source.iter().map(|r| (r.threads as f64, value(r, s))).collect();
-            let color = stage_color(s);
-            chart
-                .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))?
-                .label(*stage)
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(2)));
-            chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, color.filled())))?;
+        for s in 0..STAGES.len() {
+            draw_stage(&mut chart, s, source.iter().map(|r| (r.threads as f64, value(r, s))).collect())?;
         }
         chart.configure_series_labels().position(SeriesLabelPosition::LowerLeft).border_style(BLACK).draw()?;
     }
@@ -399,14 +413,8 @@ fn plot_per_object(
         .y_label_area_size(70)
         .build_cartesian_2d((min_n * 0.8..max_n * 1.25).log_scale(), (0.001..max_y.max(0.01)).log_scale())?;
     chart.configure_mesh().x_desc("objects").y_desc("ns per object per frame").draw()?;
-    for (s, stage) in STAGES.iter().enumerate() {
-        let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.objects as f64, per_object(r, s))).collect();
-        let color = stage_color(s);
-        chart
-            .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))?
-            .label(*stage)
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(2)));
-        chart.draw_series(points.into_iter().map(|p| Circle::new(p, 4, color.filled())))?;
+    for s in 0..STAGES.len() {
+        draw_stage(&mut chart, s, rows.iter().map(|r| (r.objects as f64, per_object(r, s))).collect())?;
     }
     if read.is_finite() {
         let label = format!(
