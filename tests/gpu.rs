@@ -409,3 +409,22 @@ fn frames_split_into_batches_draw_the_same_image() {
     // Only exact depth ties between objects may resolve differently (draw order changes).
     assert!(differing < image.object.len() / 1000, "{differing} pixels differ");
 }
+
+/// A visible slot that is not an instance of the scene is an error, not a panic, and runs nothing: the next
+/// frame culls as usual.
+#[test]
+fn an_out_of_range_slot_is_an_error() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 500);
+    let camera = cameras(setup.half)[0].1;
+    let depth = DepthBuffer::default();
+    let settings = GpuCullSettings::default();
+    let instances = setup.culler.scene().instances().len();
+    let refused = setup.culler.run(&context, &camera, &[0, instances as u32], &depth, &settings);
+    assert!(
+        matches!(refused, Err(cullet::gpu::GpuError::SlotOutOfRange { slot, instances: n }) if slot as usize == n),
+        "{refused:?}"
+    );
+    let (output, _, _) = setup.run(&context, camera, &settings);
+    assert!(output.counters.draws > 0);
+}

@@ -375,10 +375,8 @@ impl GpuCuller {
     /// GPU ([`GpuCuller::read_survivors`], [`GpuCuller::draw_buffers`]).
     ///
     /// # Errors
-    /// [`GpuError::Lost`] when the device is lost.
-    ///
-    /// # Panics
-    /// If a slot of `visible` is not an instance of the scene.
+    /// [`GpuError::SlotOutOfRange`] for a slot of `visible` that is not an instance of the scene (nothing is
+    /// run), [`GpuError::Lost`] when the device is lost.
     pub fn run(
         &mut self,
         context: &GpuContext,
@@ -394,7 +392,7 @@ impl GpuCuller {
     /// culling frozen at one camera, flying another shows what was culled.
     ///
     /// # Errors
-    /// [`GpuError::Lost`] when the device is lost.
+    /// As [`GpuCuller::run`].
     pub fn run_from(
         &mut self,
         context: &GpuContext,
@@ -409,6 +407,9 @@ impl GpuCuller {
         }
         let library = &self.scene.library;
         let instances = self.scene.instances();
+        if let Some(&slot) = visible.iter().find(|&&slot| slot as usize >= instances.len()) {
+            return Err(GpuError::SlotOutOfRange { slot, instances: instances.len() });
+        }
         let candidate_clusters: usize =
             visible.iter().map(|&slot| library.cluster_range(instances[slot as usize].mesh).len()).sum();
         let gate = PassGate {

@@ -55,8 +55,9 @@ use thiserror::Error;
 /// generated [`interface::wgsl_prelude`] in every shader.
 const COMMON_WGSL: &str = include_str!("../../shaders/common.wgsl");
 
-/// Why no GPU pipeline could be made.
+/// Why no GPU pipeline could be made, or a frame could not run.
 #[derive(Debug, Error)]
+#[non_exhaustive]
 pub enum GpuError {
     /// No adapter at all (no driver, or none that wgpu supports).
     #[error("no GPU adapter found: {0}")]
@@ -75,6 +76,14 @@ pub enum GpuError {
     /// The device was lost, or a read-back from it failed, mid-frame: make a new [`GpuContext`] and culler.
     #[error("the GPU device was lost or a read-back failed: {0}")]
     Lost(String),
+    /// A visible slot given to [`GpuCuller::run`] is not an instance of the culler's scene.
+    #[error("visible slot {slot} is out of range: the scene has {instances} instances")]
+    SlotOutOfRange {
+        /// The slot given.
+        slot: u32,
+        /// Instances in the scene.
+        instances: usize,
+    },
 }
 
 /// A device and queue opened without a window, with the features the pipeline uses.
