@@ -235,6 +235,8 @@ proptest! {
                 "corner {exact} outside [{min}, {max}]");
         }
         prop_assert!(bounds.radius as f64 >= bounds.half_extent.as_dvec3().length());
+        // What the store writes without validating again (`update`, `update_many`) passes the validation.
+        prop_assert!(bounds.validate(Entity::PLACEHOLDER).is_ok());
     }
 }
 

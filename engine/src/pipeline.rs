@@ -294,16 +294,13 @@ pub fn install(world: &mut World, schedule: &mut Schedule, settings: PipelineSet
 }
 
 /// Sets up a world for culling: the [`BoundsStore`], its insertion and removal observers, and the stage
-/// outputs with default settings.
+/// outputs ([`install`] inserts the settings).
 fn init_world(world: &mut World) {
     world.init_resource::<BoundsStore>();
     world.init_resource::<FrustumVisible>();
     world.init_resource::<CullStats>();
-    world.init_resource::<FrustumSettings>();
-    world.init_resource::<AdaptiveSettings>();
     world.init_resource::<AdaptiveState>();
     world.init_resource::<PlaneCoherence>();
-    world.init_resource::<OcclusionSettings>();
     world.init_resource::<OcclusionState>();
     world.add_observer(on_bounds_inserted);
     world.add_observer(on_bounds_removed);

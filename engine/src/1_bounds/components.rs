@@ -43,10 +43,6 @@ impl LocalBounds {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ObjectTransform(pub Affine3A);
 
-/// Which mesh of the scene's mesh library the object draws.
-#[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct MeshRef(pub u32);
-
 /// Marks an object that never moves: [`super::sync_bounds`] never scans it, and later stages skip per-frame work for
 /// it. To move a static object anyway, insert a new [`ObjectTransform`] (an insert, not a mutation).
 #[derive(Component, Clone, Copy, Debug, Default)]

@@ -4,12 +4,13 @@
 //! The arrays are private, and every method that changes their length changes all seven together, so that at
 //! all times:
 //! - every array has the same length, [`BoundsStore::padded_len`], a multiple of [`SOA_PADDING`];
-//! - [`BoundsStore::len`] `<= padded_len < len + SOA_PADDING` (for an empty store, 0);
+//! - `padded_len` is [`BoundsStore::len`] rounded up to a multiple of [`SOA_PADDING`];
 //! - the group flags and the occluder bitset cover `padded_len` slots.
 //!
 //! The SIMD kernels of the frustum stage read 8 lanes at a time without bounds checks: they rely on this
 //! invariant, which `insert` and `remove` establish and check (`BoundsStore::check_layout`) whenever they
-//! resize the arrays. Every bound written passed [`WorldBounds::validate`].
+//! resize the arrays. Every bound written passed [`WorldBounds::validate`] or came from
+//! [`WorldBounds::from_local`], whose results satisfy it by construction.
 
 use super::components::{BoundsError, LocalBounds, ObjectTransform, WorldBounds};
 use super::groups::{GROUPS_PER_SUPERGROUP, GroupBounds, outward_range};
@@ -410,13 +411,8 @@ impl BoundsStore {
         local: &LocalBounds,
         transform: &ObjectTransform,
     ) -> Result<usize, BoundsError> {
-        match WorldBounds::from_local(entity, local, &transform.0).and_then(|bounds| self.insert(entity, &bounds)) {
-            Ok(slot) => Ok(slot),
-            Err(error) => {
-                self.remove(entity);
-                Err(error)
-            }
-        }
+        let bounds = WorldBounds::from_local(entity, local, &transform.0);
+        self.apply_update(entity, self.slot_of(entity), bounds)
     }
 
     /// [`BoundsStore::update`] of many objects, each `(entity, local bounds, transform)`: their world bounds are
@@ -433,21 +429,32 @@ impl BoundsStore {
         objects
             .iter()
             .zip(computed)
-            .map(|(&(entity, ..), (slot, bounds))| match bounds {
-                // `from_local` validated the bounds; a removal earlier in this loop may have moved the object.
-                Ok(bounds) => match slot.filter(|&slot| self.entities.get(slot) == Some(&entity)) {
-                    Some(slot) => {
-                        self.overwrite(slot, &bounds);
-                        Ok(slot)
-                    }
-                    None => self.insert(entity, &bounds),
-                },
-                Err(error) => {
-                    self.remove(entity);
-                    Err(error)
-                }
-            })
+            .map(|(&(entity, ..), (slot, bounds))| self.apply_update(entity, slot, bounds))
             .collect()
+    }
+
+    /// Stores `bounds` computed by [`WorldBounds::from_local`] for `entity`, whose slot was looked up as `slot`
+    /// (a lookup a removal since may have made stale: it is checked), or drops the entity on an error.
+    fn apply_update(
+        &mut self,
+        entity: Entity,
+        slot: Option<usize>,
+        bounds: Result<WorldBounds, BoundsError>,
+    ) -> Result<usize, BoundsError> {
+        match bounds {
+            // `from_local`'s results satisfy `WorldBounds::validate` by construction.
+            Ok(bounds) => match slot.filter(|&slot| self.entities.get(slot) == Some(&entity)) {
+                Some(slot) => {
+                    self.overwrite(slot, &bounds);
+                    Ok(slot)
+                }
+                None => self.insert(entity, &bounds),
+            },
+            Err(error) => {
+                self.remove(entity);
+                Err(error)
+            }
+        }
     }
 
     /// Changes so far: two equal generations mean no bounds or occluder mark changed in between (the stages

@@ -52,11 +52,13 @@ pub fn sync_bounds(
     let start = Instant::now();
     // Many objects may move in a frame (200 000 cars in a 1e7-object city): their bounds are computed in
     // parallel, then stored in order (`BoundsStore::update_many`).
-    let objects: Vec<(Entity, LocalBounds, Affine3A)> =
-        changed.iter().map(|(entity, local, transform, _)| (entity, *local, transform.0)).collect();
+    let (objects, previous): (Vec<(Entity, LocalBounds, Affine3A)>, Vec<Option<BoundsRejected>>) = changed
+        .iter()
+        .map(|(entity, local, transform, previous)| ((entity, *local, transform.0), previous.cloned()))
+        .unzip();
     let outcomes = store.update_many(&objects);
-    for ((entity, .., previous), outcome) in changed.iter().zip(outcomes) {
-        report(&mut store, &mut commands, entity, outcome, previous);
+    for ((&(entity, ..), outcome), previous) in objects.iter().zip(outcomes).zip(&previous) {
+        report(&mut store, &mut commands, entity, outcome, previous.as_ref());
     }
     store.tighten_some_groups(TIGHTEN_BUDGET);
     store.recomputed_last_sync = objects.len();
