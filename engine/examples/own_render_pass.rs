@@ -130,20 +130,9 @@ fn main() -> Result<(), GpuError> {
         });
         pass.set_pipeline(&pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
-        pass.set_vertex_buffer(0, buffers.positions.slice(..));
-        pass.set_index_buffer(buffers.indices.slice(..), wgpu::IndexFormat::Uint32);
-        if context.has_draw_count {
-            pass.multi_draw_indexed_indirect_count(
-                buffers.args,
-                0,
-                buffers.count,
-                buffers.count_offset,
-                buffers.max_draws,
-            );
-        } else {
-            // Without the count feature the culler zeroes the unused draws: draw them all.
-            pass.multi_draw_indexed_indirect(buffers.args, 0, buffers.max_draws);
-        }
+        // The positions as vertex buffer, the compacted indices, and one multi-draw-indirect-count over the
+        // culler's arguments and draw count.
+        buffers.record(&context, &mut pass);
     }
     context.queue.submit([encoder.finish()]);
 

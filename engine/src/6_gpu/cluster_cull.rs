@@ -72,8 +72,7 @@ impl ClusterCullPass {
         let b = buffers;
         let frame_group = context.bind_buffers(
             "cluster cull",
-            &self.pipeline,
-            0,
+            &self.pipeline.get_bind_group_layout(0),
             &[
                 (0, b.view),
                 (1, b.instances),
@@ -85,7 +84,8 @@ impl ClusterCullPass {
                 (7, b.draws),
             ],
         );
-        let hzb_group = context.bind_buffers("cluster cull hzb", &self.pipeline, 1, &[(0, b.hzb)]);
+        let hzb_group =
+            context.bind_buffers("cluster cull hzb", &self.pipeline.get_bind_group_layout(1), &[(0, b.hzb)]);
         let (x, y) = workgroup_grid(instance_count);
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &frame_group, &[]);

@@ -118,22 +118,49 @@ impl RenderTargets {
     }
 }
 
+/// What a renderer needs to draw the last frame's survivors itself, with one
+/// `multi_draw_indexed_indirect_count`: vertex positions pulled by the compacted indices, one
+/// `DrawIndexedIndirectArgs` per drawn cluster whose `first_instance` names the instance (store slot) in
+/// `instances`, and the draw count in `count` at byte offset `count_offset` ([`super::GpuCuller::draw_buffers`]).
+#[derive(Clone, Copy, Debug)]
+pub struct DrawBuffers<'a> {
+    /// Vertex positions, three `f32` per vertex (vertex buffer).
+    pub positions: &'a wgpu::Buffer,
+    /// Triangle indices into `positions` (index buffer, `u32`).
+    pub indices: &'a wgpu::Buffer,
+    /// `DrawIndexedIndirectArgs` per draw (indirect buffer).
+    pub args: &'a wgpu::Buffer,
+    /// Holds the draw count (indirect buffer).
+    pub count: &'a wgpu::Buffer,
+    /// Byte offset of the draw count in `count`.
+    pub count_offset: u64,
+    /// Most draws `args` holds: the `max_count` of the multi-draw.
+    pub max_draws: u32,
+    /// [`super::scene::GpuInstance`] per store slot (storage buffer, 64 bytes each): each object's transform and colour.
+    pub instances: &'a wgpu::Buffer,
+    /// The [`super::interface::GpuView`] uniform the frame was culled with (`view` in `common.wgsl`).
+    pub view: &'a wgpu::Buffer,
+}
+
+impl DrawBuffers<'_> {
+    /// Records the draws into `pass`, whose pipeline and bind groups are set: `positions` as vertex buffer 0,
+    /// `indices` as the index buffer, then one `multi_draw_indexed_indirect_count`, or without that feature
+    /// `multi_draw_indexed_indirect` of all `max_draws` slots (the culler zeroes the unused ones).
+    pub fn record(&self, context: &GpuContext, pass: &mut wgpu::RenderPass<'_>) {
+        pass.set_vertex_buffer(0, self.positions.slice(..));
+        pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint32);
+        if context.has_draw_count {
+            pass.multi_draw_indexed_indirect_count(self.args, 0, self.count, self.count_offset, self.max_draws);
+        } else {
+            pass.multi_draw_indexed_indirect(self.args, 0, self.max_draws);
+        }
+    }
+}
+
 /// Which draws a [`DrawPass`] records.
 pub enum DrawSource<'a> {
-    /// The triangle pass's output: `args` with up to `max_draws` draws, the count at `count_offset` of
-    /// `count`, indices in `indices`.
-    Culled {
-        /// The compacted index buffer.
-        indices: &'a wgpu::Buffer,
-        /// `DrawIndexedIndirectArgs` per draw.
-        args: &'a wgpu::Buffer,
-        /// Buffer holding the draw count.
-        count: &'a wgpu::Buffer,
-        /// Byte offset of the draw count.
-        count_offset: u64,
-        /// Capacity of `args`.
-        max_draws: u32,
-    },
+    /// The culling passes' output.
+    Culled(DrawBuffers<'a>),
     /// Every cluster drawn with no culling: `args` holds `draws` draws into the cluster index buffer.
     Unculled {
         /// The scene's cluster index buffer.
@@ -210,14 +237,7 @@ impl DrawPass {
         let reversed = depth == DepthConvention::Reversed;
         let load = |value| if clear { wgpu::LoadOp::Clear(value) } else { wgpu::LoadOp::Load };
         let pipeline = &self.pipelines[usize::from(!reversed)];
-        let bind_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("draw"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: view.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: instances.as_entire_binding() },
-            ],
-        });
+        let bind_group = context.bind_buffers("draw", &pipeline.get_bind_group_layout(0), &[(0, view), (1, instances)]);
         let color_view = targets.color.create_view(&Default::default());
         let object_view = targets.object.create_view(&Default::default());
         let depth_view = targets.depth.create_view(&Default::default());
@@ -255,18 +275,10 @@ impl DrawPass {
         });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
-        pass.set_vertex_buffer(0, positions.slice(..));
         match source {
-            DrawSource::Culled { indices, args, count, count_offset, max_draws } => {
-                pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
-                if context.has_draw_count {
-                    pass.multi_draw_indexed_indirect_count(args, 0, count, count_offset, max_draws);
-                } else {
-                    // Unused slots are zeroed each frame: empty draws.
-                    pass.multi_draw_indexed_indirect(args, 0, max_draws);
-                }
-            }
+            DrawSource::Culled(draws) => draws.record(context, &mut pass),
             DrawSource::Unculled { indices, args, draws } => {
+                pass.set_vertex_buffer(0, positions.slice(..));
                 pass.set_index_buffer(indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.multi_draw_indexed_indirect(args, 0, draws);
             }

@@ -4,7 +4,7 @@
 
 use super::cluster_cull::{CandidateBuffers, ClusterCullBuffers, ClusterCullPass, write_all_candidates};
 use super::clusters::ClusterLibrary;
-use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws};
+use super::draw::{DrawBuffers, DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws};
 use super::hzb::{Hzb, HzbLevel};
 use super::interface::{
     GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
@@ -132,30 +132,6 @@ pub struct GpuCuller {
     recolored: bool,
 }
 
-/// What a renderer needs to draw the last frame's survivors itself, with one
-/// `multi_draw_indexed_indirect_count`: vertex positions pulled by the compacted indices, one
-/// `DrawIndexedIndirectArgs` per drawn cluster whose `first_instance` names the instance (store slot) in
-/// `instances`, and the draw count in `count` at byte offset `count_offset`.
-#[derive(Clone, Copy, Debug)]
-pub struct DrawBuffers<'a> {
-    /// Vertex positions, three `f32` per vertex (vertex buffer).
-    pub positions: &'a wgpu::Buffer,
-    /// Triangle indices into `positions` (index buffer, `u32`).
-    pub indices: &'a wgpu::Buffer,
-    /// `DrawIndexedIndirectArgs` per draw (indirect buffer).
-    pub args: &'a wgpu::Buffer,
-    /// Holds the draw count (indirect buffer).
-    pub count: &'a wgpu::Buffer,
-    /// Byte offset of the draw count in `count`.
-    pub count_offset: u64,
-    /// Most draws `args` holds: the `max_count` of the multi-draw.
-    pub max_draws: u32,
-    /// [`GpuInstance`] per store slot (storage buffer, 64 bytes each): each object's transform and colour.
-    pub instances: &'a wgpu::Buffer,
-    /// The [`GpuView`] uniform the frame was culled with (`view` in `common.wgsl`).
-    pub view: &'a wgpu::Buffer,
-}
-
 /// Which passes one frame skips.
 #[derive(Clone, Copy, Debug, Default)]
 struct PassGate {
@@ -273,17 +249,22 @@ impl GpuCuller {
     /// The buffers of the last frame's draw, to draw the survivors from a render pass of your own; `None`
     /// before the first frame. Valid until the next frame (which may grow and so replace them).
     pub fn draw_buffers(&self) -> Option<DrawBuffers<'_>> {
-        let frame = self.frame.as_ref()?;
-        Some(DrawBuffers {
+        Some(self.culled_draws(self.frame.as_ref()?, self.last_gate.skip_triangles))
+    }
+
+    /// The draws a culled frame with `frame`'s buffers wrote.
+    fn culled_draws<'a>(&'a self, frame: &'a FrameBuffers, skip_triangles: bool) -> DrawBuffers<'a> {
+        DrawBuffers {
             positions: &self.scene.positions,
-            indices: if self.last_gate.skip_triangles { &self.scene.cluster_indices } else { &frame.draw_indices },
+            // Without the triangle pass, the draws index the clusters' own triangles.
+            indices: if skip_triangles { &self.scene.cluster_indices } else { &frame.draw_indices },
             args: &frame.draw_args,
             count: &self.counters,
             count_offset: u64::from(counter::DRAWS) * 4,
             max_draws: frame.max_clusters,
             instances: &self.scene.instances,
             view: &self.view,
-        })
+        }
     }
 
     /// The view uniform for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
@@ -570,14 +551,7 @@ impl GpuCuller {
             gate.skip_triangles,
             timer.map(|t| t.compute(2)),
         );
-        let source = DrawSource::Culled {
-            // Without the triangle pass, the draws index the clusters' own triangles.
-            indices: if gate.skip_triangles { &scene.cluster_indices } else { &frame.draw_indices },
-            args: &frame.draw_args,
-            count: &self.counters,
-            count_offset: u64::from(counter::DRAWS) * 4,
-            max_draws: frame.max_clusters,
-        };
+        let source = DrawSource::Culled(self.culled_draws(frame, gate.skip_triangles));
         self.record_draw(context, &mut encoder, camera.depth, source, first, timer.map(|t| t.render(3)));
         if let Some(timer) = timer {
             encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);

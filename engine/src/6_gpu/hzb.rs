@@ -66,6 +66,7 @@ impl Hzb {
             mapped_at_creation: false,
         });
         let pipeline = context.compute_pipeline("hzb build", include_str!("../../shaders/hzb_build.wgsl"));
+        let layout = pipeline.get_bind_group_layout(0);
         let level_bind_groups = levels
             .windows(2)
             .map(|pair| {
@@ -74,7 +75,7 @@ impl Hzb {
                     contents: bytemuck::cast_slice(pair),
                     usage: wgpu::BufferUsages::UNIFORM,
                 });
-                context.bind_buffers("hzb level", &pipeline, 0, &[(1, &buffer), (2, &uniform)])
+                context.bind_buffers("hzb level", &layout, &[(1, &buffer), (2, &uniform)])
             })
             .collect();
         Self { buffer, levels, pipeline, level_bind_groups }

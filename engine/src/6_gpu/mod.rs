@@ -46,7 +46,8 @@ pub mod output;
 pub mod scene;
 pub mod triangle_cull;
 
-pub use frame::{DrawBuffers, GpuCullSettings, GpuCuller, GpuGating, Survivors};
+pub use draw::DrawBuffers;
+pub use frame::{GpuCullSettings, GpuCuller, GpuGating, Survivors};
 pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 
 use thiserror::Error;
@@ -192,23 +193,19 @@ impl GpuContext {
         })
     }
 
-    /// A bind group of `pipeline`'s group `group` with `buffers` as `(binding, buffer)` pairs, each bound whole.
+    /// A bind group of `layout` (a pipeline's `get_bind_group_layout`) with `buffers` as `(binding, buffer)`
+    /// pairs, each bound whole.
     pub(crate) fn bind_buffers(
         &self,
         label: &str,
-        pipeline: &wgpu::ComputePipeline,
-        group: u32,
+        layout: &wgpu::BindGroupLayout,
         buffers: &[(u32, &wgpu::Buffer)],
     ) -> wgpu::BindGroup {
         let entries: Vec<_> = buffers
             .iter()
             .map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() })
             .collect();
-        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(label),
-            layout: &pipeline.get_bind_group_layout(group),
-            entries: &entries,
-        })
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
     }
 
     /// Reads a buffer back (it must have `COPY_SRC`), waiting for the GPU.

@@ -72,12 +72,14 @@ impl TriangleCullPass {
             return;
         }
         let b = buffers;
-        let prepare_group =
-            context.bind_buffers("prepare triangles", &self.prepare, 0, &[(1, b.counters), (2, b.dispatch)]);
+        let prepare_group = context.bind_buffers(
+            "prepare triangles",
+            &self.prepare.get_bind_group_layout(0),
+            &[(1, b.counters), (2, b.dispatch)],
+        );
         let cull_group = context.bind_buffers(
             "triangle cull",
-            &self.cull,
-            0,
+            &self.cull.get_bind_group_layout(0),
             &[
                 (0, b.view),
                 (1, b.instances),
