@@ -3,17 +3,16 @@
 use crate::report::{
     STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary, print_savings, print_summary,
 };
+use crate::validation::Validation;
 use crate::{Args, Prepared};
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::raster::RasterMode;
 use cullet::{BoundsStore, Camera};
-use cullet_truth::{JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 
 /// Flies the camera path frame by frame without a window: per-frame lines (or a progress bar), the stats CSV,
 /// screenshots, validation against the ground truth, and the summary.
 pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
-    let Prepared { scene, mut flight, occlusion, resolution: (width, height) } = prepared;
+    let Prepared { scene, mut flight, resolution: (width, height), .. } = prepared;
     let mut gpu = if args.cpu_only {
         println!("--cpu-only: GPU cluster culling, triangle culling and the draw are skipped");
         None
@@ -37,11 +36,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     let mut per_frame = Vec::with_capacity(args.headless_frames() as usize);
     let mut savings = Vec::with_capacity(args.headless_frames() as usize);
     let slot_triangles = SlotTriangles::of_world(&flight.world, &scene.meshes);
-    let judge = JudgeSettings {
-        reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
-        occlusion_ideal: false,
-    };
-    let mut accuracy = PathMetrics::default();
+    let mut validation = args.validate.then(|| Validation::new(width, height));
     let mut csv = String::from(STATS_HEADER);
     csv.push('\n');
     if let Some(dir) = &args.screenshots {
@@ -57,8 +52,8 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         }
         let stats = flight.run_frame(frame);
         let mut frame_accuracy = None;
-        if args.validate {
-            let metrics = judge_frame(&flight.world, &scene.meshes, &judge).metrics;
+        if let Some(validation) = validation.as_mut() {
+            let metrics = validation.judge(&flight.world, &scene.meshes);
             frame_accuracy = Some((
                 metrics.false_negatives.len(),
                 metrics.stages.last().map_or(0, |s| s.false_positives),
@@ -77,7 +72,6 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 let entity = flight.world.resource::<BoundsStore>().entities()[missed.object];
                 println!("  false negative: {entity:?} (store slot {}) culled by {}", missed.object, missed.stage);
             }
-            accuracy.add(&metrics);
         }
         if let Some(error) = stats.frustum_error {
             return Err(format!("frame {frame}: {error}"));
@@ -176,21 +170,9 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     print_summary(&per_frame);
     print_gpu_summary(&gpu_frames);
     print_savings(&savings, &gpu_frames);
-    if args.validate {
-        println!(
-            "\nvalidation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \
-             + occlusion {:.1}%, image error {} pixels in all",
-            accuracy.frames,
-            accuracy.false_negatives,
-            accuracy.frames_with_false_negatives,
-            100.0 * accuracy.efficiency(0),
-            100.0 * accuracy.efficiency(1),
-            accuracy.image_error_pixels
-        );
-        let conservative = occlusion.mode == RasterMode::Conservative || !occlusion.enabled;
-        if conservative && accuracy.false_negatives > 0 {
-            return Err("validation failed: a conservative configuration culled visible objects".into());
-        }
+    if let Some(validation) = validation {
+        println!("\n{}", validation.summary());
+        validation.verdict()?;
     }
     Ok(())
 }

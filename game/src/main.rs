@@ -3,8 +3,10 @@
 //! statistics of each stage.
 
 mod headless;
+mod hud;
 mod present;
 mod report;
+mod validation;
 mod window;
 
 use clap::Parser;
@@ -69,7 +71,7 @@ struct Args {
     occluder_budget: usize,
     /// Judge every frame against the exact ground truth (every object's triangles rasterized at the viewport
     /// resolution): report false negatives, false positives and image error, and fail if a conservative
-    /// configuration culled anything visible.
+    /// configuration culled anything visible. In a window the HUD shows them live, for every setting changed.
     #[arg(long)]
     validate: bool,
     /// Run only the CPU stages (bounds, frustum, occlusion), without a GPU adapter: cluster and triangle
@@ -83,7 +85,8 @@ struct Args {
     /// --validate).
     #[arg(long, value_name = "FILE.csv")]
     stats: Option<std::path::PathBuf>,
-    /// Save the drawn frame as PNG into this folder every --every frames (needs a GPU adapter).
+    /// Save the drawn frame as PNG into this folder every --every frames (needs a GPU adapter). In a window,
+    /// the frame the player sees, HUD included.
     #[arg(long, value_name = "DIR")]
     screenshots: Option<std::path::PathBuf>,
     /// Frames between screenshots.
@@ -92,6 +95,9 @@ struct Args {
     /// Run without a window along the camera path (the default where no display exists).
     #[arg(long)]
     headless: bool,
+    /// Start with the heads-up display hidden (H shows it).
+    #[arg(long)]
+    no_hud: bool,
 }
 
 impl Args {
@@ -184,12 +190,12 @@ fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
 
 /// Runs in a window where a display exists and `--headless` is not given; otherwise headless.
 fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
-    if args.headless || args.validate || args.cpu_only {
-        // Validation and the CPU-only run are measurements along the camera path: no window.
+    if args.headless || args.cpu_only {
+        // The CPU-only run is a measurement along the camera path: no window.
         return headless::run(args, prepared);
     }
     match window::open_event_loop() {
-        Ok(event_loop) => window::run(prepared, event_loop, args.frames),
+        Ok(event_loop) => window::run(args, prepared, event_loop),
         Err(why) => {
             println!("no window ({why}): running headless");
             headless::run(args, prepared)

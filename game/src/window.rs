@@ -1,18 +1,24 @@
 //! The windowed game (winit): the scene culled and drawn every frame, following the camera path until the
 //! player takes over with free flight. Each stage can be switched off, culling frozen at one camera while
 //! the player flies around to see what was culled, and the window shows debug views: objects tinted by the
-//! stage that culled them, the software occlusion buffer and each level of its pyramid. The title bar is the
-//! overlay: per-stage counts and times, refreshed four times a second.
+//! stage that culled them, the software occlusion buffer and each level of its pyramid. The heads-up display
+//! ([`crate::hud`]) shows each stage's figures, live plots, the debug views' legends and the controls; the
+//! title bar keeps a short summary.
 
-use crate::Prepared;
+use crate::hud::controls::{Controls, View};
+use crate::hud::painter::HudPainter;
+use crate::hud::{FRUSTUM_TINT, HELP, Hud, HudFrame, OCCLUSION_TINT};
 use crate::present::{PresentPass, Source};
-use crate::report::{micros, print_gpu_summary, print_savings, print_summary};
+use crate::report::{print_gpu_summary, print_savings, print_summary};
+use crate::validation::Validation;
+use crate::{Args, Prepared};
 use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::pipeline::{CullStats, FrustumSettings, FrustumVisible, OcclusionSettings, OcclusionState};
+use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
 use glam::Vec3;
 use std::collections::HashSet;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use winit::application::ApplicationHandler;
@@ -21,46 +27,6 @@ use winit::event::{DeviceEvent, DeviceId, ElementState, KeyEvent, MouseButton, W
 use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
 use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{CursorGrabMode, Window, WindowId};
-
-/// The controls, printed when the window opens.
-const HELP: &str = "\
-window controls:
-  right mouse button held + move   look around       W A S D  move    Q / E  down / up    Shift  5x faster
-  P   follow the camera path / fly freely (moving also leaves the path)
-  F   freeze culling at the current camera: fly around to see what was culled
-  1   frustum culling on/off        2   occlusion culling on/off
-  3   GPU cluster culling (normal cones, HZB) on/off        4   GPU triangle culling on/off
-  V   cycle the view: shaded / tinted by the stage that culled each object / occlusion buffer / its pyramid
-  [ ] pyramid level down / up       Esc  quit";
-
-/// Tint of objects the frustum stage culled, in the tinted view.
-const FRUSTUM_TINT: [u8; 4] = [235, 50, 210, 255];
-/// Tint of objects the occlusion stage culled.
-const OCCLUSION_TINT: [u8; 4] = [40, 120, 255, 255];
-
-/// What the window shows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum View {
-    /// The culled scene as drawn.
-    Shaded,
-    /// Every object drawn, those the CPU stages culled tinted by the stage that culled them.
-    Tinted,
-    /// The software occlusion depth buffer.
-    OcclusionBuffer,
-    /// One level of its farthest-depth pyramid.
-    Pyramid,
-}
-
-impl View {
-    fn next(self) -> Self {
-        match self {
-            Self::Shaded => Self::Tinted,
-            Self::Tinted => Self::OcclusionBuffer,
-            Self::OcclusionBuffer => Self::Pyramid,
-            Self::Pyramid => Self::Shaded,
-        }
-    }
-}
 
 /// Opens the event loop, or says why no window can be had (no display, or the display refused). Call once,
 /// on the main thread: winit allows one event loop per process.
@@ -79,14 +45,17 @@ pub fn open_event_loop() -> Result<EventLoop<()>, String> {
     }
 }
 
-/// Runs the game in a window until it is closed (or after `frames` frames), then prints the summary.
-pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -> Result<(), String> {
+/// Runs the game in a window until it is closed (or after `--frames` frames), then prints the summary.
+pub fn run(args: &Args, prepared: Prepared, event_loop: EventLoop<()>) -> Result<(), String> {
     event_loop.set_control_flow(ControlFlow::Poll);
     let start = prepared.flight.path.camera_at(0.0, 1.0);
     let (yaw, pitch) = yaw_pitch(start.forward);
     let (width, height) = prepared.resolution;
     let radius = prepared.scene.bounds().map_or(100.0, |(min, max)| (max - min).length() * 0.5);
     let slot_triangles = SlotTriangles::of_world(&prepared.flight.world, &prepared.scene.meshes);
+    if let Some(dir) = &args.screenshots {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
     let mut game = Game {
         prepared,
         size: (width.min(1920), height.min(1080)),
@@ -103,6 +72,10 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
         view: View::Shaded,
         pyramid_level: 0,
         gpu_settings: GpuCullSettings::default(),
+        hud: Hud::new(!args.no_hud),
+        hud_times: Vec::new(),
+        validation: args.validate.then(|| Validation::new(width, height)),
+        screenshots: args.screenshots.clone().map(|dir| (dir, args.every.max(1))),
         last_frame: Instant::now(),
         last_title: Instant::now(),
         frames: Vec::new(),
@@ -110,14 +83,36 @@ pub fn run(prepared: Prepared, event_loop: EventLoop<()>, frames: Option<u32>) -
         slot_triangles,
         savings: Vec::new(),
         fps: 0.0,
-        frame_limit: frames.map(|n| n as usize),
+        frame_limit: args.frames.map(|n| n as usize),
     };
-    println!("{HELP}");
+    println!("window controls:\n{HELP}");
     event_loop.run_app(&mut game).map_err(|e| e.to_string())?;
     print_summary(&game.frames);
     print_gpu_summary(&game.gpu_frames);
     print_savings(&game.savings, &game.gpu_frames);
+    print_hud_summary(&game.hud_times);
+    if let Some(validation) = &game.validation {
+        println!("\n{}", validation.summary());
+        validation.verdict()?;
+    }
     game.error.map_or(Ok(()), Err)
+}
+
+/// Prints the HUD's CPU time per frame it was drawn in.
+fn print_hud_summary(times: &[Duration]) {
+    if times.is_empty() {
+        return;
+    }
+    let mut ms: Vec<f64> = times.iter().map(|t| t.as_secs_f64() * 1e3).collect();
+    ms.sort_by(f64::total_cmp);
+    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
+    println!(
+        "HUD CPU time per frame (build, tessellate, upload, record) over {} frames: mean {mean:.3} ms, median \
+         {:.3} ms, 95th percentile {:.3} ms",
+        ms.len(),
+        ms[ms.len() / 2],
+        ms[(ms.len() * 95 / 100).min(ms.len() - 1)]
+    );
 }
 
 /// The window, its surface and the GPU pipeline drawing into it.
@@ -128,6 +123,7 @@ struct Graphics {
     context: GpuContext,
     culler: GpuCuller,
     present: PresentPass,
+    hud: HudPainter,
 }
 
 struct Game {
@@ -151,6 +147,13 @@ struct Game {
     view: View,
     pyramid_level: usize,
     gpu_settings: GpuCullSettings,
+    hud: Hud,
+    /// The HUD's CPU time in each frame it was drawn.
+    hud_times: Vec<Duration>,
+    /// The live judge, with `--validate`.
+    validation: Option<Validation>,
+    /// Folder and frame interval of `--screenshots`.
+    screenshots: Option<(PathBuf, u32)>,
     last_frame: Instant,
     last_title: Instant,
     frames: Vec<CullStats>,
@@ -199,11 +202,25 @@ impl Game {
         if let Some(&linear) = formats.iter().find(|f| !f.is_srgb()) {
             config.format = linear;
         }
+        let capabilities = surface.get_capabilities(&context.adapter);
+        if self.screenshots.is_some() {
+            // Screenshots copy the frame the player sees, HUD included, out of the surface.
+            if capabilities.usages.contains(wgpu::TextureUsages::COPY_SRC) {
+                config.usage |= wgpu::TextureUsages::COPY_SRC;
+            } else {
+                println!("--screenshots: this surface cannot be copied from, so no screenshot is saved");
+                self.screenshots = None;
+            }
+        }
         surface.configure(&context.device, &config);
+        if let Some(validation) = &mut self.validation {
+            validation.set_resolution(self.size.0, self.size.1);
+        }
+        let hud = HudPainter::new(&window, &context, config.format);
         let culler =
             GpuCuller::for_world(&context, &self.prepared.flight.world, &self.prepared.scene.meshes, self.size);
         let present = PresentPass::new(&context, config.format);
-        Ok(Graphics { window, surface, config, context, culler, present })
+        Ok(Graphics { window, surface, config, context, culler, present, hud })
     }
 
     fn camera(&self) -> Camera {
@@ -253,8 +270,25 @@ impl Game {
         self.autopilot = None;
     }
 
+    /// The settings the keys and the HUD change, as they are now.
+    fn controls(&self) -> Controls {
+        let world = &self.prepared.flight.world;
+        Controls::of(world, self.gpu_settings, self.frozen.is_some(), self.view, self.pyramid_level)
+    }
+
+    /// Takes changed settings from the keys or the HUD: the pipeline's into the world, the window's here.
+    fn set_controls(&mut self, controls: Controls) {
+        controls.apply(&mut self.prepared.flight.world);
+        self.gpu_settings = controls.gpu;
+        self.view = controls.view;
+        self.pyramid_level = controls.pyramid_level;
+        if controls.frozen != self.frozen.is_some() {
+            self.frozen = controls.frozen.then(|| self.camera());
+        }
+    }
+
     fn key(&mut self, code: KeyCode, event_loop: &ActiveEventLoop) {
-        let world = &mut self.prepared.flight.world;
+        let mut controls = self.controls();
         match code {
             KeyCode::Escape => event_loop.exit(),
             KeyCode::KeyP => {
@@ -264,26 +298,25 @@ impl Game {
                     self.autopilot = Some(0.0);
                 }
             }
-            KeyCode::KeyF => self.frozen = if self.frozen.is_some() { None } else { Some(self.camera()) },
-            KeyCode::Digit1 => world.resource_mut::<FrustumSettings>().enabled ^= true,
-            KeyCode::Digit2 => world.resource_mut::<OcclusionSettings>().enabled ^= true,
-            KeyCode::Digit3 => {
-                let on = !self.gpu_settings.cluster_cone;
-                (self.gpu_settings.cluster_cone, self.gpu_settings.cluster_hzb) = (on, on);
+            KeyCode::KeyH => self.hud.visible ^= true,
+            KeyCode::F1 => {
+                self.hud.help ^= true;
+                self.hud.visible |= self.hud.help;
             }
-            KeyCode::Digit4 => {
-                let s = &mut self.gpu_settings;
-                let on = !s.triangle_backface;
-                (s.triangle_backface, s.triangle_frustum, s.small_triangles) = (on, on, on);
-            }
-            KeyCode::KeyV => self.view = self.view.next(),
-            KeyCode::BracketLeft => self.pyramid_level = self.pyramid_level.saturating_sub(1),
-            KeyCode::BracketRight => self.pyramid_level += 1,
+            KeyCode::KeyF => controls.frozen ^= true,
+            KeyCode::Digit1 => controls.frustum.enabled ^= true,
+            KeyCode::Digit2 => controls.occlusion.enabled ^= true,
+            KeyCode::Digit3 => controls.set_clusters(!controls.clusters_on()),
+            KeyCode::Digit4 => controls.set_triangles(!controls.triangles_on()),
+            KeyCode::KeyV => controls.view = controls.view.next(),
+            KeyCode::BracketLeft => controls.pyramid_level = controls.pyramid_level.saturating_sub(1),
+            KeyCode::BracketRight => controls.pyramid_level += 1,
             _ => {}
         }
+        self.set_controls(controls);
     }
 
-    /// Culls and draws one frame and shows it.
+    /// Culls and draws one frame, with the HUD over it, and shows it.
     fn frame(&mut self) {
         let now = Instant::now();
         let delta = (now - self.last_frame).as_secs_f32().min(0.25);
@@ -296,9 +329,13 @@ impl Game {
         let cull_camera = self.frozen.map_or(camera, |frozen| Camera { aspect: camera.aspect, ..frozen });
         let stats = self.prepared.flight.run_with_camera(cull_camera, delta);
         self.frames.push(stats);
+        if let Some(validation) = &mut self.validation {
+            validation.judge(&self.prepared.flight.world, &self.prepared.scene.meshes);
+        }
         let Some(graphics) = self.graphics.as_mut() else { return };
         let world = &mut self.prepared.flight.world;
         let (context, culler) = (&graphics.context, &mut graphics.culler);
+        let mut gpu_output = None;
         if self.view == View::Tinted {
             // Every object drawn, tinted by the stage that culled it.
             let frustum = world.resource::<FrustumVisible>().0.clone();
@@ -312,16 +349,14 @@ impl Game {
             });
         } else {
             match culler.run_world_from(context, world, &camera, &self.gpu_settings) {
-                Ok(output) => {
-                    self.savings.push(DrawSavings::of_frame(world, &self.slot_triangles, Some(&output)));
-                    self.gpu_frames.push(output);
-                }
+                Ok(output) => gpu_output = Some(output),
                 Err(error) => {
                     eprintln!("{error}");
                     return;
                 }
             }
         }
+        let savings = DrawSavings::of_frame(world, &self.slot_triangles, gpu_output.as_ref());
 
         let frame = match graphics.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(frame) | wgpu::CurrentSurfaceTexture::Suboptimal(frame) => frame,
@@ -335,93 +370,116 @@ impl Game {
         let mut encoder = context.device.create_command_encoder(&Default::default());
         let color = culler.targets().color_view();
         let state = world.resource::<OcclusionState>();
+        let levels = state.pyramid.level_count();
+        self.pyramid_level = self.pyramid_level.min(levels.saturating_sub(1));
         let source = match self.view {
             View::Shaded | View::Tinted => Source::Color(&color),
-            View::OcclusionBuffer => Source::Depth(&state.depth),
-            View::Pyramid => {
-                let levels = state.pyramid.level_count();
-                self.pyramid_level = self.pyramid_level.min(levels.saturating_sub(1));
-                if levels == 0 {
-                    Source::Depth(&state.depth)
-                } else {
-                    Source::Depth(state.pyramid.level(self.pyramid_level))
-                }
-            }
+            View::Pyramid if levels > 0 => Source::Depth(state.pyramid.level(self.pyramid_level)),
+            View::OcclusionBuffer | View::Pyramid => Source::Depth(&state.depth),
         };
         graphics.present.record(context, &mut encoder, source, &target, self.size);
+
+        let pyramid: Vec<(u32, u32)> =
+            (0..levels).map(|level| state.pyramid.level(level)).map(|b| (b.width(), b.height())).collect();
+        let hud_frame = HudFrame {
+            stats: &stats,
+            gpu: gpu_output.as_ref(),
+            savings: &savings,
+            fps: self.fps,
+            hud_time: self.hud_times.last().copied().unwrap_or_default(),
+            following_path: self.autopilot.is_some(),
+            validation: self.validation.as_ref(),
+            buffer: (state.depth.width(), state.depth.height()),
+            pyramid: &pyramid,
+            viewport: self.size,
+        };
+        self.hud.record(&hud_frame, delta);
+        let controls_before =
+            Controls::of(world, self.gpu_settings, self.frozen.is_some(), self.view, self.pyramid_level);
+        let mut controls = controls_before;
+        let hud = &mut self.hud;
+        let painted = hud.visible.then(|| {
+            graphics.hud.paint(&graphics.window, context, &mut encoder, &target, self.size, |ctx| {
+                hud.ui(ctx, &hud_frame, &mut controls)
+            })
+        });
+        if let Some(painted) = &painted {
+            self.hud_times.push(painted.cpu_time);
+        }
         context.queue.submit([encoder.finish()]);
+        let frame_number = self.frames.len() - 1;
+        let screenshot = self
+            .screenshots
+            .as_ref()
+            .filter(|(_, every)| frame_number.is_multiple_of(*every as usize))
+            .map(|(dir, _)| dir.join(format!("frame_{frame_number:05}.png")));
+        if let Some(file) = screenshot {
+            match save_screenshot(context, &frame.texture, graphics.config.format, &file) {
+                Ok(()) => {
+                    let regions: Vec<String> = painted
+                        .map_or(Vec::new(), |p| p.regions)
+                        .iter()
+                        .map(|[x0, y0, x1, y1]| format!("{x0},{y0},{x1},{y1}"))
+                        .collect();
+                    println!("screenshot {}: HUD over pixels [{}]", file.display(), regions.join(" "));
+                }
+                Err(error) => eprintln!("screenshot {}: {error}", file.display()),
+            }
+        }
         graphics.window.pre_present_notify();
         context.queue.present(frame);
+        if let Some(gpu) = gpu_output {
+            self.savings.push(savings);
+            self.gpu_frames.push(gpu);
+        }
+        if controls != controls_before {
+            self.set_controls(controls);
+        }
 
         if self.last_title.elapsed() > Duration::from_millis(250) {
             self.last_title = Instant::now();
-            let title = self.overlay(&stats);
+            let title = self.title(&stats);
             if let Some(graphics) = &self.graphics {
                 graphics.window.set_title(&title);
             }
         }
     }
 
-    /// The title-bar overlay: counts and times per stage, and what is switched off.
-    fn overlay(&self, stats: &CullStats) -> String {
-        let world = &self.prepared.flight.world;
-        let mut text = format!(
-            "cullet | {} objects > frustum {} ({:.0} us) > occlusion {} ({} occluders, {:.0}+{:.0} us)",
-            stats.objects,
-            stats.after_frustum,
-            micros(stats.frustum_time),
-            stats.after_occlusion,
-            stats.occluders,
-            micros(stats.raster_time),
-            micros(stats.occlusion_time)
-        );
-        if let Some(gpu) = self.gpu_frames.last().filter(|_| self.view != View::Tinted) {
-            let c = gpu.counters;
-            text.push_str(&format!(
-                " > clusters {}/{} > triangles {}/{} > {} draws ({:.1} ms)",
-                c.clusters_out,
-                c.clusters_in,
-                c.triangles_out,
-                c.triangles_in,
-                c.draws,
-                micros(gpu.wall_time) / 1e3
-            ));
-        }
-        let mut flags = vec![format!("{:.0} fps", self.fps), format!("view {:?}", self.view)];
-        if self.view == View::Pyramid {
-            flags.push(format!("level {}", self.pyramid_level));
-        }
-        if self.frozen.is_some() {
-            flags.push("FROZEN".into());
-        }
-        if self.autopilot.is_some() {
-            flags.push("path".into());
-        }
-        let gpu = self.gpu_frames.last();
-        for (skipped, name) in [
-            (stats.reused, "reused"),
-            (stats.retested > 0, "moved objects re-tested"),
-            (stats.occlusion_gated, "occlusion skipped"),
-            (gpu.is_some_and(|o| o.cluster_pass_skipped), "cluster pass skipped"),
-            (gpu.is_some_and(|o| o.triangle_pass_skipped), "triangle pass skipped"),
-        ] {
-            if skipped {
-                flags.push(name.into());
-            }
-        }
-        for (off, name) in [
-            (!world.resource::<FrustumSettings>().enabled, "frustum off"),
-            (!world.resource::<OcclusionSettings>().enabled, "occlusion off"),
-            (!self.gpu_settings.cluster_cone, "clusters off"),
-            (!self.gpu_settings.triangle_backface, "triangles off"),
-        ] {
-            if off {
-                flags.push(name.into());
-            }
-        }
-        text.push_str(&format!(" | {}", flags.join(", ")));
-        text
+    /// The title bar's short summary: frame rate, objects after each CPU stage, and the HUD key.
+    fn title(&self, stats: &CullStats) -> String {
+        let frozen = if self.frozen.is_some() { " | FROZEN" } else { "" };
+        format!(
+            "cullet | {:.0} fps | {} > {} > {} objects{frozen} | H: HUD, F1: keys",
+            self.fps, stats.objects, stats.after_frustum, stats.after_occlusion
+        )
     }
+}
+
+/// Saves the surface texture `texture` (of `format`, copyable) as a PNG file.
+fn save_screenshot(
+    context: &GpuContext,
+    texture: &wgpu::Texture,
+    format: wgpu::TextureFormat,
+    file: &std::path::Path,
+) -> Result<(), String> {
+    use wgpu::TextureFormat as F;
+    let swap_red_blue = match format {
+        F::Rgba8Unorm | F::Rgba8UnormSrgb => false,
+        F::Bgra8Unorm | F::Bgra8UnormSrgb => true,
+        other => return Err(format!("surface format {other:?} is not saved")),
+    };
+    let mut pixels = context.read_texture(texture, wgpu::TextureAspect::All, 4).map_err(|e| e.to_string())?;
+    if swap_red_blue {
+        pixels.chunks_exact_mut(4).for_each(|texel| texel.swap(0, 2));
+    }
+    for texel in pixels.chunks_exact_mut(4) {
+        // The window shows colours, not coverage: store them opaque.
+        texel[3] = 255;
+    }
+    image::RgbaImage::from_raw(texture.width(), texture.height(), pixels)
+        .ok_or("screenshot size mismatch")?
+        .save(file)
+        .map_err(|e| e.to_string())
 }
 
 impl ApplicationHandler for Game {
@@ -442,6 +500,12 @@ impl ApplicationHandler for Game {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _window: WindowId, event: WindowEvent) {
+        if let Some(graphics) = self.graphics.as_mut().filter(|_| self.hud.visible)
+            && graphics.hud.on_window_event(&graphics.window, &event)
+        {
+            // A click or drag on the HUD, or typing into it: not the game's.
+            return;
+        }
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
@@ -451,6 +515,9 @@ impl ApplicationHandler for Game {
                     graphics.config.height = size.height;
                     graphics.surface.configure(&graphics.context.device, &graphics.config);
                     graphics.culler.resize(&graphics.context, size.width, size.height);
+                }
+                if let Some(validation) = &mut self.validation {
+                    validation.set_resolution(size.width, size.height);
                 }
             }
             WindowEvent::KeyboardInput {

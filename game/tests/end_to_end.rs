@@ -192,13 +192,7 @@ fn cpu_only_says_what_it_skips() {
 /// and prints the summary. Needs `xvfb-run`; CI installs it and sets `CULLET_REQUIRE_WINDOW`.
 #[test]
 fn window_opens_draws_and_closes_after_its_frames() {
-    let has_xvfb = Command::new("xvfb-run").arg("--help").output().is_ok();
-    if !has_xvfb {
-        assert!(
-            std::env::var_os("CULLET_REQUIRE_WINDOW").is_none(),
-            "CULLET_REQUIRE_WINDOW is set but xvfb-run is missing"
-        );
-        eprintln!("SKIPPED: the window test needs xvfb-run (Debian package xvfb)");
+    if !xvfb_available("the window test") {
         return;
     }
     let output = Command::new("xvfb-run")
@@ -212,4 +206,77 @@ fn window_opens_draws_and_closes_after_its_frames() {
     assert!(text.contains("window opened: 640x360"), "no window:\n{text}");
     assert!(text.contains("summary over 12 frames"), "no summary:\n{text}");
     assert!(text.contains("clusters"), "the GPU passes did not run in the window:\n{text}");
+}
+
+/// Whether window tests can run: `xvfb-run` exists, or the test must fail because CI requires it.
+fn xvfb_available(test: &str) -> bool {
+    if Command::new("xvfb-run").arg("--help").output().is_ok() {
+        return true;
+    }
+    assert!(
+        std::env::var_os("CULLET_REQUIRE_WINDOW").is_none(),
+        "CULLET_REQUIRE_WINDOW is set but xvfb-run is missing"
+    );
+    eprintln!("SKIPPED: {test} needs xvfb-run (Debian package xvfb)");
+    false
+}
+
+/// Runs the windowed game under Xvfb on a still scene and camera, saving the frame the player sees at frame
+/// 2. Returns the screenshot and the HUD's rectangles the game reported for it (`[x0, y0, x1, y1]`).
+fn window_screenshot(name: &str, extra: &[&str]) -> (image::RgbaImage, Vec<[u32; 4]>) {
+    let dir = std::env::temp_dir().join(format!("cullet-e2e-{name}-{}", std::process::id()));
+    let output = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 1280x720x24", env!("CARGO_BIN_EXE_cullet-game")])
+        .args(["--scene", "cad:800", "--static-camera", "--frames", "3", "--resolution", "960x540"])
+        .args(["--every", "2", "--screenshots"])
+        .arg(&dir)
+        .args(extra)
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("xvfb-run runs");
+    let text = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success(), "{name}: the windowed game failed:\n{text}");
+    let line = text
+        .lines()
+        .find(|line| line.contains("frame_00002.png: HUD over pixels"))
+        .unwrap_or_else(|| panic!("{name}: no screenshot of frame 2:\n{text}"));
+    let inside = &line[line.find('[').expect("a list") + 1..line.rfind(']').expect("a list")];
+    let regions = inside
+        .split_whitespace()
+        .map(|rect| {
+            let v: Vec<u32> = rect.split(',').map(|n| n.parse().expect("a pixel coordinate")).collect();
+            [v[0], v[1], v[2], v[3]]
+        })
+        .collect();
+    let image = image::open(dir.join("frame_00002.png")).expect("the screenshot").to_rgba8();
+    let _ = std::fs::remove_dir_all(&dir);
+    (image, regions)
+}
+
+/// The HUD is drawn into the frame: a screenshot with it differs from one without it inside the rectangles
+/// the HUD reports, substantially, and nowhere else.
+#[test]
+fn hud_changes_the_frame_inside_its_region_and_nowhere_else() {
+    if !xvfb_available("the HUD test") {
+        return;
+    }
+    let (with_hud, regions) = window_screenshot("hud", &[]);
+    let (without, none) = window_screenshot("no-hud", &["--no-hud"]);
+    assert!(none.is_empty(), "--no-hud drew a HUD: {none:?}");
+    assert_eq!(regions.len(), 2, "the figures and the plots windows: {regions:?}");
+    assert_eq!(with_hud.dimensions(), (960, 540));
+    assert_eq!(with_hud.dimensions(), without.dimensions());
+    let in_hud =
+        |x: u32, y: u32| regions.iter().any(|&[x0, y0, x1, y1]| (x0..x1).contains(&x) && (y0..y1).contains(&y));
+    let (mut changed_inside, mut area) = (0usize, 0usize);
+    for (x, y, pixel) in with_hud.enumerate_pixels() {
+        let changed = pixel != without.get_pixel(x, y);
+        if in_hud(x, y) {
+            area += 1;
+            changed_inside += usize::from(changed);
+        } else {
+            assert!(!changed, "pixel ({x}, {y}) outside the HUD's region {regions:?} changed");
+        }
+    }
+    assert!(changed_inside * 2 > area, "the HUD changed only {changed_inside} of its {area} pixels");
 }

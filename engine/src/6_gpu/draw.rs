@@ -82,29 +82,7 @@ impl RenderTargets {
     /// # Errors
     /// [`super::GpuError::Lost`] when the device is lost.
     pub fn read(&self, context: &GpuContext) -> Result<RenderedImage, super::GpuError> {
-        let row_bytes = (self.width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-        let size = u64::from(row_bytes * self.height);
-        let read = |texture: &wgpu::Texture, aspect| {
-            let bytes = context.read_back(size, |encoder, staging| {
-                encoder.copy_texture_to_buffer(
-                    wgpu::TexelCopyTextureInfo { texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect },
-                    wgpu::TexelCopyBufferInfo {
-                        buffer: staging,
-                        layout: wgpu::TexelCopyBufferLayout {
-                            offset: 0,
-                            bytes_per_row: Some(row_bytes),
-                            rows_per_image: None,
-                        },
-                    },
-                    wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
-                )
-            })?;
-            let mut out = Vec::with_capacity((self.width * self.height * 4) as usize);
-            for row in bytes.chunks_exact(row_bytes as usize) {
-                out.extend_from_slice(&row[..(self.width * 4) as usize]);
-            }
-            Ok(out)
-        };
+        let read = |texture: &wgpu::Texture, aspect| context.read_texture(texture, aspect, 4);
         let color = read(&self.color, wgpu::TextureAspect::All)?;
         let object = read(&self.object, wgpu::TextureAspect::All)?;
         let depth = read(&self.depth, wgpu::TextureAspect::DepthOnly)?;

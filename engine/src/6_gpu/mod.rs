@@ -216,6 +216,43 @@ impl GpuContext {
         self.read_back(size, |encoder, staging| encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size))
     }
 
+    /// Reads mip level 0 of a 2D texture back (it must have `COPY_SRC`), waiting for the GPU: the `aspect`'s
+    /// texels of `bytes_per_texel` bytes each (4 for RGBA8, BGRA8, R32 and 32-bit depth), rows packed top to
+    /// bottom with no padding.
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost or the staging buffer cannot be mapped.
+    pub fn read_texture(
+        &self,
+        texture: &wgpu::Texture,
+        aspect: wgpu::TextureAspect,
+        bytes_per_texel: u32,
+    ) -> Result<Vec<u8>, GpuError> {
+        let (width, height) = (texture.width(), texture.height());
+        let packed_row = (width * bytes_per_texel) as usize;
+        // Copies to buffers need rows aligned to 256 bytes; the padding is dropped below.
+        let row_bytes = (width * bytes_per_texel).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let bytes = self.read_back(u64::from(row_bytes * height), |encoder, staging| {
+            encoder.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo { texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: staging,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(row_bytes),
+                        rows_per_image: None,
+                    },
+                },
+                wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            )
+        })?;
+        let mut packed = Vec::with_capacity(packed_row * height as usize);
+        for row in bytes.chunks_exact(row_bytes as usize) {
+            packed.extend_from_slice(&row[..packed_row]);
+        }
+        Ok(packed)
+    }
+
     /// Reads back `size` bytes that `copy` records into a staging buffer, waiting for the GPU.
     pub(crate) fn read_back(
         &self,

@@ -1,0 +1,455 @@
+//! The heads-up display drawn into the game's frame: objects and time per stage, the GPU passes, what the
+//! adaptive pipeline skipped, live plots of the last seconds, the debug views' legends, the key bindings and
+//! the controls a player changes most. [`Hud::ui`] builds it with egui from one frame's figures; the
+//! [`painter`] draws it into the window's frame.
+
+pub mod controls;
+pub mod painter;
+
+use crate::validation::{Validation, frame_efficiency};
+use controls::{Controls, View};
+use cullet::draw_cost::DrawSavings;
+use cullet::gpu::GpuFrameOutput;
+use cullet::pipeline::CullStats;
+use cullet::raster::RasterMode;
+use egui::{Color32, RichText};
+use egui_plot::{FilledArea, Plot};
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// The key bindings, printed when the window opens and shown by the help key.
+pub const HELP: &str = "\
+right mouse button held + move   look around
+W A S D   move          Q / E   down / up          Shift   5x faster
+P   follow the camera path / fly freely (moving also leaves the path)
+F   freeze culling at the current camera: fly around to see what was culled
+1   frustum culling on/off          2   occlusion culling on/off
+3   GPU cluster culling (normal cones, HZB) on/off
+4   GPU triangle culling on/off
+V   cycle the view: shaded / tinted by the stage that culled each object / occlusion buffer / its pyramid
+[ ] pyramid level down / up
+H   heads-up display on/off         F1  this help          Esc  quit";
+
+/// Tint of objects the frustum stage culled, in the tinted view (and its colour in the HUD).
+pub const FRUSTUM_TINT: [u8; 4] = [235, 50, 210, 255];
+/// Tint of objects the occlusion stage culled (and its colour in the HUD).
+pub const OCCLUSION_TINT: [u8; 4] = [40, 120, 255, 255];
+
+const fn colour(rgba: [u8; 4]) -> Color32 {
+    Color32::from_rgb(rgba[0], rgba[1], rgba[2])
+}
+
+const BOUNDS_COLOUR: Color32 = Color32::from_rgb(150, 150, 150);
+const FRUSTUM_COLOUR: Color32 = colour(FRUSTUM_TINT);
+const RASTER_COLOUR: Color32 = Color32::from_rgb(130, 200, 255);
+const OCCLUSION_COLOUR: Color32 = colour(OCCLUSION_TINT);
+const HZB_COLOUR: Color32 = Color32::from_rgb(170, 120, 255);
+const DRAW_COLOUR: Color32 = Color32::from_rgb(230, 230, 120);
+const CLUSTERS_COLOUR: Color32 = Color32::from_rgb(255, 170, 40);
+const TRIANGLES_COLOUR: Color32 = Color32::from_rgb(110, 210, 90);
+const WARNING_COLOUR: Color32 = Color32::from_rgb(255, 90, 80);
+const NOTE_COLOUR: Color32 = Color32::from_rgb(240, 210, 100);
+
+/// The CPU time plot's series, in the order of [`Sample::cpu_ms`].
+const CPU_SERIES: [(&str, Color32); 4] = [
+    ("bounds", BOUNDS_COLOUR),
+    ("frustum", FRUSTUM_COLOUR),
+    ("occluder raster", RASTER_COLOUR),
+    ("occlusion test", OCCLUSION_COLOUR),
+];
+/// The GPU time plot's series, in the order of [`Sample::gpu_ms`].
+const GPU_SERIES: [(&str, Color32); 4] =
+    [("HZB", HZB_COLOUR), ("clusters", CLUSTERS_COLOUR), ("triangles", TRIANGLES_COLOUR), ("draw", DRAW_COLOUR)];
+/// The removed-share plots' series, in the order of [`Sample::removed`].
+const REMOVED_SERIES: [(&str, Color32); 4] = [
+    ("frustum", FRUSTUM_COLOUR),
+    ("occlusion", OCCLUSION_COLOUR),
+    ("GPU clusters", CLUSTERS_COLOUR),
+    ("GPU triangles", TRIANGLES_COLOUR),
+];
+
+/// Seconds of history the plots show.
+const HISTORY_SECONDS: f64 = 5.0;
+
+/// One frame's figures, as the HUD shows them.
+pub struct HudFrame<'a> {
+    /// The CPU stages.
+    pub stats: &'a CullStats,
+    /// The GPU passes, when they ran this frame.
+    pub gpu: Option<&'a GpuFrameOutput>,
+    /// Triangles each stage kept from the draw.
+    pub savings: &'a DrawSavings,
+    /// Frames per second, smoothed.
+    pub fps: f32,
+    /// CPU time the HUD took to build and record last frame.
+    pub hud_time: Duration,
+    /// The camera follows its path (not free flight).
+    pub following_path: bool,
+    /// The live judge, with `--validate`.
+    pub validation: Option<&'a Validation>,
+    /// Size of the occlusion buffer, in texels.
+    pub buffer: (u32, u32),
+    /// Size of each level of its pyramid, in texels (empty when none was built).
+    pub pyramid: &'a [(u32, u32)],
+    /// The window's size in pixels (the "viewport" occlusion resolution).
+    pub viewport: (u32, u32),
+}
+
+/// One frame in the plots' history.
+struct Sample {
+    /// Seconds since the HUD started.
+    seconds: f64,
+    /// Milliseconds of each CPU stage, as in [`CPU_SERIES`].
+    cpu_ms: [f64; 4],
+    /// Milliseconds of each GPU pass, as in [`GPU_SERIES`], where the GPU has timestamps.
+    gpu_ms: Option<[f64; 4]>,
+    /// Percent of all objects each CPU stage removed, then 0 for the GPU stages.
+    objects_removed: [f64; 4],
+    /// Percent of all triangles each stage kept from the draw, as in [`REMOVED_SERIES`].
+    triangles_removed: [f64; 4],
+}
+
+/// The heads-up display's state: shown or not, the help, and the plots' history.
+pub struct Hud {
+    /// The HUD is drawn.
+    pub visible: bool,
+    /// The key bindings are shown.
+    pub help: bool,
+    history: VecDeque<Sample>,
+    seconds: f64,
+}
+
+impl Hud {
+    /// A HUD, shown or hidden.
+    pub fn new(visible: bool) -> Self {
+        Self { visible, help: false, history: VecDeque::new(), seconds: 0.0 }
+    }
+
+    /// Adds a frame `delta` seconds after the last to the plots' history (kept while hidden, so the plots
+    /// are full when it is shown again).
+    pub fn record(&mut self, frame: &HudFrame, delta: f32) {
+        self.seconds += f64::from(delta);
+        let stats = frame.stats;
+        let ms = |duration: Duration| duration.as_secs_f64() * 1e3;
+        let objects = stats.objects.max(1) as f64;
+        let savings = frame.savings;
+        let total = savings.total.max(1) as f64;
+        self.history.push_back(Sample {
+            seconds: self.seconds,
+            cpu_ms: [ms(stats.bounds_time), ms(stats.frustum_time), ms(stats.raster_time), ms(stats.occlusion_time)],
+            gpu_ms: frame
+                .gpu
+                .and_then(|gpu| gpu.pass_times)
+                .map(|t| [ms(t.hzb), ms(t.clusters), ms(t.triangles), ms(t.draw)]),
+            objects_removed: [
+                100.0 * stats.frustum_removed() as f64 / objects,
+                100.0 * stats.occlusion_removed() as f64 / objects,
+                0.0,
+                0.0,
+            ],
+            triangles_removed: savings.by_stage().map(|(_, removed)| 100.0 * removed as f64 / total),
+        });
+        while self.history.front().is_some_and(|oldest| self.seconds - oldest.seconds > HISTORY_SECONDS) {
+            self.history.pop_front();
+        }
+    }
+
+    /// Builds the HUD for `frame`, with widgets editing `controls`. Returns the screen areas its windows
+    /// cover, in points (egui's logical pixels); none when it is hidden.
+    pub fn ui(&mut self, ctx: &egui::Context, frame: &HudFrame, controls: &mut Controls) -> Vec<egui::Rect> {
+        if !self.visible {
+            return Vec::new();
+        }
+        // No shadows: the HUD covers exactly its windows' rectangles.
+        ctx.global_style_mut(|style| {
+            style.visuals.window_shadow = egui::Shadow::NONE;
+            style.visuals.popup_shadow = egui::Shadow::NONE;
+        });
+        let mut covered = Vec::new();
+        let figures = egui::Window::new("cullet").default_pos([8.0, 8.0]).resizable(false).show(ctx, |ui| {
+            stage_table(ui, frame);
+            adaptive_flags(ui, frame, controls);
+            if let Some(validation) = frame.validation {
+                validation_lines(ui, validation);
+            }
+            view_help(ui, frame, controls);
+            egui::CollapsingHeader::new("settings").default_open(false).show(ui, |ui| settings(ui, frame, controls));
+            ui.label(RichText::new("H hides the HUD, F1 shows the keys").weak());
+        });
+        covered.extend(figures.map(|shown| shown.response.rect));
+        let plots = egui::Window::new("last 5 seconds")
+            .anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0])
+            .default_width(260.0)
+            .resizable(false)
+            .show(ctx, |ui| self.plots(ui));
+        covered.extend(plots.map(|shown| shown.response.rect));
+        if self.help {
+            let help = egui::Window::new("keys")
+                .anchor(egui::Align2::CENTER_BOTTOM, [0.0, -8.0])
+                .resizable(false)
+                .collapsible(false)
+                .show(ctx, |ui| ui.label(RichText::new(HELP).monospace()));
+            covered.extend(help.map(|shown| shown.response.rect));
+        }
+        covered
+    }
+
+    /// The plots: time per stage stacked, and the share of objects and of triangles each stage removed.
+    fn plots(&self, ui: &mut egui::Ui) {
+        let xs: Vec<f64> = self.history.iter().map(|s| s.seconds - self.seconds).collect();
+        let stacked = |ui: &mut egui::Ui,
+                       title: &str,
+                       unit: &str,
+                       series: &[(&str, Color32)],
+                       value: &dyn Fn(&Sample, usize) -> f64| {
+            ui.label(title);
+            ui.horizontal_wrapped(|ui| {
+                for &(name, colour) in series {
+                    swatch(ui, colour, name);
+                }
+            });
+            let mut lower = vec![0.0; xs.len()];
+            Plot::new(title)
+                .height(56.0)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .allow_boxed_zoom(false)
+                .allow_double_click_reset(false)
+                .show_x(false)
+                .show_y(false)
+                .include_x(-HISTORY_SECONDS)
+                .include_x(0.0)
+                .include_y(0.0)
+                .y_axis_label(unit)
+                .show(ui, |plot| {
+                    for (index, &(name, colour)) in series.iter().enumerate() {
+                        let upper: Vec<f64> =
+                            self.history.iter().zip(&lower).map(|(s, below)| below + value(s, index)).collect();
+                        plot.add(FilledArea::new(name, &xs, &lower, &upper).fill_color(colour));
+                        lower = upper;
+                    }
+                });
+        };
+        stacked(ui, "CPU time per stage", "ms", &CPU_SERIES, &|s, i| s.cpu_ms[i]);
+        if self.history.iter().any(|s| s.gpu_ms.is_some()) {
+            stacked(ui, "GPU time per pass", "ms", &GPU_SERIES, &|s, i| s.gpu_ms.map_or(0.0, |ms| ms[i]));
+        }
+        stacked(ui, "objects removed, % of all", "%", &REMOVED_SERIES[..2], &|s, i| s.objects_removed[i]);
+        stacked(ui, "triangles kept from the draw, % of all", "%", &REMOVED_SERIES, &|s, i| s.triangles_removed[i]);
+    }
+}
+
+/// A small square of `colour`, then `text`: a legend entry.
+fn swatch(ui: &mut egui::Ui, colour: Color32, text: &str) {
+    ui.horizontal(|ui| {
+        let (rect, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
+        ui.painter().rect_filled(rect, 1.0, colour);
+        ui.label(text);
+    });
+}
+
+/// Objects (or clusters and triangles) after each stage and each stage's time.
+fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
+    let stats = frame.stats;
+    let us = |duration: Duration| format!("{:.0} µs", duration.as_secs_f64() * 1e6);
+    egui::Grid::new("stages").num_columns(3).striped(true).show(ui, |ui| {
+        ui.label("stage");
+        ui.label("kept");
+        ui.label("time");
+        ui.end_row();
+        swatch(ui, BOUNDS_COLOUR, "bounds");
+        ui.label(format!("{} of {} updated", stats.bounds_recomputed, stats.objects));
+        ui.label(us(stats.bounds_time));
+        ui.end_row();
+        swatch(ui, FRUSTUM_COLOUR, "frustum");
+        ui.label(format!("{} of {}", stats.after_frustum, stats.objects));
+        ui.label(us(stats.frustum_time));
+        ui.end_row();
+        swatch(ui, RASTER_COLOUR, "occluder raster");
+        ui.label(format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles));
+        ui.label(us(stats.raster_time));
+        ui.end_row();
+        swatch(ui, OCCLUSION_COLOUR, "occlusion test");
+        ui.label(format!("{} of {}", stats.after_occlusion, stats.after_frustum));
+        ui.label(us(stats.occlusion_time));
+        ui.end_row();
+        if let Some(gpu) = frame.gpu {
+            let counters = gpu.counters;
+            let pass = |time: Option<Duration>| time.map_or(String::from("-"), us);
+            let times = gpu.pass_times;
+            swatch(ui, HZB_COLOUR, "GPU HZB");
+            ui.label("from the occlusion buffer");
+            ui.label(pass(times.map(|t| t.hzb)));
+            ui.end_row();
+            swatch(ui, CLUSTERS_COLOUR, "GPU clusters");
+            ui.label(format!("{} of {}", counters.clusters_out, counters.clusters_in));
+            ui.label(pass(times.map(|t| t.clusters)));
+            ui.end_row();
+            swatch(ui, TRIANGLES_COLOUR, "GPU triangles");
+            ui.label(format!("{} of {}", counters.triangles_out, counters.triangles_in));
+            ui.label(pass(times.map(|t| t.triangles)));
+            ui.end_row();
+            swatch(ui, DRAW_COLOUR, "draw");
+            ui.label(format!("{} draws", counters.draws));
+            ui.label(pass(times.map(|t| t.draw)));
+            ui.end_row();
+            ui.label("GPU wall");
+            ui.label(if times.is_some() { "submit to read-back" } else { "no timestamps on this GPU" });
+            ui.label(format!("{:.2} ms", gpu.wall_time.as_secs_f64() * 1e3));
+            ui.end_row();
+        }
+    });
+    ui.label(format!("{:.0} fps    HUD {:.2} ms CPU", frame.fps, frame.hud_time.as_secs_f64() * 1e3));
+}
+
+/// What the adaptive pipeline skipped or reused this frame, and what is off or frozen.
+fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
+    let stats = frame.stats;
+    let gpu = frame.gpu;
+    let mut notes: Vec<String> = Vec::new();
+    if stats.reused {
+        notes.push("reused last frame's result (nothing changed)".into());
+    }
+    if stats.retested > 0 {
+        notes.push(format!("re-tested only the {} objects that moved", stats.retested));
+    }
+    if stats.occlusion_gated {
+        notes.push("occlusion skipped: it removed too little lately".into());
+    }
+    if gpu.is_some_and(|o| o.cluster_pass_skipped) {
+        notes.push("cluster pass skipped: too few clusters to pay".into());
+    }
+    if gpu.is_some_and(|o| o.triangle_pass_skipped) {
+        notes.push("triangle pass skipped: it removed too little lately".into());
+    }
+    if let Some(error) = &stats.frustum_error {
+        notes.push(format!("no frustum ({error}): everything kept"));
+    }
+    for note in notes {
+        ui.colored_label(NOTE_COLOUR, note);
+    }
+    let mut off: Vec<&str> = Vec::new();
+    for (is_off, name) in [
+        (!controls.frustum.enabled, "frustum"),
+        (!controls.occlusion.enabled, "occlusion"),
+        (!controls.clusters_on(), "GPU clusters"),
+        (!controls.triangles_on(), "GPU triangles"),
+    ] {
+        if is_off {
+            off.push(name);
+        }
+    }
+    if !off.is_empty() {
+        ui.colored_label(WARNING_COLOUR, format!("switched off: {}", off.join(", ")));
+    }
+    if controls.frozen {
+        ui.colored_label(WARNING_COLOUR, "culling FROZEN at an earlier camera (F)");
+    }
+    if controls.occlusion.enabled && controls.occlusion.mode == RasterMode::Fast {
+        ui.colored_label(WARNING_COLOUR, "fast occlusion: lossy, may cull visible objects");
+    }
+    ui.label(if frame.following_path { "camera: following its path (P)" } else { "camera: free flight (P)" });
+}
+
+/// The live judge's figures: this frame's false negatives and culling efficiency, and the run's.
+fn validation_lines(ui: &mut egui::Ui, validation: &Validation) {
+    let Some(last) = &validation.last else { return };
+    let missed = last.false_negatives.len();
+    let text = format!(
+        "judged: {missed} false negatives, efficiency frustum {:.1}%, + occlusion {:.1}%, image error {} px",
+        100.0 * frame_efficiency(last, 0),
+        100.0 * frame_efficiency(last, 1),
+        last.image_error_pixels
+    );
+    ui.colored_label(if missed > 0 { WARNING_COLOUR } else { TRIANGLES_COLOUR }, text);
+    let total = &validation.total;
+    ui.label(format!(
+        "over {} frames: {} false negatives, efficiency {:.1}%",
+        total.frames,
+        total.false_negatives,
+        100.0 * total.efficiency(1)
+    ));
+}
+
+/// The legend of the tinted view, or the buffer and level the depth views show.
+fn view_help(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
+    ui.separator();
+    ui.label(format!("view (V): {}", controls.view.label()));
+    match controls.view {
+        View::Shaded => {}
+        View::Tinted => {
+            swatch(ui, FRUSTUM_COLOUR, "culled by the frustum stage");
+            swatch(ui, OCCLUSION_COLOUR, "culled by the occlusion stage");
+            swatch(ui, Color32::from_gray(200), "own colour: kept (drawn)");
+        }
+        View::OcclusionBuffer => {
+            let (width, height) = frame.buffer;
+            ui.label(format!("occlusion buffer: {width}x{height} texels"));
+            ui.label("brighter is nearer; black is empty (nothing rasterized)");
+        }
+        View::Pyramid => {
+            let levels = frame.pyramid.len();
+            let level = controls.pyramid_level.min(levels.saturating_sub(1));
+            match frame.pyramid.get(level) {
+                Some((width, height)) => ui.label(format!(
+                    "pyramid level {level} of 0-{} ([ ]): {width}x{height} texels, each the farthest depth of \
+                     the level below",
+                    levels - 1
+                )),
+                None => ui.label("no pyramid this frame: the occlusion buffer is shown"),
+            };
+            ui.label("brighter is nearer; black is empty (nothing rasterized)");
+        }
+    }
+}
+
+/// Buffer sizes offered for the occlusion stage: width and height, and the viewport's own.
+const BUFFER_SIZES: [(u32, u32); 4] = [(128, 72), (256, 144), (512, 288), (1024, 576)];
+
+/// The controls: each stage on or off, the occlusion buffer, its mode and budget, freezing and the view.
+fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
+    ui.checkbox(&mut controls.frustum.enabled, "frustum culling (1)");
+    ui.checkbox(&mut controls.occlusion.enabled, "occlusion culling (2)");
+    let mut clusters = controls.clusters_on();
+    if ui.checkbox(&mut clusters, "GPU cluster culling (3)").changed() {
+        controls.set_clusters(clusters);
+    }
+    let mut triangles = controls.triangles_on();
+    if ui.checkbox(&mut triangles, "GPU triangle culling (4)").changed() {
+        controls.set_triangles(triangles);
+    }
+    ui.checkbox(&mut controls.frozen, "freeze culling (F)");
+    let occlusion = &mut controls.occlusion;
+    let current = (occlusion.width, occlusion.height);
+    egui::ComboBox::from_label("occlusion buffer").selected_text(format!("{}x{}", current.0, current.1)).show_ui(
+        ui,
+        |ui| {
+            let (w, h) = frame.viewport;
+            for size in BUFFER_SIZES.into_iter().chain([(w, h)]) {
+                let name = if size == frame.viewport {
+                    format!("{w}x{h} (viewport)")
+                } else {
+                    format!("{}x{}", size.0, size.1)
+                };
+                if ui.selectable_label(current == size, name).clicked() {
+                    (occlusion.width, occlusion.height) = size;
+                }
+            }
+        },
+    );
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut occlusion.mode, RasterMode::Conservative, "conservative");
+        ui.radio_value(&mut occlusion.mode, RasterMode::Fast, "fast (lossy)");
+    });
+    ui.add(egui::Slider::new(&mut occlusion.triangle_budget, 64..=65536).logarithmic(true).text("occluder triangles"));
+    egui::ComboBox::from_label("view (V)").selected_text(controls.view.label()).show_ui(ui, |ui| {
+        for view in View::ALL {
+            ui.selectable_value(&mut controls.view, view, view.label());
+        }
+    });
+    if controls.view == View::Pyramid && frame.pyramid.len() > 1 {
+        let top = frame.pyramid.len() - 1;
+        ui.add(egui::Slider::new(&mut controls.pyramid_level, 0..=top).text("pyramid level ([ ])"));
+    }
+}

@@ -1,0 +1,83 @@
+//! `--validate`: every frame judged against the exact ground truth, headless or live in the window's HUD.
+
+use bevy_ecs::world::World;
+use cullet::mesh::Mesh;
+use cullet::pipeline::OcclusionSettings;
+use cullet::raster::RasterMode;
+use cullet_truth::{FrameMetrics, JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
+
+/// The judge of a run, and what it found so far.
+pub struct Validation {
+    judge: JudgeSettings,
+    /// Every judged frame added up.
+    pub total: PathMetrics,
+    /// The last judged frame.
+    pub last: Option<FrameMetrics>,
+    /// False negatives in frames whose settings promise none (conservative occlusion, or none).
+    pub conservative_false_negatives: usize,
+}
+
+impl Validation {
+    /// A judge rendering the exact visibility at `width` x `height` pixels (the viewport's resolution).
+    pub fn new(width: u32, height: u32) -> Self {
+        Self {
+            judge: JudgeSettings {
+                reference: ReferenceSettings { width, height, ..ReferenceSettings::default() },
+                occlusion_ideal: false,
+            },
+            total: PathMetrics::default(),
+            last: None,
+            conservative_false_negatives: 0,
+        }
+    }
+
+    /// Judges later frames at `width` x `height` pixels (the window was resized).
+    pub fn set_resolution(&mut self, width: u32, height: u32) {
+        (self.judge.reference.width, self.judge.reference.height) = (width, height);
+    }
+
+    /// Judges the frame `world` just culled (its camera and each stage's survivors) and returns the metrics.
+    pub fn judge(&mut self, world: &World, meshes: &[Mesh]) -> &FrameMetrics {
+        let metrics = judge_frame(world, meshes, &self.judge).metrics;
+        self.total.add(&metrics);
+        if is_conservative(world.resource::<OcclusionSettings>()) {
+            self.conservative_false_negatives += metrics.false_negatives.len();
+        }
+        self.last.insert(metrics)
+    }
+
+    /// The run's summary line.
+    pub fn summary(&self) -> String {
+        let total = &self.total;
+        format!(
+            "validation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \
+             + occlusion {:.1}%, image error {} pixels in all",
+            total.frames,
+            total.false_negatives,
+            total.frames_with_false_negatives,
+            100.0 * total.efficiency(0),
+            100.0 * total.efficiency(1),
+            total.image_error_pixels
+        )
+    }
+
+    /// Fails when a frame whose settings promise no false negatives had one.
+    pub fn verdict(&self) -> Result<(), String> {
+        if self.conservative_false_negatives > 0 {
+            return Err("validation failed: a conservative configuration culled visible objects".into());
+        }
+        Ok(())
+    }
+}
+
+/// Culling efficiency of stage `index` (0 frustum, 1 occlusion, cumulative) in one frame's metrics.
+pub fn frame_efficiency(metrics: &FrameMetrics, index: usize) -> f64 {
+    let mut one = PathMetrics::default();
+    one.add(metrics);
+    one.efficiency(index)
+}
+
+/// Whether `occlusion` promises no false negatives.
+fn is_conservative(occlusion: &OcclusionSettings) -> bool {
+    !occlusion.enabled || occlusion.mode == RasterMode::Conservative
+}
