@@ -69,11 +69,12 @@ pub fn run(args: &Args, prepared: Prepared, event_loop: EventLoop<()>) -> Result
         pitch,
         speed: (radius * 0.05).max(1.0),
         frozen: None,
-        view: View::Shaded,
+        view: args.view,
         pyramid_level: 0,
         gpu_settings: GpuCullSettings::default(),
         hud: Hud::new(!args.no_hud),
         hud_times: Vec::new(),
+        hud_stale: true,
         validation: args.validate.then(|| Validation::new(width, height)),
         screenshots: args.screenshots.clone().map(|dir| (dir, args.every.max(1))),
         last_frame: Instant::now(),
@@ -98,20 +99,42 @@ pub fn run(args: &Args, prepared: Prepared, event_loop: EventLoop<()>) -> Result
     game.error.map_or(Ok(()), Err)
 }
 
-/// Prints the HUD's CPU time per frame it was drawn in.
-fn print_hud_summary(times: &[Duration]) {
+/// What the HUD cost in one frame.
+struct HudTime {
+    /// CPU time of the thread.
+    cpu: Duration,
+    /// The UI was built again (not drawn from the last build).
+    rebuilt: bool,
+    /// Wall time building, tessellating, and uploading and recording.
+    wall: [Duration; 3],
+}
+
+/// Prints the HUD's CPU time per frame it was drawn in, and in the frames that built it again.
+fn print_hud_summary(times: &[HudTime]) {
     if times.is_empty() {
         return;
     }
-    let mut ms: Vec<f64> = times.iter().map(|t| t.as_secs_f64() * 1e3).collect();
-    ms.sort_by(f64::total_cmp);
-    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
+    let ms = |duration: Duration| duration.as_secs_f64() * 1e3;
+    let mut cpu: Vec<f64> = times.iter().map(|t| ms(t.cpu)).collect();
+    cpu.sort_by(f64::total_cmp);
+    let rebuilds: Vec<&HudTime> = times.iter().filter(|t| t.rebuilt).collect();
+    let per_rebuild = |value: &dyn Fn(&HudTime) -> Duration| {
+        rebuilds.iter().map(|t| ms(value(t))).sum::<f64>() / rebuilds.len().max(1) as f64
+    };
     println!(
-        "HUD CPU time per frame (build, tessellate, upload, record) over {} frames: mean {mean:.3} ms, median \
-         {:.3} ms, 95th percentile {:.3} ms",
-        ms.len(),
-        ms[ms.len() / 2],
-        ms[(ms.len() * 95 / 100).min(ms.len() - 1)]
+        "HUD CPU time per frame over {} frames: mean {:.3} ms, median {:.3} ms, 95th percentile {:.3} ms; built \
+         again in {} of them (every {:.0} ms, or on input): {:.3} ms CPU each (wall: build {:.3}, tessellate \
+         {:.3}, upload and record {:.3})",
+        times.len(),
+        cpu.iter().sum::<f64>() / cpu.len() as f64,
+        cpu[cpu.len() / 2],
+        cpu[(cpu.len() * 95 / 100).min(cpu.len() - 1)],
+        rebuilds.len(),
+        crate::hud::REFRESH_SECONDS * 1e3,
+        per_rebuild(&|t| t.cpu),
+        per_rebuild(&|t| t.wall[0]),
+        per_rebuild(&|t| t.wall[1]),
+        per_rebuild(&|t| t.wall[2]),
     );
 }
 
@@ -148,8 +171,10 @@ struct Game {
     pyramid_level: usize,
     gpu_settings: GpuCullSettings,
     hud: Hud,
-    /// The HUD's CPU time in each frame it was drawn.
-    hud_times: Vec<Duration>,
+    /// What the HUD cost in each frame it was drawn.
+    hud_times: Vec<HudTime>,
+    /// A key changed what the HUD shows: build it again.
+    hud_stale: bool,
     /// The live judge, with `--validate`.
     validation: Option<Validation>,
     /// Folder and frame interval of `--screenshots`.
@@ -288,6 +313,7 @@ impl Game {
     }
 
     fn key(&mut self, code: KeyCode, event_loop: &ActiveEventLoop) {
+        self.hud_stale = true;
         let mut controls = self.controls();
         match code {
             KeyCode::Escape => event_loop.exit(),
@@ -379,32 +405,32 @@ impl Game {
         };
         graphics.present.record(context, &mut encoder, source, &target, self.size);
 
-        let pyramid: Vec<(u32, u32)> =
-            (0..levels).map(|level| state.pyramid.level(level)).map(|b| (b.width(), b.height())).collect();
+        let pyramid = (0..levels).map(|level| state.pyramid.level(level)).map(|b| (b.width(), b.height())).collect();
         let hud_frame = HudFrame {
-            stats: &stats,
-            gpu: gpu_output.as_ref(),
-            savings: &savings,
+            stats,
+            gpu: gpu_output.clone(),
+            savings,
             fps: self.fps,
-            hud_time: self.hud_times.last().copied().unwrap_or_default(),
+            hud_time: self.hud_times.iter().rev().find(|t| t.rebuilt).map_or(Duration::ZERO, |t| t.cpu),
             following_path: self.autopilot.is_some(),
-            validation: self.validation.as_ref(),
             buffer: (state.depth.width(), state.depth.height()),
-            pyramid: &pyramid,
+            pyramid,
             viewport: self.size,
         };
-        self.hud.record(&hud_frame, delta);
+        let refreshed = self.hud.record(hud_frame, delta);
         let controls_before =
             Controls::of(world, self.gpu_settings, self.frozen.is_some(), self.view, self.pyramid_level);
         let mut controls = controls_before;
-        let hud = &mut self.hud;
+        let (hud, validation) = (&self.hud, self.validation.as_ref());
+        // The HUD's content changes when its figures are refreshed, or when a key changed what it shows.
+        let changed = refreshed || std::mem::take(&mut self.hud_stale);
         let painted = hud.visible.then(|| {
-            graphics.hud.paint(&graphics.window, context, &mut encoder, &target, self.size, |ctx| {
-                hud.ui(ctx, &hud_frame, &mut controls)
+            graphics.hud.paint(&graphics.window, context, &mut encoder, &target, self.size, changed, |ctx| {
+                hud.ui(ctx, validation, &mut controls)
             })
         });
         if let Some(painted) = &painted {
-            self.hud_times.push(painted.cpu_time);
+            self.hud_times.push(HudTime { cpu: painted.cpu_time, rebuilt: painted.rebuilt, wall: painted.wall_times });
         }
         context.queue.submit([encoder.finish()]);
         let frame_number = self.frames.len() - 1;

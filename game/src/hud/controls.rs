@@ -6,13 +6,14 @@ use cullet::gpu::GpuCullSettings;
 use cullet::pipeline::{FrustumSettings, OcclusionSettings};
 
 /// What the window shows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum View {
     /// The culled scene as drawn.
     Shaded,
     /// Every object drawn, those the CPU stages culled tinted by the stage that culled them.
     Tinted,
     /// The software occlusion depth buffer.
+    #[value(name = "buffer")]
     OcclusionBuffer,
     /// One level of its farthest-depth pyramid.
     Pyramid,
@@ -152,17 +153,15 @@ mod tests {
         let mut flight = city_flight();
         let stats = flight.run_frame(0);
         let controls = Controls::of(&flight.world, GpuCullSettings::default(), false, View::Pyramid, 2);
-        let savings = DrawSavings::default();
         let frame = HudFrame {
-            stats: &stats,
+            stats,
             gpu: None,
-            savings: &savings,
+            savings: DrawSavings::default(),
             fps: 60.0,
             hud_time: Default::default(),
             following_path: true,
-            validation: None,
             buffer: (256, 144),
-            pyramid: &[(128, 72), (64, 36), (32, 18)],
+            pyramid: vec![(128, 72), (64, 36), (32, 18)],
             viewport: (1280, 720),
         };
         let ctx = egui::Context::default();
@@ -170,9 +169,9 @@ mod tests {
         hud.help = true;
         let mut edited = controls;
         for _ in 0..3 {
-            hud.record(&frame, 1.0 / 60.0);
+            hud.record(frame.clone(), 1.0 / 60.0);
             let mut output = ctx.run_pass(egui::RawInput::default(), |ctx| {
-                let covered = hud.ui(ctx, &frame, &mut edited);
+                let covered = hud.ui(ctx, None, &mut edited);
                 assert_eq!(covered.len(), 3, "figures, plots and help windows");
             });
             // Nothing paints here: the font texture is dropped unapplied.
@@ -187,7 +186,7 @@ mod tests {
         // Hidden, it builds nothing.
         hud.visible = false;
         let mut output = ctx.run_pass(egui::RawInput::default(), |ctx| {
-            assert!(hud.ui(ctx, &frame, &mut edited).is_empty());
+            assert!(hud.ui(ctx, None, &mut edited).is_empty());
         });
         output.textures_delta.clear();
     }

@@ -70,51 +70,81 @@ const REMOVED_SERIES: [(&str, Color32); 4] = [
 
 /// Seconds of history the plots show.
 const HISTORY_SECONDS: f64 = 5.0;
+/// Most plot points a second of history gets.
+const PLOT_POINTS_PER_SECOND: f64 = 30.0;
+/// Seconds between refreshes of the figures and plots shown: readable, and the UI is built again only then
+/// (or on input), which keeps its cost per frame low at any frame rate.
+pub const REFRESH_SECONDS: f64 = 0.1;
 
 /// One frame's figures, as the HUD shows them.
-pub struct HudFrame<'a> {
+#[derive(Clone, Debug)]
+pub struct HudFrame {
     /// The CPU stages.
-    pub stats: &'a CullStats,
+    pub stats: CullStats,
     /// The GPU passes, when they ran this frame.
-    pub gpu: Option<&'a GpuFrameOutput>,
+    pub gpu: Option<GpuFrameOutput>,
     /// Triangles each stage kept from the draw.
-    pub savings: &'a DrawSavings,
+    pub savings: DrawSavings,
     /// Frames per second, smoothed.
     pub fps: f32,
     /// CPU time the HUD took to build and record last frame.
     pub hud_time: Duration,
     /// The camera follows its path (not free flight).
     pub following_path: bool,
-    /// The live judge, with `--validate`.
-    pub validation: Option<&'a Validation>,
     /// Size of the occlusion buffer, in texels.
     pub buffer: (u32, u32),
     /// Size of each level of its pyramid, in texels (empty when none was built).
-    pub pyramid: &'a [(u32, u32)],
+    pub pyramid: Vec<(u32, u32)>,
     /// The window's size in pixels (the "viewport" occlusion resolution).
     pub viewport: (u32, u32),
 }
 
 /// One frame in the plots' history.
 struct Sample {
-    /// Seconds since the HUD started.
+    /// Seconds since the HUD started, at the sample's first frame.
     seconds: f64,
+    /// Frames averaged into this sample.
+    frames: u32,
     /// Milliseconds of each CPU stage, as in [`CPU_SERIES`].
     cpu_ms: [f64; 4],
     /// Milliseconds of each GPU pass, as in [`GPU_SERIES`], where the GPU has timestamps.
     gpu_ms: Option<[f64; 4]>,
     /// Percent of all objects each CPU stage removed, then 0 for the GPU stages.
     objects_removed: [f64; 4],
-    /// Percent of all triangles each stage kept from the draw, as in [`REMOVED_SERIES`].
+    /// Percent of all triangles each stage kept from being drawn, as in [`REMOVED_SERIES`].
     triangles_removed: [f64; 4],
 }
 
-/// The heads-up display's state: shown or not, the help, and the plots' history.
+impl Sample {
+    /// Averages `next`, a later frame's sample, into this one.
+    fn merge(&mut self, next: &Sample) {
+        let weight = 1.0 / f64::from(self.frames + 1);
+        let mean = |mine: &mut [f64], theirs: &[f64]| {
+            for (a, b) in mine.iter_mut().zip(theirs) {
+                *a += (b - *a) * weight;
+            }
+        };
+        mean(&mut self.cpu_ms, &next.cpu_ms);
+        match (&mut self.gpu_ms, &next.gpu_ms) {
+            (Some(mine), Some(theirs)) => mean(mine, theirs),
+            (mine, theirs) => *mine = *theirs,
+        }
+        mean(&mut self.objects_removed, &next.objects_removed);
+        mean(&mut self.triangles_removed, &next.triangles_removed);
+        self.frames += 1;
+    }
+}
+
+/// The heads-up display's state: shown or not, the help, the figures shown and the plots' history.
 pub struct Hud {
     /// The HUD is drawn.
     pub visible: bool,
     /// The key bindings are shown.
     pub help: bool,
+    /// The figures shown, refreshed every [`REFRESH_SECONDS`].
+    shown: Option<HudFrame>,
+    /// When `shown` was refreshed, in seconds since the HUD started.
+    shown_at: f64,
     history: VecDeque<Sample>,
     seconds: f64,
 }
@@ -122,23 +152,26 @@ pub struct Hud {
 impl Hud {
     /// A HUD, shown or hidden.
     pub fn new(visible: bool) -> Self {
-        Self { visible, help: false, history: VecDeque::new(), seconds: 0.0 }
+        Self { visible, help: false, shown: None, shown_at: 0.0, history: VecDeque::new(), seconds: 0.0 }
     }
 
     /// Adds a frame `delta` seconds after the last to the plots' history (kept while hidden, so the plots
-    /// are full when it is shown again).
-    pub fn record(&mut self, frame: &HudFrame, delta: f32) {
+    /// are full when it is shown again), and shows its figures when the last shown are old enough. Returns
+    /// whether they were: the HUD's content changed.
+    pub fn record(&mut self, frame: HudFrame, delta: f32) -> bool {
         self.seconds += f64::from(delta);
-        let stats = frame.stats;
+        let stats = &frame.stats;
         let ms = |duration: Duration| duration.as_secs_f64() * 1e3;
         let objects = stats.objects.max(1) as f64;
-        let savings = frame.savings;
+        let savings = &frame.savings;
         let total = savings.total.max(1) as f64;
-        self.history.push_back(Sample {
+        let sample = Sample {
             seconds: self.seconds,
+            frames: 1,
             cpu_ms: [ms(stats.bounds_time), ms(stats.frustum_time), ms(stats.raster_time), ms(stats.occlusion_time)],
             gpu_ms: frame
                 .gpu
+                .as_ref()
                 .and_then(|gpu| gpu.pass_times)
                 .map(|t| [ms(t.hzb), ms(t.clusters), ms(t.triangles), ms(t.draw)]),
             objects_removed: [
@@ -148,28 +181,36 @@ impl Hud {
                 0.0,
             ],
             triangles_removed: savings.by_stage().map(|(_, removed)| 100.0 * removed as f64 / total),
-        });
+        };
+        // Frames closer together than a plot point are averaged into one: the plots' cost stays the same at
+        // any frame rate.
+        match self.history.back_mut() {
+            Some(last) if self.seconds - last.seconds < 1.0 / PLOT_POINTS_PER_SECOND => last.merge(&sample),
+            _ => self.history.push_back(sample),
+        }
         while self.history.front().is_some_and(|oldest| self.seconds - oldest.seconds > HISTORY_SECONDS) {
             self.history.pop_front();
         }
+        let refresh = self.shown.is_none() || self.seconds - self.shown_at >= REFRESH_SECONDS;
+        if refresh {
+            self.shown = Some(frame);
+            self.shown_at = self.seconds;
+        }
+        refresh
     }
 
-    /// Builds the HUD for `frame`, with widgets editing `controls`. Returns the screen areas its windows
-    /// cover, in points (egui's logical pixels); none when it is hidden.
-    pub fn ui(&mut self, ctx: &egui::Context, frame: &HudFrame, controls: &mut Controls) -> Vec<egui::Rect> {
-        if !self.visible {
+    /// Builds the HUD from the figures recorded last, with `validation`'s live figures, and widgets editing
+    /// `controls`. Returns the screen areas its windows cover, in points (egui's logical pixels); none when it
+    /// is hidden or nothing was recorded yet.
+    pub fn ui(&self, ctx: &egui::Context, validation: Option<&Validation>, controls: &mut Controls) -> Vec<egui::Rect> {
+        let Some(frame) = self.shown.as_ref().filter(|_| self.visible) else {
             return Vec::new();
-        }
-        // No shadows: the HUD covers exactly its windows' rectangles.
-        ctx.global_style_mut(|style| {
-            style.visuals.window_shadow = egui::Shadow::NONE;
-            style.visuals.popup_shadow = egui::Shadow::NONE;
-        });
+        };
         let mut covered = Vec::new();
         let figures = egui::Window::new("cullet").default_pos([8.0, 8.0]).resizable(false).show(ctx, |ui| {
             stage_table(ui, frame);
             adaptive_flags(ui, frame, controls);
-            if let Some(validation) = frame.validation {
+            if let Some(validation) = validation {
                 validation_lines(ui, validation);
             }
             view_help(ui, frame, controls);
@@ -194,50 +235,66 @@ impl Hud {
         covered
     }
 
-    /// The plots: time per stage stacked, and the share of objects and of triangles each stage removed.
+    /// The plots, each stacked by stage: CPU time, GPU time (where timestamps exist), and the share of objects
+    /// and of triangles each stage removed.
     fn plots(&self, ui: &mut egui::Ui) {
         let xs: Vec<f64> = self.history.iter().map(|s| s.seconds - self.seconds).collect();
-        let stacked = |ui: &mut egui::Ui,
-                       title: &str,
-                       unit: &str,
-                       series: &[(&str, Color32)],
-                       value: &dyn Fn(&Sample, usize) -> f64| {
-            ui.label(title);
-            ui.horizontal_wrapped(|ui| {
-                for &(name, colour) in series {
-                    swatch(ui, colour, name);
-                }
-            });
-            let mut lower = vec![0.0; xs.len()];
-            Plot::new(title)
-                .height(56.0)
-                .allow_drag(false)
-                .allow_zoom(false)
-                .allow_scroll(false)
-                .allow_boxed_zoom(false)
-                .allow_double_click_reset(false)
-                .show_x(false)
-                .show_y(false)
-                .include_x(-HISTORY_SECONDS)
-                .include_x(0.0)
-                .include_y(0.0)
-                .y_axis_label(unit)
-                .show(ui, |plot| {
-                    for (index, &(name, colour)) in series.iter().enumerate() {
-                        let upper: Vec<f64> =
-                            self.history.iter().zip(&lower).map(|(s, below)| below + value(s, index)).collect();
-                        plot.add(FilledArea::new(name, &xs, &lower, &upper).fill_color(colour));
-                        lower = upper;
+        let stacked =
+            |ui: &mut egui::Ui, title: &str, series: &[(&str, Color32)], value: &dyn Fn(&Sample, usize) -> f64| {
+                ui.label(title);
+                ui.horizontal_wrapped(|ui| {
+                    for &(name, colour) in series {
+                        swatch(ui, colour, name);
                     }
                 });
-        };
-        stacked(ui, "CPU time per stage", "ms", &CPU_SERIES, &|s, i| s.cpu_ms[i]);
+                let mut lower = vec![0.0; xs.len()];
+                Plot::new(unit_id(title))
+                    .height(56.0)
+                    .allow_drag(false)
+                    .allow_zoom(false)
+                    .allow_scroll(false)
+                    .allow_boxed_zoom(false)
+                    .allow_double_click_reset(false)
+                    .show_x(false)
+                    .show_y(false)
+                    // No tick labels: their text would change, and be laid out again, every frame. The title has
+                    // the scale.
+                    .show_axes(false)
+                    .include_x(-HISTORY_SECONDS)
+                    .include_x(0.0)
+                    .include_y(0.0)
+                    .show(ui, |plot| {
+                        for (index, &(name, colour)) in series.iter().enumerate() {
+                            let upper: Vec<f64> =
+                                self.history.iter().zip(&lower).map(|(s, below)| below + value(s, index)).collect();
+                            plot.add(FilledArea::new(name, &xs, &lower, &upper).fill_color(colour));
+                            lower = upper;
+                        }
+                    });
+            };
+        // The titles' figures are those of the frame shown, so they change (and are laid out) only when the
+        // figures are refreshed.
+        let last = self.history.iter().rev().find(|s| s.seconds <= self.shown_at);
+        let now = |values: Option<&[f64]>| values.map_or(0.0, |v| v.iter().sum::<f64>());
+        let cpu_now = now(last.map(|s| &s.cpu_ms[..]));
+        stacked(ui, &format!("CPU time per stage: {cpu_now:.2} ms"), &CPU_SERIES, &|s, i| s.cpu_ms[i]);
         if self.history.iter().any(|s| s.gpu_ms.is_some()) {
-            stacked(ui, "GPU time per pass", "ms", &GPU_SERIES, &|s, i| s.gpu_ms.map_or(0.0, |ms| ms[i]));
+            let gpu_now = now(last.and_then(|s| s.gpu_ms.as_ref()).map(|ms| &ms[..]));
+            let title = format!("GPU time per pass: {gpu_now:.2} ms");
+            stacked(ui, &title, &GPU_SERIES, &|s, i| s.gpu_ms.map_or(0.0, |ms| ms[i]));
         }
-        stacked(ui, "objects removed, % of all", "%", &REMOVED_SERIES[..2], &|s, i| s.objects_removed[i]);
-        stacked(ui, "triangles kept from the draw, % of all", "%", &REMOVED_SERIES, &|s, i| s.triangles_removed[i]);
+        let objects_now = now(last.map(|s| &s.objects_removed[..]));
+        let title = format!("objects culled: {objects_now:.0}% of all");
+        stacked(ui, &title, &REMOVED_SERIES[..2], &|s, i| s.objects_removed[i]);
+        let triangles_now = now(last.map(|s| &s.triangles_removed[..]));
+        let title = format!("triangles not drawn: {triangles_now:.0}% of all");
+        stacked(ui, &title, &REMOVED_SERIES, &|s, i| s.triangles_removed[i]);
     }
+}
+
+/// A plot's id: its title up to the figure that changes every frame.
+fn unit_id(title: &str) -> &str {
+    title.split(':').next().unwrap_or(title)
 }
 
 /// A small square of `colour`, then `text`: a legend entry.
@@ -251,7 +308,7 @@ fn swatch(ui: &mut egui::Ui, colour: Color32, text: &str) {
 
 /// Objects (or clusters and triangles) after each stage and each stage's time.
 fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
-    let stats = frame.stats;
+    let stats = &frame.stats;
     let us = |duration: Duration| format!("{:.0} µs", duration.as_secs_f64() * 1e6);
     egui::Grid::new("stages").num_columns(3).striped(true).show(ui, |ui| {
         ui.label("stage");
@@ -274,7 +331,7 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         ui.label(format!("{} of {}", stats.after_occlusion, stats.after_frustum));
         ui.label(us(stats.occlusion_time));
         ui.end_row();
-        if let Some(gpu) = frame.gpu {
+        if let Some(gpu) = &frame.gpu {
             let counters = gpu.counters;
             let pass = |time: Option<Duration>| time.map_or(String::from("-"), us);
             let times = gpu.pass_times;
@@ -305,8 +362,8 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
 
 /// What the adaptive pipeline skipped or reused this frame, and what is off or frozen.
 fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
-    let stats = frame.stats;
-    let gpu = frame.gpu;
+    let stats = &frame.stats;
+    let gpu = frame.gpu.as_ref();
     let mut notes: Vec<String> = Vec::new();
     if stats.reused {
         notes.push("reused last frame's result (nothing changed)".into());

@@ -1,0 +1,280 @@
+//! `cullet-game`: flies a camera through a scene and culls it every frame, in a window (free flight, stage
+//! toggles, frozen culling, debug views) or headless along a camera path, printing per-frame and summary
+//! statistics of each stage.
+
+mod headless;
+pub mod hud;
+mod present;
+mod report;
+mod validation;
+mod window;
+
+use clap::Parser;
+use cullet::CameraPath;
+use cullet::gpu::GpuGating;
+use cullet::pipeline::{AdaptiveSettings, OcclusionSettings};
+use cullet::raster::RasterMode;
+use cullet::scene::Scene;
+use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
+use cullet::scene::city::{CityParams, CityScene};
+use cullet::scene::flight::Flight;
+use cullet::scene::gltf_import::load_gltf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+/// Fly through a scene and cull it every frame.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Args {
+    /// Scene to load: a built-in one, `city[:N]` (dense, occluded; 100 000 objects by default), `field[:N]`
+    /// (open, no occluders) or `cad[:N]` (everything on screen; 20 000 by default), or a glTF file (`.gltf` or
+    /// `.glb`).
+    #[arg(long, default_value = "city:100000")]
+    scene: String,
+    /// Give large meshes without an artist occluder one made of their own largest triangles (conservative:
+    /// those triangles are the drawn surface).
+    #[arg(long)]
+    auto_occluders: bool,
+    /// Move the scene and the camera path together by `X,Y,Z` world units (precision test: the world is
+    /// stored in f32 that far from its origin).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    world_offset: Option<String>,
+    /// Keep the camera at the start of its path (a static-camera run: nothing changes, so the stages reuse
+    /// their last result).
+    #[arg(long)]
+    static_camera: bool,
+    /// Run every stage every frame: no reuse of unchanged frames, no skipping of stages that removed little,
+    /// no temporal coherence (the fixed pipeline, for comparison).
+    #[arg(long)]
+    fixed_pipeline: bool,
+    /// Number of frames: headless, spread along the camera path (default 300); in a window, close after this
+    /// many (default: run until closed).
+    #[arg(long)]
+    frames: Option<u32>,
+    /// Viewport size, `WIDTHxHEIGHT` (sets the aspect ratio of the camera).
+    #[arg(long, default_value = "1920x1080")]
+    resolution: String,
+    /// Print only the summary, not one line per frame.
+    #[arg(long)]
+    quiet: bool,
+    /// Size of the software occlusion depth buffer, `WIDTHxHEIGHT`.
+    #[arg(long, default_value = "256x144")]
+    occlusion_resolution: String,
+    /// Sample the occlusion buffer at texel centres (not conservative) instead of whole-texel coverage.
+    #[arg(long)]
+    fast_occlusion: bool,
+    /// Turn the software occlusion stage off.
+    #[arg(long)]
+    no_occlusion: bool,
+    /// Most occluder triangles rasterized per frame.
+    #[arg(long, default_value_t = OcclusionSettings::default().triangle_budget)]
+    occluder_budget: usize,
+    /// Judge every frame against the exact ground truth (every object's triangles rasterized at the viewport
+    /// resolution): report false negatives, false positives and image error, and fail if a conservative
+    /// configuration culled anything visible. In a window the HUD shows them live, for every setting changed.
+    #[arg(long)]
+    validate: bool,
+    /// Run only the CPU stages (bounds, frustum, occlusion), without a GPU adapter: cluster and triangle
+    /// culling and the draw are skipped.
+    #[arg(long)]
+    cpu_only: bool,
+    /// Camera path to fly instead of the scene's built-in one (JSON, see the README).
+    #[arg(long, value_name = "FILE.json")]
+    camera_path: Option<std::path::PathBuf>,
+    /// Write one CSV row per frame: counts and each stage's time in microseconds (plus accuracy with
+    /// --validate).
+    #[arg(long, value_name = "FILE.csv")]
+    stats: Option<std::path::PathBuf>,
+    /// Save the drawn frame as PNG into this folder every --every frames (needs a GPU adapter). In a window,
+    /// the frame the player sees, HUD included.
+    #[arg(long, value_name = "DIR")]
+    screenshots: Option<std::path::PathBuf>,
+    /// Frames between screenshots.
+    #[arg(long, default_value_t = 30)]
+    every: u32,
+    /// Run without a window along the camera path (the default where no display exists).
+    #[arg(long)]
+    headless: bool,
+    /// Start with the heads-up display hidden (H shows it).
+    #[arg(long)]
+    no_hud: bool,
+    /// What the window shows at first (V cycles through them).
+    #[arg(long, value_enum, default_value = "shaded")]
+    view: hud::controls::View,
+}
+
+impl Args {
+    /// Frames of a headless run.
+    fn headless_frames(&self) -> u32 {
+        self.frames.unwrap_or(300)
+    }
+}
+
+/// A loaded scene and the camera path it is flown along without `--camera-path`.
+struct LoadedScene {
+    scene: Scene,
+    path: CameraPath,
+    description: String,
+}
+
+/// The scene `--scene` names: the built-in city, or a glTF file (warnings printed, errors returned).
+fn load_scene(args: &Args) -> Result<LoadedScene, String> {
+    let (name, count) = match args.scene.split_once(':') {
+        Some((name, count)) => (name, Some(count)),
+        None => (args.scene.as_str(), None),
+    };
+    let builtin = ["city", "field", "cad"].contains(&name).then(|| match count {
+        None => Ok(if name == "city" { 100_000 } else { 20_000 }),
+        Some(count) => count.parse::<usize>().map_err(|_| format!("bad object count in --scene {}", args.scene)),
+    });
+    let mut loaded = match builtin {
+        Some(objects) => {
+            let objects = objects?;
+            let (scene, path) = match name {
+                "city" => {
+                    let city = CityScene::generate(CityParams::with_objects(objects));
+                    let path = city.flythrough();
+                    (city.scene, path)
+                }
+                "field" => cullet::scene::field::field(objects),
+                _ => cullet::scene::cad::cad(objects),
+            };
+            LoadedScene { description: format!("{name} of {} objects", scene.objects.len()), scene, path }
+        }
+        None => {
+            let file = std::path::Path::new(&args.scene);
+            let extension = file.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+            if !matches!(extension.as_deref(), Some("gltf" | "glb")) {
+                return Err(format!(
+                    "unknown scene '{}': expected city[:N], field[:N], cad[:N] or a .gltf/.glb file",
+                    args.scene
+                ));
+            }
+            let gltf = load_gltf(file).map_err(|e| e.to_string())?;
+            for warning in &gltf.warnings {
+                eprintln!("warning: {}: {warning}", args.scene);
+            }
+            let path = gltf.scene.orbit_path();
+            LoadedScene {
+                description: format!(
+                    "{}: {} objects, {} triangles, {} artist occluder nodes",
+                    args.scene,
+                    gltf.scene.objects.len(),
+                    gltf.scene.triangle_count(),
+                    gltf.occluder_nodes
+                ),
+                scene: gltf.scene,
+                path,
+            }
+        }
+    };
+    if args.auto_occluders {
+        let added = add_auto_occluders(&mut loaded.scene, &AutoOccluderSettings::default());
+        loaded.description.push_str(&format!(", {added} automatic occluders"));
+    }
+    Ok(loaded)
+}
+
+fn parse_offset(offset: &str) -> Result<glam::Vec3, String> {
+    let parts: Vec<Option<f32>> = offset.split(',').map(|p| p.trim().parse().ok()).collect();
+    match parts[..] {
+        [Some(x), Some(y), Some(z)] if x.is_finite() && y.is_finite() && z.is_finite() => Ok(glam::Vec3::new(x, y, z)),
+        _ => Err(format!("bad --world-offset '{offset}', expected X,Y,Z")),
+    }
+}
+
+fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
+    let parsed = resolution.split_once('x').and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)));
+    match parsed {
+        Some((w, h)) if w > 0 && h > 0 => Ok((w, h)),
+        _ => Err(format!("bad --resolution '{resolution}', expected WIDTHxHEIGHT")),
+    }
+}
+
+/// Runs in a window where a display exists and `--headless` is not given; otherwise headless.
+fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
+    if args.headless || args.cpu_only {
+        // The CPU-only run is a measurement along the camera path: no window.
+        return headless::run(args, prepared);
+    }
+    match window::open_event_loop() {
+        Ok(event_loop) => window::run(args, prepared, event_loop),
+        Err(why) => {
+            println!("no window ({why}): running headless");
+            headless::run(args, prepared)
+        }
+    }
+}
+
+/// Runs the game with the command line's arguments: what `cullet-game` does.
+pub fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
+        .init();
+    let args = Args::parse();
+    match prepare(&args).and_then(|prepared| run(&args, prepared)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("cullet-game: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Everything a run needs, built from the command line.
+pub struct Prepared {
+    /// The scene's meshes (for the GPU and the ground truth).
+    pub scene: Scene,
+    /// The world with the scene spawned, its schedule and camera path.
+    pub flight: Flight,
+    /// Occlusion settings from the command line.
+    pub occlusion: OcclusionSettings,
+    /// Viewport width and height.
+    pub resolution: (u32, u32),
+}
+
+/// Loads the scene and camera path and sets up the world.
+fn prepare(args: &Args) -> Result<Prepared, String> {
+    let (width, height) = parse_resolution(&args.resolution)?;
+    let aspect = width as f32 / height as f32;
+    let (occlusion_width, occlusion_height) = parse_resolution(&args.occlusion_resolution)?;
+    let occlusion = OcclusionSettings {
+        enabled: !args.no_occlusion,
+        width: occlusion_width,
+        height: occlusion_height,
+        mode: if args.fast_occlusion { RasterMode::Fast } else { RasterMode::Conservative },
+        triangle_budget: args.occluder_budget,
+    };
+
+    let start = Instant::now();
+    let LoadedScene { mut scene, path, mut description } = load_scene(args)?;
+    let mut path = match &args.camera_path {
+        Some(file) => {
+            let json = std::fs::read_to_string(file).map_err(|e| format!("{}: {e}", file.display()))?;
+            CameraPath::from_json(&json).map_err(|e| format!("{}: {e}", file.display()))?
+        }
+        None => path,
+    };
+    if args.static_camera {
+        path.keys.truncate(1);
+    }
+    if let Some(offset) = &args.world_offset {
+        let offset = parse_offset(offset)?;
+        scene.translate(offset);
+        path = path.translated(offset);
+        description.push_str(&format!(", moved by {offset}"));
+    }
+    let mut flight = Flight::new(path, aspect, args.headless_frames(), occlusion, |world| {
+        scene.spawn(world);
+    });
+    if args.fixed_pipeline {
+        flight.world.insert_resource(AdaptiveSettings::fixed());
+        flight.world.insert_resource(GpuGating::fixed());
+    }
+    println!(
+        "{description}; loaded and spawned in {:.0} ms; camera path of {:.0} s",
+        start.elapsed().as_secs_f64() * 1e3,
+        flight.path.duration()
+    );
+    Ok(Prepared { scene, flight, occlusion, resolution: (width, height) })
+}
