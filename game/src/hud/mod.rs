@@ -221,6 +221,8 @@ impl Hud {
         let plots = egui::Window::new("last 5 seconds")
             .anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0])
             .default_width(260.0)
+            // In a small window the plots would cover the figures: they start folded there.
+            .default_open(frame.viewport.0 >= 900)
             .resizable(false)
             .show(ctx, |ui| self.plots(ui));
         covered.extend(plots.map(|shown| shown.response.rect));
