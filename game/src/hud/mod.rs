@@ -9,7 +9,7 @@ pub mod painter;
 use crate::validation::{Validation, frame_efficiency};
 use controls::{Controls, View};
 use cullet::draw_cost::DrawSavings;
-use cullet::gpu::GpuFrameOutput;
+use cullet::gpu::{GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::CullStats;
 use cullet::raster::RasterMode;
 use egui::{Color32, RichText};
@@ -308,6 +308,14 @@ fn swatch(ui: &mut egui::Ui, colour: Color32, text: &str) {
     });
 }
 
+/// One row of the stage table: the stage's colour and name, what it kept, its time.
+fn stage_row(ui: &mut egui::Ui, colour: Color32, stage: &str, kept: String, time: String) {
+    swatch(ui, colour, stage);
+    ui.label(kept);
+    ui.label(time);
+    ui.end_row();
+}
+
 /// Objects (or clusters and triangles) after each stage and each stage's time.
 fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
     let stats = &frame.stats;
@@ -317,42 +325,24 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         ui.label("kept");
         ui.label("time");
         ui.end_row();
-        swatch(ui, BOUNDS_COLOUR, "bounds");
-        ui.label(format!("{} of {} updated", stats.bounds_recomputed, stats.objects));
-        ui.label(us(stats.bounds_time));
-        ui.end_row();
-        swatch(ui, FRUSTUM_COLOUR, "frustum");
-        ui.label(format!("{} of {}", stats.after_frustum, stats.objects));
-        ui.label(us(stats.frustum_time));
-        ui.end_row();
-        swatch(ui, RASTER_COLOUR, "occluder raster");
-        ui.label(format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles));
-        ui.label(us(stats.raster_time));
-        ui.end_row();
-        swatch(ui, OCCLUSION_COLOUR, "occlusion test");
-        ui.label(format!("{} of {}", stats.after_occlusion, stats.after_frustum));
-        ui.label(us(stats.occlusion_time));
-        ui.end_row();
+        let updated = format!("{} of {} updated", stats.bounds_recomputed, stats.objects);
+        stage_row(ui, BOUNDS_COLOUR, "bounds", updated, us(stats.bounds_time));
+        let kept = format!("{} of {}", stats.after_frustum, stats.objects);
+        stage_row(ui, FRUSTUM_COLOUR, "frustum", kept, us(stats.frustum_time));
+        let occluders = format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles);
+        stage_row(ui, RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time));
+        let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
+        stage_row(ui, OCCLUSION_COLOUR, "occlusion test", kept, us(stats.occlusion_time));
         if let Some(gpu) = &frame.gpu {
             let counters = gpu.counters;
-            let pass = |time: Option<Duration>| time.map_or(String::from("-"), us);
             let times = gpu.pass_times;
-            swatch(ui, HZB_COLOUR, "GPU HZB");
-            ui.label("from the occlusion buffer");
-            ui.label(pass(times.map(|t| t.hzb)));
-            ui.end_row();
-            swatch(ui, CLUSTERS_COLOUR, "GPU clusters");
-            ui.label(format!("{} of {}", counters.clusters_out, counters.clusters_in));
-            ui.label(pass(times.map(|t| t.clusters)));
-            ui.end_row();
-            swatch(ui, TRIANGLES_COLOUR, "GPU triangles");
-            ui.label(format!("{} of {}", counters.triangles_out, counters.triangles_in));
-            ui.label(pass(times.map(|t| t.triangles)));
-            ui.end_row();
-            swatch(ui, DRAW_COLOUR, "draw");
-            ui.label(format!("{} draws", counters.draws));
-            ui.label(pass(times.map(|t| t.draw)));
-            ui.end_row();
+            let pass = |time: fn(&GpuPassTimes) -> Duration| times.as_ref().map_or(String::from("-"), |t| us(time(t)));
+            stage_row(ui, HZB_COLOUR, "GPU HZB", "from the occlusion buffer".into(), pass(|t| t.hzb));
+            let clusters = format!("{} of {}", counters.clusters_out, counters.clusters_in);
+            stage_row(ui, CLUSTERS_COLOUR, "GPU clusters", clusters, pass(|t| t.clusters));
+            let triangles = format!("{} of {}", counters.triangles_out, counters.triangles_in);
+            stage_row(ui, TRIANGLES_COLOUR, "GPU triangles", triangles, pass(|t| t.triangles));
+            stage_row(ui, DRAW_COLOUR, "draw", format!("{} draws", counters.draws), pass(|t| t.draw));
             ui.label("GPU wall");
             ui.label(if times.is_some() { "submit to read-back" } else { "no timestamps on this GPU" });
             ui.label(format!("{:.2} ms", gpu.wall_time.as_secs_f64() * 1e3));
