@@ -227,8 +227,6 @@ pub struct Prepared {
     pub scene: Scene,
     /// The world with the scene spawned, its schedule and camera path.
     pub flight: Flight,
-    /// Occlusion settings from the command line.
-    pub occlusion: OcclusionSettings,
     /// Viewport width and height.
     pub resolution: (u32, u32),
 }
@@ -276,5 +274,5 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         start.elapsed().as_secs_f64() * 1e3,
         flight.path.duration()
     );
-    Ok(Prepared { scene, flight, occlusion, resolution: (width, height) })
+    Ok(Prepared { scene, flight, resolution: (width, height) })
 }

@@ -223,11 +223,10 @@ impl Game {
             .get_default_config(&context.adapter, self.size.0, self.size.1)
             .ok_or("the GPU cannot present to this window")?;
         // The colour target holds display values: present them through a non-sRGB view where there is one.
-        let formats = surface.get_capabilities(&context.adapter).formats;
-        if let Some(&linear) = formats.iter().find(|f| !f.is_srgb()) {
+        let capabilities = surface.get_capabilities(&context.adapter);
+        if let Some(&linear) = capabilities.formats.iter().find(|f| !f.is_srgb()) {
             config.format = linear;
         }
-        let capabilities = surface.get_capabilities(&context.adapter);
         if self.screenshots.is_some() {
             // Screenshots copy the frame the player sees, HUD included, out of the surface.
             if capabilities.usages.contains(wgpu::TextureUsages::COPY_SRC) {

@@ -241,62 +241,56 @@ impl Hud {
     /// and of triangles each stage removed.
     fn plots(&self, ui: &mut egui::Ui) {
         let xs: Vec<f64> = self.history.iter().map(|s| s.seconds - self.seconds).collect();
-        let stacked =
-            |ui: &mut egui::Ui, title: &str, series: &[(&str, Color32)], value: &dyn Fn(&Sample, usize) -> f64| {
-                ui.label(title);
-                ui.horizontal_wrapped(|ui| {
-                    for &(name, colour) in series {
-                        swatch(ui, colour, name);
-                    }
-                });
-                let mut lower = vec![0.0; xs.len()];
-                Plot::new(unit_id(title))
-                    .height(56.0)
-                    .allow_drag(false)
-                    .allow_zoom(false)
-                    .allow_scroll(false)
-                    .allow_boxed_zoom(false)
-                    .allow_double_click_reset(false)
-                    .show_x(false)
-                    .show_y(false)
-                    // No tick labels: their text would change, and be laid out again, every frame. The title has
-                    // the scale.
-                    .show_axes(false)
-                    .include_x(-HISTORY_SECONDS)
-                    .include_x(0.0)
-                    .include_y(0.0)
-                    .show(ui, |plot| {
-                        for (index, &(name, colour)) in series.iter().enumerate() {
-                            let upper: Vec<f64> =
-                                self.history.iter().zip(&lower).map(|(s, below)| below + value(s, index)).collect();
-                            plot.add(FilledArea::new(name, &xs, &lower, &upper).fill_color(colour));
-                            lower = upper;
-                        }
-                    });
-            };
         // The titles' figures are those of the frame shown, so they change (and are laid out) only when the
         // figures are refreshed.
-        let last = self.history.iter().rev().find(|s| s.seconds <= self.shown_at);
-        let now = |values: Option<&[f64]>| values.map_or(0.0, |v| v.iter().sum::<f64>());
-        let cpu_now = now(last.map(|s| &s.cpu_ms[..]));
-        stacked(ui, &format!("CPU time per stage: {cpu_now:.2} ms"), &CPU_SERIES, &|s, i| s.cpu_ms[i]);
+        let shown = self.history.iter().rev().find(|s| s.seconds <= self.shown_at);
+        // One plot: its title with the shown frame's total (`decimals` places, then `unit`), the series'
+        // legend, and the series stacked.
+        let stacked = |ui: &mut egui::Ui,
+                       name: &str,
+                       unit: &str,
+                       decimals: usize,
+                       series: &[(&str, Color32)],
+                       value: &dyn Fn(&Sample, usize) -> f64| {
+            let total: f64 = shown.map_or(0.0, |s| (0..series.len()).map(|i| value(s, i)).sum());
+            ui.label(format!("{name}: {total:.decimals$}{unit}"));
+            ui.horizontal_wrapped(|ui| {
+                for &(name, colour) in series {
+                    swatch(ui, colour, name);
+                }
+            });
+            let mut lower = vec![0.0; xs.len()];
+            Plot::new(name)
+                .height(56.0)
+                .allow_drag(false)
+                .allow_zoom(false)
+                .allow_scroll(false)
+                .allow_boxed_zoom(false)
+                .allow_double_click_reset(false)
+                .show_x(false)
+                .show_y(false)
+                // No tick labels: their text would change, and be laid out again, every frame. The title has
+                // the scale.
+                .show_axes(false)
+                .include_x(-HISTORY_SECONDS)
+                .include_x(0.0)
+                .include_y(0.0)
+                .show(ui, |plot| {
+                    for (index, &(name, colour)) in series.iter().enumerate() {
+                        let upper: Vec<f64> =
+                            self.history.iter().zip(&lower).map(|(s, below)| below + value(s, index)).collect();
+                        plot.add(FilledArea::new(name, &xs, &lower, &upper).fill_color(colour));
+                        lower = upper;
+                    }
+                });
+        };
+        stacked(ui, "CPU time per stage", " ms", 2, &CPU_SERIES, &|s, i| s.cpu_ms[i]);
         if self.history.iter().any(|s| s.gpu_ms.is_some()) {
-            let gpu_now = now(last.and_then(|s| s.gpu_ms.as_ref()).map(|ms| &ms[..]));
-            let title = format!("GPU time per pass: {gpu_now:.2} ms");
-            stacked(ui, &title, &GPU_SERIES, &|s, i| s.gpu_ms.map_or(0.0, |ms| ms[i]));
+            stacked(ui, "GPU time per pass", " ms", 2, &GPU_SERIES, &|s, i| s.gpu_ms.map_or(0.0, |ms| ms[i]));
         }
-        let objects_now = now(last.map(|s| &s.objects_removed[..]));
-        let title = format!("objects culled: {objects_now:.0}% of all");
-        stacked(ui, &title, &REMOVED_SERIES[..2], &|s, i| s.objects_removed[i]);
-        let triangles_now = now(last.map(|s| &s.triangles_removed[..]));
-        let title = format!("triangles not drawn: {triangles_now:.0}% of all");
-        stacked(ui, &title, &REMOVED_SERIES, &|s, i| s.triangles_removed[i]);
+        stacked(ui, "objects culled", "% of all", 0, &REMOVED_SERIES[..2], &|s, i| s.objects_removed[i]);
+        stacked(ui, "triangles not drawn", "% of all", 0, &REMOVED_SERIES, &|s, i| s.triangles_removed[i]);
     }
-}
-
-/// A plot's id: its title up to the figure that changes every frame.
-fn unit_id(title: &str) -> &str {
-    title.split(':').next().unwrap_or(title)
 }
 
 /// A small square of `colour`, then `text`: a legend entry.
