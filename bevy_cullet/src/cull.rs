@@ -1,0 +1,260 @@
+//! Stages 2 to 5 for every Bevy camera: Cullet's frustum test, occluder raster and occlusion test, then the
+//! survivors written to Bevy's `ViewVisibility` and `VisibleEntities`.
+
+use crate::convert::{self, View};
+use crate::mirror::CulletStore;
+use crate::{CulletSettings, NoCulletOcclusion};
+use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum, Sphere};
+use bevy_camera::visibility::{
+    InheritedVisibility, NoCpuCulling, NoFrustumCulling, RenderLayers, SetViewVisibility, ViewVisibility,
+    VisibilityClass, VisibilityRange, VisibleEntities, VisibleEntityRanges,
+};
+use bevy_camera::{Camera, Projection};
+use bevy_ecs::prelude::*;
+use bevy_transform::components::GlobalTransform;
+use cullet::Occluder;
+use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
+use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
+use cullet::occluder::{OccluderInstance, select_occluders};
+use cullet::occlusion::test_occlusion;
+use cullet::raster::rasterize;
+use cullet::visible::VisibleSet;
+use std::time::{Duration, Instant};
+
+/// Counts and times of one camera's last culled frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ViewStats {
+    /// Entities in Cullet's store (mirrored ones).
+    pub objects: usize,
+    /// Of those, kept by the frustum stage.
+    pub after_frustum: usize,
+    /// Of those, kept by the occlusion stage (equal to `after_frustum` where it did not run).
+    pub after_occlusion: usize,
+    /// Entities made visible in this view, mirrored or not, after `InheritedVisibility`, `RenderLayers` and
+    /// `VisibilityRange`.
+    pub visible: usize,
+    /// Occluders rasterized.
+    pub occluders: usize,
+    /// Occluder triangles rasterized.
+    pub occluder_triangles: usize,
+    /// Whether this frame reused the last frame's result (same view, settings, bounds and occluders).
+    pub reused: bool,
+    /// Frustum stage time.
+    pub frustum_time: Duration,
+    /// Occluder selection and raster time.
+    pub raster_time: Duration,
+    /// Occlusion test time.
+    pub occlusion_time: Duration,
+    /// Time spent writing `ViewVisibility` and `VisibleEntities`.
+    pub write_time: Duration,
+    /// Why the frustum stage kept everything, if the camera gave no valid frustum.
+    pub frustum_error: Option<FrustumError>,
+}
+
+/// Cullet's state for one camera: its result, the occluder buffer it culled with, and its stats. The plugin
+/// adds it to every `Camera`.
+#[derive(Component, Default, Debug)]
+pub struct CulletView {
+    frustum_visible: VisibleSet,
+    coherence: PlaneCoherence,
+    depth: DepthBuffer,
+    pyramid: DepthPyramid,
+    /// Store slots kept by both stages.
+    visible: VisibleSet,
+    occluded: VisibleSet,
+    /// What the last full cull was computed from: view key, store generation, settings, occlusion on.
+    last: Option<([f32; 19], u64, CulletSettings, bool)>,
+    stats: ViewStats,
+}
+
+impl CulletView {
+    /// Counts and times of the last frame.
+    pub fn stats(&self) -> &ViewStats {
+        &self.stats
+    }
+
+    /// The occluder depth buffer of the last frame (`1/w` of the farthest occluder per texel, 0 for none);
+    /// empty where occlusion did not run.
+    pub fn depth(&self) -> &DepthBuffer {
+        &self.depth
+    }
+
+    /// Store slots ([`crate::CulletStore::store`]) kept by the frustum and occlusion stages, before Bevy's
+    /// per-entity rules.
+    pub fn kept(&self) -> &VisibleSet {
+        &self.visible
+    }
+
+    /// Runs the frustum and occlusion stages for `view` (or reuses the last result).
+    fn cull<'a>(
+        &mut self,
+        cullet: &CulletStore,
+        view: &View,
+        settings: &CulletSettings,
+        occlusion: bool,
+        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+    ) {
+        let store = &cullet.store;
+        let key = (view.key, store.generation(), *settings, occlusion);
+        self.stats.reused = self.last == Some(key) && self.visible.len() == store.len();
+        if self.stats.reused {
+            return;
+        }
+        self.last = Some(key);
+        let start = Instant::now();
+        self.stats.objects = store.len();
+        self.stats.frustum_error = None;
+        match &view.frustum {
+            Ok(frustum) if settings.frustum => {
+                cull_frustum_coherent(store, frustum, SimdBackend::Auto, &mut self.frustum_visible, &mut self.coherence);
+            }
+            Ok(_) => self.frustum_visible = VisibleSet::all(store.len()),
+            Err(error) => {
+                tracing::warn!("bevy_cullet keeps every object of a view: {error}");
+                self.stats.frustum_error = Some(*error);
+                self.frustum_visible = VisibleSet::all(store.len());
+            }
+        }
+        self.stats.after_frustum = self.frustum_visible.count();
+        self.stats.frustum_time = start.elapsed();
+
+        let start = Instant::now();
+        let chosen: Vec<OccluderInstance> = match (&view.camera, occlusion && settings.occlusion.enabled) {
+            (Some(camera), true) => {
+                select_occluders(store, &self.frustum_visible, camera.position, settings.occlusion.triangle_budget, occluder_of)
+                    .into_iter()
+                    .map(|(_, instance)| instance)
+                    .collect()
+            }
+            _ => Vec::new(),
+        };
+        (self.stats.occluders, self.stats.occluder_triangles) = (chosen.len(), 0);
+        let Some(camera) = view.camera.filter(|_| !chosen.is_empty()) else {
+            // Nothing to occlude with: the stage costs the selection alone.
+            self.depth.reset(0, 0);
+            self.pyramid = DepthPyramid::default();
+            self.visible.clone_from(&self.frustum_visible);
+            self.stats.after_occlusion = self.stats.after_frustum;
+            (self.stats.raster_time, self.stats.occlusion_time) = (start.elapsed(), Duration::ZERO);
+            return;
+        };
+        let screen = ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height);
+        let raster = rasterize(&screen, &chosen, settings.occlusion.mode, &mut self.depth);
+        self.pyramid.build(&self.depth);
+        self.stats.occluder_triangles = raster.triangles_rasterized;
+        self.stats.raster_time = start.elapsed();
+
+        let start = Instant::now();
+        let result =
+            test_occlusion(store, &self.frustum_visible, &screen, &self.pyramid, &mut self.visible, &mut self.occluded);
+        self.stats.after_occlusion = result.visible;
+        self.stats.occlusion_time = start.elapsed();
+    }
+}
+
+/// A camera as the culling system reads it.
+type CameraItem<'a> = (
+    Entity,
+    &'a Camera,
+    &'a GlobalTransform,
+    &'a Projection,
+    &'a BevyFrustum,
+    Option<&'a RenderLayers>,
+    &'a mut VisibleEntities,
+    &'a mut CulletView,
+    Has<NoCpuCulling>,
+    Has<NoCulletOcclusion>,
+);
+
+/// What Bevy's per-entity rules read of a drawable entity.
+type Drawable<'a> = (
+    &'a InheritedVisibility,
+    &'a mut ViewVisibility,
+    Option<&'a VisibilityClass>,
+    Option<&'a RenderLayers>,
+    Has<VisibilityRange>,
+);
+
+/// Entities the plugin mirrors (see [`crate::mirror`]).
+type MirroredDrawable = (With<Aabb>, Without<NoFrustumCulling>, Without<NoCpuCulling>);
+/// Entities Bevy's check would see that the plugin does not mirror.
+type OtherDrawable = (Without<NoCpuCulling>, Or<(Without<Aabb>, With<NoFrustumCulling>)>);
+
+/// For every active camera: culls the mirrored objects, then writes the visible ones (and the entities Cullet
+/// does not mirror, by Bevy's rules) into `ViewVisibility` and the camera's `VisibleEntities`, sorted.
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+pub(crate) fn cull_views(
+    cullet: Res<CulletStore>,
+    settings: Res<CulletSettings>,
+    mut cameras: Query<CameraItem>,
+    mut drawables: ParamSet<(
+        Query<Drawable, MirroredDrawable>,
+        Query<(Entity, Drawable<'static>, Option<&Sphere>), OtherDrawable>,
+    )>,
+    occluders: Query<(&Occluder, &GlobalTransform, Option<&InheritedVisibility>, Option<&RenderLayers>)>,
+    changed_occluders: Query<
+        (),
+        (With<Occluder>, Or<(Changed<Occluder>, Changed<InheritedVisibility>, Changed<RenderLayers>)>),
+    >,
+    ranges: Option<Res<VisibleEntityRanges>>,
+) {
+    let occluders_changed = !changed_occluders.is_empty();
+    for (camera_entity, camera, transform, projection, bevy_frustum, layers, mut visible_entities, mut view, no_cpu_culling, no_occlusion) in
+        &mut cameras
+    {
+        if !camera.is_active {
+            continue;
+        }
+        let view_layers = layers.unwrap_or_default();
+        let culled = convert::view_of(transform, projection);
+        if occluders_changed {
+            view.last = None;
+        }
+        let settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
+        view.cull(&cullet, &culled, &settings, !no_occlusion && !no_cpu_culling, |slot| {
+            let (occluder, transform, inherited, layers) = occluders.get(cullet.store.entities()[slot]).ok()?;
+            let shown = inherited.is_none_or(|inherited| inherited.get()) && view_layers.intersects(layers.unwrap_or_default());
+            shown.then(|| OccluderInstance { occluder, transform: convert::affine(transform) })
+        });
+
+        let start = Instant::now();
+        let in_range = |entity: Entity, has_range: bool| {
+            !has_range || ranges.as_ref().is_none_or(|ranges| ranges.entity_is_in_range_of_view(entity, camera_entity))
+        };
+        visible_entities.clear_all();
+        let mut visible = 0;
+        let mut show = |entity: Entity, drawable: (&InheritedVisibility, Mut<ViewVisibility>, Option<&VisibilityClass>, Option<&RenderLayers>, bool)| {
+            let (inherited, mut view_visibility, class, layers, has_range) = drawable;
+            if !inherited.get() || !view_layers.intersects(layers.unwrap_or_default()) || !in_range(entity, has_range) {
+                return;
+            }
+            view_visibility.set_visible();
+            visible += 1;
+            for &class in class.into_iter().flat_map(|class| class.iter()) {
+                visible_entities.push(entity, class);
+            }
+        };
+        {
+            let mut mirrored = drawables.p0();
+            let entities = cullet.store.entities();
+            for entity in view.visible.iter().map(|slot| entities[slot]).chain(cullet.rejected.iter().copied()) {
+                if let Ok(drawable) = mirrored.get_mut(entity) {
+                    show(entity, drawable);
+                }
+            }
+        }
+        for (entity, drawable, sphere) in &mut drawables.p1() {
+            let frustum_culls = !no_cpu_culling && settings.frustum;
+            if frustum_culls && sphere.is_some_and(|sphere| !bevy_frustum.intersects_sphere(sphere, false)) {
+                continue;
+            }
+            show(entity, drawable);
+        }
+        for list in visible_entities.entities.values_mut() {
+            // Bevy's renderer diffs these lists in O(n), which needs them sorted.
+            list.sort_unstable();
+        }
+        view.stats.visible = visible;
+        view.stats.write_time = start.elapsed();
+    }
+}

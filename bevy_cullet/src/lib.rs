@@ -1,0 +1,157 @@
+//! # bevy_cullet
+//!
+//! [Cullet](cullet)'s frustum and occlusion culling in a Bevy 0.20 app, in place of Bevy's CPU visibility
+//! check. Add [`CulletPlugin`] after Bevy's `CameraPlugin` (part of `DefaultPlugins`): every active camera's
+//! `VisibleEntities` and every entity's `ViewVisibility` then hold what Cullet keeps, so Bevy's renderer draws
+//! exactly that.
+//!
+//! # What it does each frame (`PostUpdate`)
+//! 1. [`CulletSystems::Mirror`], after transform propagation and Bevy's bounds: entities with an `Aabb` and a
+//!    `GlobalTransform` are mirrored into a [`cullet::bounds::BoundsStore`] (SoA arrays) when either changed;
+//!    despawns and removals leave the store at once (observers). Entities with `NoFrustumCulling` or
+//!    `NoCpuCulling` are not mirrored.
+//! 2. [`CulletSystems::Cull`], in Bevy's `VisibilitySystems::CheckVisibility`: for each active camera, Cullet's
+//!    frustum stage, then (perspective cameras, [`CulletSettings::occlusion`] on, no [`NoCulletOcclusion`]) its
+//!    occluder raster and occlusion test, then the survivors' `ViewVisibility` and the camera's
+//!    `VisibleEntities`, honouring `InheritedVisibility`, `RenderLayers` and `VisibilityRange` as Bevy does.
+//!    Entities Cullet does not mirror get Bevy's own rules: a bounding `Sphere` is tested against the camera's
+//!    frustum, anything else is visible.
+//!
+//! # How it takes over from Bevy's check
+//! [`CulletPlugin`] removes Bevy's `check_visibility_cpu_culling` from `PostUpdate`
+//! (`App::remove_systems_in_set`) and runs its own [`CulletSystems::Cull`] in the same set. The rest of Bevy's
+//! visibility stays: `reset_view_visibility` before it, `mark_newly_hidden_entities_invisible` after it, and
+//! `check_visibility_gpu_culling` for entities with `NoCpuCulling`, so `ViewVisibility` keeps its contract
+//! (change detection fires on hidden-to-visible and visible-to-hidden only). A camera with `NoCpuCulling` sees
+//! every entity in its layers, as in Bevy.
+//!
+//! # Occluders
+//! An entity with an `Aabb`, a `GlobalTransform` and a [`cullet::Occluder`] (triangles in its local space,
+//! lying inside what it draws) hides what is behind it. It occludes in the views whose layers it is in, and
+//! only while its `InheritedVisibility` is visible (or it has none): a hidden wall hides nothing. An occluder
+//! that must not be drawn is an entity without a mesh, not a hidden one.
+//!
+//! # Conservative
+//! The frustum test keeps every box the exact test keeps (Cullet's planes add a slack that bounds their f32
+//! rounding); it tests each object's world box, which for rotated objects is looser than Bevy's oriented box,
+//! so it may keep a few more. The occlusion test hides only what the occluders provably hide. An entity whose
+//! bounds Cullet rejects (not finite, say) is logged, listed in [`CulletStore::rejected`] and always visible;
+//! a camera whose matrices give no frustum keeps everything and reports it in [`ViewStats::frustum_error`].
+//!
+//! # Threads
+//! Cullet's stages run on rayon's global pool, beside Bevy's task pools.
+//!
+//! # Example
+//! ```
+//! use bevy_app::prelude::*;
+//! use bevy_camera::{Camera3d, primitives::Aabb, visibility::Visibility};
+//! use bevy_cullet::{CulletPlugin, CulletView};
+//! use bevy_math::Vec3;
+//! use bevy_transform::prelude::*;
+//!
+//! let mut app = App::new();
+//! app.add_plugins((TaskPoolPlugin::default(), TransformPlugin, bevy_camera::CameraPlugin, CulletPlugin));
+//! # app.init_resource::<bevy_asset::Assets<bevy_mesh::Mesh>>();
+//! # app.init_resource::<bevy_asset::Assets<bevy_mesh::skinning::SkinnedMeshInverseBindposes>>();
+//! let camera = app.world_mut().spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 10.0))).id();
+//! let unit = Aabb::from_min_max(Vec3::splat(-0.5), Vec3::splat(0.5));
+//! let in_view = app.world_mut().spawn((unit, Transform::IDENTITY, Visibility::default())).id();
+//! let behind = app.world_mut().spawn((unit, Transform::from_xyz(0.0, 0.0, 20.0), Visibility::default())).id();
+//! app.update();
+//!
+//! let world = app.world();
+//! assert!(world.get::<bevy_camera::visibility::ViewVisibility>(in_view).unwrap().get());
+//! assert!(!world.get::<bevy_camera::visibility::ViewVisibility>(behind).unwrap().get());
+//! assert_eq!(world.get::<CulletView>(camera).unwrap().stats().after_frustum, 1);
+//! ```
+
+#![warn(missing_docs)]
+
+mod convert;
+mod cull;
+mod mirror;
+mod scene;
+
+pub use cull::{CulletView, ViewStats};
+pub use mirror::CulletStore;
+pub use scene::spawn_scene;
+
+use bevy_app::{App, Plugin, PostUpdate};
+use bevy_camera::Camera;
+use bevy_camera::visibility::{VisibilitySystems, check_visibility_cpu_culling};
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::ScheduleCleanupPolicy;
+use bevy_transform::TransformSystems;
+use cullet::pipeline::OcclusionSettings;
+
+/// Replaces Bevy's CPU visibility check with Cullet's culling; see the [crate documentation](crate).
+///
+/// # Panics
+/// When built into an app without Bevy's `CameraPlugin`: the plugin replaces a system that plugin adds.
+#[derive(Default)]
+pub struct CulletPlugin;
+
+/// What the plugin culls with, for every camera (a camera opts out of occlusion with [`NoCulletOcclusion`]).
+/// Change it between frames; the next frame uses it.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct CulletSettings {
+    /// Frustum culling of the mirrored entities. Off keeps all of them in every view (for comparison).
+    pub frustum: bool,
+    /// The software occlusion stage: on or off, its buffer's resolution (texels, default 256x144), its mode
+    /// (conservative by default) and the most occluder triangles rasterized per view and frame.
+    pub occlusion: OcclusionSettings,
+}
+
+impl Default for CulletSettings {
+    fn default() -> Self {
+        Self { frustum: true, occlusion: OcclusionSettings::default() }
+    }
+}
+
+/// A camera with this component gets frustum culling only: its views skip the occlusion stage.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct NoCulletOcclusion;
+
+/// The plugin's systems, in `PostUpdate`, in this order.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum CulletSystems {
+    /// Mirrors changed bounds into [`CulletStore`].
+    Mirror,
+    /// Culls every camera's view and writes visibility (inside `VisibilitySystems::CheckVisibility`).
+    Cull,
+}
+
+impl Plugin for CulletPlugin {
+    fn build(&self, app: &mut App) {
+        let removed = app.remove_systems_in_set(
+            PostUpdate,
+            check_visibility_cpu_culling,
+            ScheduleCleanupPolicy::RemoveSetAndSystems,
+        );
+        assert!(
+            removed.is_ok_and(|count| count > 0),
+            "CulletPlugin replaces Bevy's check_visibility_cpu_culling: add it after bevy_camera's CameraPlugin"
+        );
+        app.init_resource::<CulletSettings>()
+            .init_resource::<CulletStore>()
+            .register_required_components::<Camera, CulletView>()
+            .configure_sets(
+                PostUpdate,
+                (
+                    CulletSystems::Mirror
+                        .after(TransformSystems::Propagate)
+                        .after(VisibilitySystems::CalculateBounds)
+                        .before(VisibilitySystems::CheckVisibility),
+                    CulletSystems::Cull.in_set(VisibilitySystems::CheckVisibility),
+                ),
+            )
+            .add_systems(
+                PostUpdate,
+                (
+                    mirror::mirror_bounds.in_set(CulletSystems::Mirror),
+                    cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror),
+                ),
+            );
+        mirror::add_observers(app);
+    }
+}
