@@ -67,7 +67,11 @@ pub(crate) fn view_of(transform: &GlobalTransform, projection: &Projection) -> V
     }
     let view_from_relative = DMat4::from_quat(DQuat::from_array(rotation.to_array().map(f64::from))).inverse();
     let clip_from_relative = clip_from_view.as_dmat4() * view_from_relative;
-    View { frustum: Frustum::from_clip_from_relative_f64(position, clip_from_relative, DepthConvention::Reversed), camera: None, key }
+    View {
+        frustum: Frustum::from_clip_from_relative_f64(position, clip_from_relative, DepthConvention::Reversed),
+        camera: None,
+        key,
+    }
 }
 
 fn affine_inverse(transform: &GlobalTransform) -> Mat4 {

@@ -10,8 +10,10 @@ use bevy_camera::visibility::{
     VisibilityClass, VisibilityRange, VisibleEntities, VisibleEntityRanges,
 };
 use bevy_camera::{Camera, Projection};
+use bevy_ecs::entity::UniqueEntityVec;
 use bevy_ecs::prelude::*;
 use bevy_transform::components::GlobalTransform;
+use bevy_utils::Parallel;
 use cullet::Occluder;
 use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
@@ -19,6 +21,7 @@ use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::test_occlusion;
 use cullet::raster::rasterize;
 use cullet::visible::VisibleSet;
+use std::any::TypeId;
 use std::time::{Duration, Instant};
 
 /// Counts and times of one camera's last culled frame.
@@ -106,7 +109,13 @@ impl CulletView {
         self.stats.frustum_error = None;
         match &view.frustum {
             Ok(frustum) if settings.frustum => {
-                cull_frustum_coherent(store, frustum, SimdBackend::Auto, &mut self.frustum_visible, &mut self.coherence);
+                cull_frustum_coherent(
+                    store,
+                    frustum,
+                    SimdBackend::Auto,
+                    &mut self.frustum_visible,
+                    &mut self.coherence,
+                );
             }
             Ok(_) => self.frustum_visible = VisibleSet::all(store.len()),
             Err(error) => {
@@ -120,12 +129,16 @@ impl CulletView {
 
         let start = Instant::now();
         let chosen: Vec<OccluderInstance> = match (&view.camera, occlusion && settings.occlusion.enabled) {
-            (Some(camera), true) => {
-                select_occluders(store, &self.frustum_visible, camera.position, settings.occlusion.triangle_budget, occluder_of)
-                    .into_iter()
-                    .map(|(_, instance)| instance)
-                    .collect()
-            }
+            (Some(camera), true) => select_occluders(
+                store,
+                &self.frustum_visible,
+                camera.position,
+                settings.occlusion.triangle_budget,
+                occluder_of,
+            )
+            .into_iter()
+            .map(|(_, instance)| instance)
+            .collect(),
             _ => Vec::new(),
         };
         (self.stats.occluders, self.stats.occluder_triangles) = (chosen.len(), 0);
@@ -175,6 +188,21 @@ type Drawable<'a> = (
     Has<VisibilityRange>,
 );
 
+/// Above one kept entity in this many, the write scans every mirrored entity rather than looking up the
+/// kept ones (measured at 1e6 objects: a lookup costs about as much as scanning 15 entities).
+const SCAN_ABOVE: usize = 8;
+
+/// [`Drawable`] as a query yields it.
+type DrawableItem<'a> =
+    (&'a InheritedVisibility, Mut<'a, ViewVisibility>, Option<&'a VisibilityClass>, Option<&'a RenderLayers>, bool);
+
+/// What one thread made visible: how many entities, and each with its visibility classes.
+#[derive(Default)]
+pub(crate) struct Shown {
+    count: usize,
+    listed: Vec<(Entity, TypeId)>,
+}
+
 /// Entities the plugin mirrors (see [`crate::mirror`]).
 type MirroredDrawable = (With<Aabb>, Without<NoFrustumCulling>, Without<NoCpuCulling>);
 /// Entities Bevy's check would see that the plugin does not mirror.
@@ -188,7 +216,7 @@ pub(crate) fn cull_views(
     settings: Res<CulletSettings>,
     mut cameras: Query<CameraItem>,
     mut drawables: ParamSet<(
-        Query<Drawable, MirroredDrawable>,
+        Query<(Entity, Drawable<'static>), MirroredDrawable>,
         Query<(Entity, Drawable<'static>, Option<&Sphere>), OtherDrawable>,
     )>,
     occluders: Query<(&Occluder, &GlobalTransform, Option<&InheritedVisibility>, Option<&RenderLayers>)>,
@@ -197,10 +225,22 @@ pub(crate) fn cull_views(
         (With<Occluder>, Or<(Changed<Occluder>, Changed<InheritedVisibility>, Changed<RenderLayers>)>),
     >,
     ranges: Option<Res<VisibleEntityRanges>>,
+    mut kept_by_index: Local<VisibleSet>,
+    mut queues: Local<Parallel<Shown>>,
 ) {
     let occluders_changed = !changed_occluders.is_empty();
-    for (camera_entity, camera, transform, projection, bevy_frustum, layers, mut visible_entities, mut view, no_cpu_culling, no_occlusion) in
-        &mut cameras
+    for (
+        camera_entity,
+        camera,
+        transform,
+        projection,
+        bevy_frustum,
+        layers,
+        mut visible_entities,
+        mut view,
+        no_cpu_culling,
+        no_occlusion,
+    ) in &mut cameras
     {
         if !camera.is_active {
             continue;
@@ -213,42 +253,79 @@ pub(crate) fn cull_views(
         let settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
         view.cull(&cullet, &culled, &settings, !no_occlusion && !no_cpu_culling, |slot| {
             let (occluder, transform, inherited, layers) = occluders.get(cullet.store.entities()[slot]).ok()?;
-            let shown = inherited.is_none_or(|inherited| inherited.get()) && view_layers.intersects(layers.unwrap_or_default());
+            let shown =
+                inherited.is_none_or(|inherited| inherited.get()) && view_layers.intersects(layers.unwrap_or_default());
             shown.then(|| OccluderInstance { occluder, transform: convert::affine(transform) })
         });
 
         let start = Instant::now();
+        let kept = || {
+            let entities = cullet.store.entities();
+            view.visible.iter().map(|slot| entities[slot]).chain(cullet.rejected.iter().copied())
+        };
         let in_range = |entity: Entity, has_range: bool| {
             !has_range || ranges.as_ref().is_none_or(|ranges| ranges.entity_is_in_range_of_view(entity, camera_entity))
         };
-        visible_entities.clear_all();
-        let mut visible = 0;
-        let mut show = |entity: Entity, drawable: (&InheritedVisibility, Mut<ViewVisibility>, Option<&VisibilityClass>, Option<&RenderLayers>, bool)| {
+        // Bevy's per-entity rules, then the entity is made visible and queued for the camera's lists.
+        let show = |shown: &mut Shown, entity: Entity, drawable: DrawableItem| {
             let (inherited, mut view_visibility, class, layers, has_range) = drawable;
-            if !inherited.get() || !view_layers.intersects(layers.unwrap_or_default()) || !in_range(entity, has_range) {
-                return;
-            }
-            view_visibility.set_visible();
-            visible += 1;
-            for &class in class.into_iter().flat_map(|class| class.iter()) {
-                visible_entities.push(entity, class);
+            if inherited.get() && view_layers.intersects(layers.unwrap_or_default()) && in_range(entity, has_range) {
+                view_visibility.set_visible();
+                shown.count += 1;
+                shown.listed.extend(class.into_iter().flat_map(|class| class.iter()).map(|&class| (entity, class)));
             }
         };
-        {
-            let mut mirrored = drawables.p0();
-            let entities = cullet.store.entities();
-            for entity in view.visible.iter().map(|slot| entities[slot]).chain(cullet.rejected.iter().copied()) {
-                if let Ok(drawable) = mirrored.get_mut(entity) {
-                    show(entity, drawable);
-                }
+        let kept_count = view.visible.count() + cullet.rejected.len();
+        if kept_count * SCAN_ABOVE < cullet.store.len() {
+            // Few kept: look each up.
+            // SAFETY: the list holds no entity twice, as `par_iter_many_unique_mut` requires: the store holds
+            // each entity in one slot at most, and `CulletStore::update` keeps rejected entities out of it.
+            let kept = unsafe { UniqueEntityVec::from_vec_unchecked(kept().collect()) };
+            drawables.p0().par_iter_many_unique_mut(kept).for_each_init(
+                || queues.borrow_local_mut(),
+                |queue, item| {
+                    // Kept entities without Bevy's visibility components (a bare occluder) show nothing.
+                    if let Ok((entity, drawable)) = item {
+                        show(queue, entity, drawable);
+                    }
+                },
+            );
+        } else {
+            // Many kept: mark them by entity index, then scan every mirrored entity in table order.
+            let last_index = kept().map(|entity| entity.index_u32() as usize + 1).max().unwrap_or(0);
+            kept_by_index.reset(last_index);
+            for entity in kept() {
+                kept_by_index.set(entity.index_u32() as usize, true);
             }
+            drawables.p0().par_iter_mut().for_each_init(
+                || queues.borrow_local_mut(),
+                |queue, (entity, drawable)| {
+                    if kept_by_index.contains(entity.index_u32() as usize) {
+                        show(queue, entity, drawable);
+                    }
+                },
+            );
         }
-        for (entity, drawable, sphere) in &mut drawables.p1() {
-            let frustum_culls = !no_cpu_culling && settings.frustum;
-            if frustum_culls && sphere.is_some_and(|sphere| !bevy_frustum.intersects_sphere(sphere, false)) {
-                continue;
+        let frustum_culls = !no_cpu_culling && settings.frustum;
+        drawables.p1().par_iter_mut().for_each_init(
+            || queues.borrow_local_mut(),
+            |queue, (entity, drawable, sphere)| {
+                if !(frustum_culls && sphere.is_some_and(|sphere| !bevy_frustum.intersects_sphere(sphere, false))) {
+                    show(queue, entity, drawable);
+                }
+            },
+        );
+        visible_entities.clear_all();
+        let mut visible = 0;
+        for shown in queues.iter_mut() {
+            visible += std::mem::take(&mut shown.count);
+            // Runs of one class (the usual case) go to their list without a map lookup each.
+            let mut listed = shown.listed.drain(..).peekable();
+            while let Some((entity, class)) = listed.next() {
+                let list = visible_entities.get_mut(class);
+                list.push(entity);
+                list.extend(std::iter::from_fn(|| listed.next_if(|&(_, next)| next == class)).map(|(e, _)| e));
             }
-            show(entity, drawable);
         }
         for list in visible_entities.entities.values_mut() {
             // Bevy's renderer diffs these lists in O(n), which needs them sorted.

@@ -14,7 +14,8 @@ use cullet::bounds::BoundsStore;
 #[derive(Resource, Default, Debug)]
 pub struct CulletStore {
     pub(crate) store: BoundsStore,
-    /// Entities with an `Aabb` and a `GlobalTransform` whose bounds Cullet rejected: always visible.
+    /// Entities with an `Aabb` and a `GlobalTransform` whose bounds Cullet rejected: always visible. Never
+    /// in `store` (checked in [`CulletStore::update`]), which the write in `cull` relies on.
     pub(crate) rejected: EntityHashSet,
     /// Entities to mirror again whatever changed (they lost `NoFrustumCulling` or `NoCpuCulling`).
     pending: Vec<Entity>,
@@ -43,6 +44,9 @@ impl CulletStore {
                     let _ = self.store.set_occluder(slot, has_occluder);
                 }
                 Err(error) => {
+                    // A rejected entity is never stored (`update_many` dropped it): the write's lookups rely on
+                    // the two being disjoint.
+                    assert!(self.store.slot_of(entity).is_none(), "{entity} both stored and rejected");
                     if self.rejected.insert(entity) {
                         tracing::warn!("bevy_cullet keeps {entity} visible: {error}");
                     }

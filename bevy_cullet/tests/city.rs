@@ -140,8 +140,11 @@ fn with_occlusion_on_nothing_visible_is_culled_and_occlusion_pays() {
         let stats = *plugin.app.world().get::<CulletView>(plugin.camera).unwrap().stats();
         assert!(stats.occluders > 0, "t = {t}: {stats:?}");
         assert_eq!(stats.visible, visible_in_world(&mut plugin.app));
-        (after_frustum, after_occlusion) = (after_frustum + stats.after_frustum, after_occlusion + stats.after_occlusion);
+        (after_frustum, after_occlusion) =
+            (after_frustum + stats.after_frustum, after_occlusion + stats.after_occlusion);
     }
-    assert!(after_occlusion * 10 < after_frustum * 9, "occlusion culls over a tenth: {after_occlusion} of {after_frustum}");
+    assert!(
+        after_occlusion * 10 < after_frustum * 9,
+        "occlusion culls over a tenth: {after_occlusion} of {after_frustum}"
+    );
 }
-

@@ -1,0 +1,191 @@
+//! Entities and cameras coming, moving, hiding and going in a headless Bevy app with the plugin.
+
+mod support;
+
+use bevy_camera::primitives::Aabb;
+use bevy_camera::visibility::{NoFrustumCulling, RenderLayers, Visibility, VisibleEntities};
+use bevy_cullet::{CulletSettings, CulletStore, CulletView, NoCulletOcclusion};
+use bevy_ecs::prelude::*;
+use bevy_math::Vec3;
+use bevy_transform::prelude::*;
+use cullet::Occluder;
+use cullet::mesh::Mesh;
+use std::any::TypeId;
+use support::*;
+
+/// A camera at the origin looking down -Z (90 degrees, square), far plane at 1000.
+fn camera_looking(forward: glam::Vec3) -> cullet::Camera {
+    cullet::Camera { fov_y: 90f32.to_radians(), aspect: 1.0, ..cullet::Camera::looking_at(glam::Vec3::ZERO, forward) }
+}
+
+fn unit_box() -> Aabb {
+    Aabb::from_min_max(Vec3::splat(-0.5), Vec3::splat(0.5))
+}
+
+fn spawn_box(app: &mut bevy_app::App, at: Vec3) -> Entity {
+    app.world_mut().spawn((unit_box(), Transform::from_translation(at), Visibility::default(), drawn())).id()
+}
+
+fn visible(app: &bevy_app::App, entity: Entity) -> bool {
+    view_visible(app.world(), &[entity])[0]
+}
+
+fn listed(app: &bevy_app::App, camera: Entity) -> Vec<Entity> {
+    app.world().get::<VisibleEntities>(camera).unwrap().get(TypeId::of::<Drawn>()).to_vec()
+}
+
+#[test]
+fn spawning_moving_hiding_and_despawning_follow_within_the_frame() {
+    let mut app = app(Some(CulletSettings::default()));
+    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let ahead = spawn_box(&mut app, Vec3::new(0.0, 0.0, -5.0));
+    let behind = spawn_box(&mut app, Vec3::new(0.0, 0.0, 5.0));
+    app.update();
+    assert!(visible(&app, ahead) && !visible(&app, behind));
+    assert_eq!(listed(&app, camera), vec![ahead]);
+
+    // Moved in front: visible the same frame.
+    app.world_mut().get_mut::<Transform>(behind).unwrap().translation = Vec3::new(2.0, 0.0, -5.0);
+    app.update();
+    assert!(visible(&app, behind));
+
+    // Hidden: not visible, and not listed.
+    *app.world_mut().get_mut::<Visibility>(ahead).unwrap() = Visibility::Hidden;
+    app.update();
+    assert!(!visible(&app, ahead) && visible(&app, behind));
+    assert_eq!(listed(&app, camera), vec![behind]);
+
+    // Despawned: gone from the store at once; the rest still culls.
+    app.world_mut().despawn(behind);
+    assert_eq!(app.world().resource::<CulletStore>().store().len(), 1);
+    *app.world_mut().get_mut::<Visibility>(ahead).unwrap() = Visibility::Inherited;
+    app.update();
+    assert!(visible(&app, ahead));
+    assert_eq!(listed(&app, camera), vec![ahead]);
+
+    // Nothing changed: the next frame reuses the result and writes the same.
+    app.update();
+    let view = app.world().get::<CulletView>(camera).unwrap();
+    assert!(view.stats().reused);
+    assert!(visible(&app, ahead));
+}
+
+#[test]
+fn render_layers_and_two_cameras_each_get_their_own_view() {
+    let mut app = app(Some(CulletSettings::default()));
+    let front = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let back = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::Z), 1000.0);
+    let ahead = spawn_box(&mut app, Vec3::new(0.0, 0.0, -5.0));
+    let behind = spawn_box(&mut app, Vec3::new(0.0, 0.0, 5.0));
+    app.update();
+    assert_eq!(listed(&app, front), vec![ahead]);
+    assert_eq!(listed(&app, back), vec![behind]);
+    assert!(visible(&app, ahead) && visible(&app, behind));
+
+    // On layer 1 only: the layer-0 cameras no longer see it; a layer-1 camera does.
+    app.world_mut().entity_mut(ahead).insert(RenderLayers::layer(1));
+    app.update();
+    assert!(!visible(&app, ahead));
+    assert!(listed(&app, front).is_empty());
+    app.world_mut().entity_mut(front).insert(RenderLayers::layer(1));
+    app.update();
+    assert_eq!(listed(&app, front), vec![ahead]);
+    assert_eq!(listed(&app, back), vec![behind]);
+
+    // An inactive camera is skipped, as Bevy skips it: the other still culls.
+    app.world_mut().get_mut::<bevy_camera::Camera>(front).unwrap().is_active = false;
+    app.update();
+    assert!(!visible(&app, ahead) && visible(&app, behind));
+}
+
+/// A wall (with an occluder) between the camera and a box.
+fn walled() -> (bevy_app::App, Entity, Entity, Entity) {
+    let mut app = app(Some(CulletSettings::default()));
+    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+    let wall = app
+        .world_mut()
+        .spawn((
+            unit_box(),
+            Transform::from_xyz(0.0, 0.0, -4.0).with_scale(Vec3::new(40.0, 40.0, 1.0)),
+            Visibility::default(),
+            drawn(),
+            occluder,
+        ))
+        .id();
+    let hidden_box = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    app.update();
+    (app, camera, wall, hidden_box)
+}
+
+#[test]
+fn occluders_hide_what_is_behind_them_while_they_are_shown() {
+    let (mut app, camera, wall, hidden_box) = walled();
+    assert!(visible(&app, wall) && !visible(&app, hidden_box));
+    let stats = *app.world().get::<CulletView>(camera).unwrap().stats();
+    assert_eq!((stats.after_frustum, stats.after_occlusion, stats.occluders), (2, 1, 1));
+
+    // A hidden wall hides nothing.
+    *app.world_mut().get_mut::<Visibility>(wall).unwrap() = Visibility::Hidden;
+    app.update();
+    assert!(!visible(&app, wall) && visible(&app, hidden_box));
+    *app.world_mut().get_mut::<Visibility>(wall).unwrap() = Visibility::Inherited;
+    app.update();
+    assert!(!visible(&app, hidden_box));
+
+    // Without its occluder, neither.
+    app.world_mut().entity_mut(wall).remove::<Occluder>();
+    app.update();
+    assert!(visible(&app, hidden_box));
+}
+
+#[test]
+fn settings_and_the_per_camera_opt_out_turn_occlusion_off() {
+    let (mut app, camera, _, hidden_box) = walled();
+    app.world_mut().resource_mut::<CulletSettings>().occlusion.enabled = false;
+    app.update();
+    assert!(visible(&app, hidden_box));
+    app.world_mut().resource_mut::<CulletSettings>().occlusion.enabled = true;
+    app.update();
+    assert!(!visible(&app, hidden_box));
+    app.world_mut().entity_mut(camera).insert(NoCulletOcclusion);
+    app.update();
+    assert!(visible(&app, hidden_box));
+}
+
+#[test]
+fn bad_bounds_and_opted_out_entities_stay_visible() {
+    let mut app = app(Some(CulletSettings::default()));
+    spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    // Behind the camera, but Cullet cannot trust its bounds: kept, and reported.
+    let broken = app
+        .world_mut()
+        .spawn((
+            Aabb { center: bevy_math::Vec3A::splat(f32::NAN), half_extents: bevy_math::Vec3A::ONE },
+            Transform::from_xyz(0.0, 0.0, 5.0),
+            Visibility::default(),
+            drawn(),
+        ))
+        .id();
+    // Behind the camera with NoFrustumCulling: kept, as Bevy keeps it.
+    let unculled = spawn_box(&mut app, Vec3::new(0.0, 0.0, 5.0));
+    app.world_mut().entity_mut(unculled).insert(NoFrustumCulling);
+    // No bounds at all: kept, as Bevy keeps it.
+    let unbounded = app.world_mut().spawn((Transform::from_xyz(0.0, 0.0, 5.0), Visibility::default(), drawn())).id();
+    app.update();
+    assert!(app.world().resource::<CulletStore>().rejected().contains(&broken));
+    assert!(visible(&app, broken) && visible(&app, unculled) && visible(&app, unbounded));
+    assert_eq!(app.world().resource::<CulletStore>().store().len(), 0);
+
+    // Opting back in culls it.
+    app.world_mut().entity_mut(unculled).remove::<NoFrustumCulling>();
+    app.update();
+    assert!(!visible(&app, unculled));
+    assert_eq!(app.world().resource::<CulletStore>().store().len(), 1);
+
+    // Fixed bounds are culled like any others.
+    *app.world_mut().get_mut::<Aabb>(broken).unwrap() = unit_box();
+    app.update();
+    assert!(!visible(&app, broken));
+    assert!(app.world().resource::<CulletStore>().rejected().is_empty());
+}
