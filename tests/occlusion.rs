@@ -87,6 +87,22 @@ fn box_behind_a_wall_is_culled_and_one_in_front_kept() {
     }
 }
 
+/// A group of 64 boxes (one store word): all behind a wall, the whole group is culled (its box is tested
+/// first); with one of them in front of the wall, that one is kept and the rest still culled.
+#[test]
+fn a_group_behind_a_wall_is_culled_whole_and_a_member_in_front_kept() {
+    let camera = camera_on_z(10.0);
+    let occluders = [wall((-5.0, -5.0), (5.0, 5.0), 0.0)];
+    let mut boxes: Vec<(Vec3, Vec3)> = (0..64)
+        .map(|i| (Vec3::new((i % 8) as f32 * 0.4 - 1.4, (i / 8) as f32 * 0.4 - 1.4, -5.0), Vec3::splat(0.1)))
+        .collect();
+    let (frustum, visible) = cull(&camera, &occluders, &boxes, RasterMode::Conservative, BUFFER);
+    assert_eq!((frustum.count(), visible.count()), (64, 0));
+    boxes[17].0.z = 3.0;
+    let (frustum, visible) = cull(&camera, &occluders, &boxes, RasterMode::Conservative, BUFFER);
+    assert_eq!((frustum.count(), visible.iter().collect::<Vec<_>>()), (64, vec![17]));
+}
+
 #[test]
 fn a_box_peeking_one_full_resolution_pixel_past_the_edge_is_kept() {
     let camera = camera_on_z(10.0);
@@ -238,6 +254,29 @@ proptest! {
     fn conservative_mode_never_culls_what_full_resolution_shows(
         (camera, occluders, boxes) in scene_strategy(),
         size in prop::sample::select(vec![(256u32, 144u32), (64, 36), (200, 113), (512, 288)]),
+    ) {
+        check_against_full_resolution(&camera, &occluders, &boxes, size);
+    }
+}
+
+/// [`scene_strategy`] with the boxes drawn within 3 units of the first one: one store group of up to 64
+/// boxes, whose group box the occlusion test tries before the boxes themselves.
+fn clustered_scene_strategy() -> impl Strategy<Value = (Camera, Vec<Occluder>, Vec<(Vec3, Vec3)>)> {
+    scene_strategy().prop_map(|(camera, occluders, boxes)| {
+        let cluster = boxes[0].0;
+        let near_cluster = |p: Vec3| cluster + (p - cluster) * (3.0 / (p - cluster).length().max(3.0));
+        (camera, occluders, boxes.into_iter().map(|(p, e)| (near_cluster(p), e)).collect())
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// The same with the boxes in one group: a group found hidden hides only boxes the reference hides.
+    #[test]
+    fn conservative_mode_never_culls_what_full_resolution_shows_in_clustered_groups(
+        (camera, occluders, boxes) in clustered_scene_strategy(),
+        size in prop::sample::select(vec![(256u32, 144u32), (64, 36), (512, 288)]),
     ) {
         check_against_full_resolution(&camera, &occluders, &boxes, size);
     }

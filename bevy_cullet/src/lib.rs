@@ -19,7 +19,8 @@
 //!
 //! # How it takes over from Bevy's check
 //! [`CulletPlugin`] removes Bevy's `check_visibility_cpu_culling` from `PostUpdate`
-//! (`App::remove_systems_in_set`) and runs its own [`CulletSystems::Cull`] in the same set. The rest of Bevy's
+//! (`App::remove_systems_in_set`) and runs its own [`CulletSystems::Cull`] in the same set; it adds Bevy's
+//! check back there with a run condition, so that it runs instead while [`CulletSettings::enabled`] is off. The rest of Bevy's
 //! visibility stays: `reset_view_visibility` before it, `mark_newly_hidden_entities_invisible` after it, and
 //! `check_visibility_gpu_culling` for entities with `NoCpuCulling`, so `ViewVisibility` keeps its contract
 //! (change detection fires on hidden-to-visible and visible-to-hidden only). A camera with `NoCpuCulling` sees
@@ -29,7 +30,9 @@
 //! An entity with an `Aabb`, a `GlobalTransform` and a [`cullet::Occluder`] (triangles in its local space,
 //! lying inside what it draws) hides what is behind it. It occludes in the views whose layers it is in, and
 //! only while its `InheritedVisibility` is visible (or it has none): a hidden wall hides nothing. An occluder
-//! that must not be drawn is an entity without a mesh, not a hidden one.
+//! that must not be drawn is an entity without a mesh, not a hidden one: mark a `Mesh3d` entity with
+//! [`OccluderMesh`], or name it (or its glTF node) `*_occluder`, and the plugin turns its mesh into its
+//! occluder and stops drawing it ([`CulletSystems::Occluders`]).
 //!
 //! # Conservative
 //! The frustum test keeps every box the exact test keeps (Cullet's planes add a slack that bounds their f32
@@ -70,10 +73,12 @@
 mod convert;
 mod cull;
 mod mirror;
+mod occluders;
 mod scene;
 
 pub use cull::{CulletView, ViewStats};
 pub use mirror::CulletStore;
+pub use occluders::{OCCLUDER_SUFFIX, OccluderMesh};
 pub use scene::spawn_scene;
 
 use bevy_app::{App, Plugin, PostUpdate};
@@ -83,6 +88,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleCleanupPolicy;
 use bevy_transform::TransformSystems;
 use cullet::pipeline::OcclusionSettings;
+use cullet::scene::auto_occluders::AutoOccluderSettings;
 
 /// Replaces Bevy's CPU visibility check with Cullet's culling; see the [crate documentation](crate).
 ///
@@ -95,8 +101,14 @@ pub struct CulletPlugin;
 /// Change it between frames; the next frame uses it.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct CulletSettings {
+    /// Whether the plugin culls. Off, Bevy's own `check_visibility_cpu_culling` runs in its place (for
+    /// comparison: a key in the demo switches it); the plugin still mirrors bounds, so it resumes at once.
+    pub enabled: bool,
     /// Frustum culling of the mirrored entities. Off keeps all of them in every view (for comparison).
     pub frustum: bool,
+    /// Automatic occluders: where set, large drawn meshes without an occluder get one from their own largest
+    /// triangles (see [`cullet::scene::auto_occluders`]). Off by default, as in the sample game.
+    pub auto_occluders: Option<AutoOccluderSettings>,
     /// The software occlusion stage: on or off, its buffer's resolution (texels, default 256x144), its mode
     /// (conservative by default) and the most occluder triangles rasterized per view and frame.
     pub occlusion: OcclusionSettings,
@@ -104,7 +116,7 @@ pub struct CulletSettings {
 
 impl Default for CulletSettings {
     fn default() -> Self {
-        Self { frustum: true, occlusion: OcclusionSettings::default() }
+        Self { enabled: true, frustum: true, auto_occluders: None, occlusion: OcclusionSettings::default() }
     }
 }
 
@@ -115,10 +127,19 @@ pub struct NoCulletOcclusion;
 /// The plugin's systems, in `PostUpdate`, in this order.
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum CulletSystems {
+    /// Turns [`OccluderMesh`] entities (and `*_occluder` names) into occluders once their mesh is loaded.
+    Occluders,
     /// Mirrors changed bounds into [`CulletStore`].
     Mirror,
+    /// Gives large meshes automatic occluders, where [`CulletSettings::auto_occluders`] is set.
+    AutoOccluders,
     /// Culls every camera's view and writes visibility (inside `VisibilitySystems::CheckVisibility`).
     Cull,
+}
+
+/// Run condition: [`CulletSettings::enabled`].
+fn enabled(settings: Res<CulletSettings>) -> bool {
+    settings.enabled
 }
 
 impl Plugin for CulletPlugin {
@@ -126,7 +147,7 @@ impl Plugin for CulletPlugin {
         let removed = app.remove_systems_in_set(
             PostUpdate,
             check_visibility_cpu_culling,
-            ScheduleCleanupPolicy::RemoveSetAndSystems,
+            ScheduleCleanupPolicy::RemoveSystemsOnly,
         );
         assert!(
             removed.is_ok_and(|count| count > 0),
@@ -138,18 +159,26 @@ impl Plugin for CulletPlugin {
             .configure_sets(
                 PostUpdate,
                 (
+                    CulletSystems::Occluders.before(CulletSystems::Mirror),
                     CulletSystems::Mirror
                         .after(TransformSystems::Propagate)
                         .after(VisibilitySystems::CalculateBounds)
                         .before(VisibilitySystems::CheckVisibility),
+                    CulletSystems::AutoOccluders.after(CulletSystems::Mirror).before(CulletSystems::Cull),
                     CulletSystems::Cull.in_set(VisibilitySystems::CheckVisibility),
                 ),
             )
             .add_systems(
                 PostUpdate,
                 (
+                    (occluders::mark_named_occluders, occluders::build_occluder_meshes)
+                        .chain()
+                        .in_set(CulletSystems::Occluders),
                     mirror::mirror_bounds.in_set(CulletSystems::Mirror),
-                    cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror),
+                    occluders::add_auto_occluders.in_set(CulletSystems::AutoOccluders),
+                    cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror).run_if(enabled),
+                    // Bevy's check, where it was, for when the plugin is switched off.
+                    check_visibility_cpu_culling.in_set(VisibilitySystems::CheckVisibility).run_if(not(enabled)),
                 ),
             );
         mirror::add_observers(app);

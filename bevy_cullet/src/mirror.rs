@@ -7,6 +7,7 @@ use bevy_camera::visibility::{NoCpuCulling, NoFrustumCulling};
 use bevy_ecs::entity::EntityHashSet;
 use bevy_ecs::prelude::*;
 use bevy_transform::components::GlobalTransform;
+use bevy_utils::Parallel;
 use cullet::Occluder;
 use cullet::bounds::BoundsStore;
 
@@ -74,19 +75,30 @@ pub(crate) fn mirror_bounds(
         (Or<(Changed<Aabb>, Changed<GlobalTransform>)>, Mirrored),
     >,
     all: Query<(Entity, &Aabb, &GlobalTransform, Has<Occluder>), Mirrored>,
+    mut queues: Local<Parallel<Vec<Mirror>>>,
 ) {
+    let mirror = |(entity, aabb, transform, has_occluder): (Entity, &Aabb, &GlobalTransform, bool)| {
+        ((entity, convert::local_bounds(aabb), convert::affine(transform)), has_occluder)
+    };
+    // The change scan reads a tick per entity: in parallel, as Bevy's own visibility passes are.
+    changed.par_iter().for_each_init(|| queues.borrow_local_mut(), |queue, item| queue.push(mirror(item)));
+    let mut changed: Vec<Mirror> = queues.iter_mut().flat_map(|queue| queue.drain(..)).collect();
     let pending = std::mem::take(&mut cullet.pending);
-    let (objects, occluders): (Vec<_>, Vec<_>) = changed
-        .iter()
-        .chain(pending.into_iter().filter_map(|entity| all.get(entity).ok()))
-        .map(|(entity, aabb, transform, has_occluder)| {
-            ((entity, convert::local_bounds(aabb), convert::affine(transform)), has_occluder)
-        })
-        .unzip();
-    if !objects.is_empty() {
-        cullet.update(&objects, &occluders);
+    changed.extend(pending.into_iter().filter_map(|entity| all.get(entity).ok()).map(mirror));
+    if changed.is_empty() {
+        return;
     }
+    // In entity order, whatever the threads did: new objects take slots in the order they were spawned, which
+    // keeps a scene spawned in spatial order grouped for the frustum's hierarchy. An entity pending and
+    // changed is stored once.
+    changed.sort_unstable_by_key(|((entity, ..), _)| *entity);
+    changed.dedup_by_key(|((entity, ..), _)| *entity);
+    let (objects, occluders): (Vec<_>, Vec<_>) = changed.into_iter().unzip();
+    cullet.update(&objects, &occluders);
 }
+
+/// One entity to mirror: entity, local bounds, transform; and whether it carries an occluder.
+type Mirror = ((Entity, cullet::LocalBounds, glam::Affine3A), bool);
 
 /// Keeps the store in step with removals at once: despawns, a lost `Aabb` or `GlobalTransform`, an opt-out
 /// added or removed, an occluder added or removed.

@@ -189,3 +189,83 @@ fn bad_bounds_and_opted_out_entities_stay_visible() {
     assert!(!visible(&app, broken));
     assert!(app.world().resource::<CulletStore>().rejected().is_empty());
 }
+
+#[test]
+fn meshes_named_or_marked_as_occluders_occlude_and_are_no_longer_drawn() {
+    use bevy_asset::{Assets, Handle};
+    use bevy_cullet::OccluderMesh;
+    use bevy_ecs::hierarchy::ChildOf;
+    use bevy_ecs::name::Name;
+    use bevy_mesh::{Mesh, Mesh3d};
+
+    let mut app = app(Some(CulletSettings::default()));
+    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let wall = app.world_mut().resource_mut::<Assets<Mesh>>().add(Mesh::from(bevy_shape::Cuboid::new(40.0, 40.0, 1.0)));
+    // As Bevy's glTF loader spawns a node: the named node, its primitive a child with the mesh.
+    let node = app
+        .world_mut()
+        .spawn((Name::new("wall_occluder"), Transform::from_xyz(0.0, 0.0, -4.0), Visibility::default()))
+        .id();
+    let primitive = app.world_mut().spawn((Mesh3d(wall.clone()), ChildOf(node))).id();
+    let hidden_box = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    // Marked by hand, its mesh not loaded yet: it waits, and is drawn meanwhile.
+    let waiting =
+        app.world_mut().spawn((Mesh3d(Handle::default()), OccluderMesh, Transform::from_xyz(0.0, 0.0, -2.0))).id();
+    app.update();
+
+    let world = app.world();
+    assert!(world.get::<Occluder>(primitive).is_some() && world.get::<Mesh3d>(primitive).is_none());
+    assert!(world.get::<OccluderMesh>(waiting).is_some() && world.get::<Mesh3d>(waiting).is_some());
+    assert!(!visible(&app, hidden_box));
+    let stats = *app.world().get::<CulletView>(camera).unwrap().stats();
+    assert_eq!(stats.occluders, 1, "{stats:?}");
+    // The occluder entity is listed in no class: the renderer has nothing to draw for it.
+    assert!(!listed(&app, camera).contains(&primitive));
+
+    // Its mesh arrives: it becomes an occluder too.
+    let mesh = app.world_mut().resource_mut::<Assets<Mesh>>().add(Mesh::from(bevy_shape::Cuboid::new(1.0, 1.0, 1.0)));
+    app.world_mut().get_mut::<Mesh3d>(waiting).unwrap().0 = mesh;
+    app.update();
+    assert!(app.world().get::<Occluder>(waiting).is_some() && app.world().get::<OccluderMesh>(waiting).is_none());
+}
+
+#[test]
+fn switched_off_bevy_checks_visibility_again_and_back_on_the_plugin_does() {
+    let (mut app, camera, _, hidden_box) = walled();
+    assert!(!visible(&app, hidden_box));
+    app.world_mut().resource_mut::<CulletSettings>().enabled = false;
+    app.update();
+    // Bevy's own check: frustum only, so the box behind the wall is visible; the plugin's stats stand still.
+    assert!(visible(&app, hidden_box));
+    assert_eq!(listed(&app, camera).len(), 2);
+    app.world_mut().resource_mut::<CulletSettings>().enabled = true;
+    app.update();
+    assert!(!visible(&app, hidden_box));
+}
+
+#[test]
+fn automatic_occluders_come_from_large_meshes_when_switched_on() {
+    use bevy_asset::Assets;
+    use bevy_mesh::{Mesh, Mesh3d};
+    use cullet::scene::auto_occluders::AutoOccluderSettings;
+
+    let settings = CulletSettings { auto_occluders: Some(AutoOccluderSettings::default()), ..Default::default() };
+    let mut app = app(Some(settings));
+    spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let cuboid = |app: &mut bevy_app::App, size: f32| {
+        let mesh = Mesh::from(bevy_shape::Cuboid::new(size, size, 1.0));
+        app.world_mut().resource_mut::<Assets<Mesh>>().add(mesh)
+    };
+    // A drawn wall with no occluder of its own, its Aabb from Bevy's own bounds system; and a small box.
+    let (wall_mesh, small_mesh) = (cuboid(&mut app, 40.0), cuboid(&mut app, 0.1));
+    let wall = app.world_mut().spawn((Mesh3d(wall_mesh), Transform::from_xyz(0.0, 0.0, -4.0))).id();
+    let small = app.world_mut().spawn((Mesh3d(small_mesh), Transform::from_xyz(5.0, 0.0, -10.0))).id();
+    let hidden_box = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    app.update();
+    app.update();
+    let world = app.world();
+    assert!(world.get::<Occluder>(wall).is_some(), "the wall is large: it occludes");
+    assert!(world.get::<Occluder>(small).is_none(), "the small box is not");
+    assert!(world.get::<Mesh3d>(wall).is_some(), "and is still drawn");
+    assert!(visible(&app, wall) && !visible(&app, hidden_box));
+}

@@ -26,7 +26,7 @@
 //!
 //! # Features
 //! - `gpu` (default): the GPU passes and the draw (`wgpu`, `meshopt`), and `draw_cost`;
-//! - `gltf` (default): glTF import and export, automatic occluders (`gltf`);
+//! - `gltf` (default): glTF import and export (`gltf`);
 //! - `scenes` (default): the built-in procedural scenes (`rand`).
 //!
 //! Without default features the CPU stages (bounds, frustum, occluders, raster, occlusion, the schedule)

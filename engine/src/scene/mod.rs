@@ -5,13 +5,12 @@
 //!   occlude), `cad` an assembly always entirely on screen (nothing for the frustum to cull): feature
 //!   `scenes`;
 //! - `gltf_import` loads a glTF 2.0 file (`.gltf` or `.glb`), artist occluders included; `gltf_export` writes
-//!   a scene as glTF, so the project ships test scenes its own generator made; `auto_occluders` gives
-//!   occluders to large meshes of scenes that have none: feature `gltf`;
+//!   a scene as glTF, so the project ships test scenes its own generator made: feature `gltf`;
+//! - `auto_occluders` gives occluders to large meshes of scenes that have none;
 //! - [`flight`] flies a camera along a path through a spawned scene, frame by frame, moving the objects that
 //!   have a [`Velocity`] (the demo's movers): the sample game, the tests and the benchmarks drive the
 //!   pipeline through it.
 
-#[cfg(feature = "gltf")]
 pub mod auto_occluders;
 #[cfg(feature = "scenes")]
 pub mod cad;
