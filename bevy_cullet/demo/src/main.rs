@@ -1,0 +1,232 @@
+//! The built-in city in a real Bevy window (`DefaultPlugins`), flown along its fly-through and culled by
+//! `bevy_cullet`. On screen: frames per second, the visibility systems' CPU time, and what the plugin kept.
+//!
+//! Keys: C switches the plugin (off: Bevy's own visibility check), O switches occlusion, Esc quits.
+//!
+//! `cargo run --release -p bevy_cullet_demo -- --objects 20000` (under Xvfb and lavapipe in a headless
+//! machine: `xvfb-run -a ...`). `--frames N` quits after N frames and prints the means; `--screenshot F`
+//! saves the window at the last frame.
+
+use bevy::app::AppExit;
+use bevy::camera::visibility::{VisibilitySystems, VisibleEntities};
+use bevy::diagnostic::{DiagnosticsStore, FrameTimeDiagnosticsPlugin};
+use bevy::prelude::*;
+use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+use bevy_cullet::{CulletPlugin, CulletSettings, CulletSystems, CulletView, spawn_scene};
+use clap::Parser;
+use cullet::scene::city::{CityParams, CityScene};
+use std::any::TypeId;
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+#[derive(Parser, Resource, Clone)]
+struct Args {
+    /// Objects in the city.
+    #[arg(long, default_value_t = 20_000)]
+    objects: usize,
+    /// Window size, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1280x720")]
+    resolution: String,
+    /// Start with the plugin off (Bevy's own check).
+    #[arg(long)]
+    bevy_check: bool,
+    /// Quit after this many frames, printing the mean frame and visibility times.
+    #[arg(long)]
+    frames: Option<u64>,
+    /// Save the window to this PNG at the last frame (with `--frames`).
+    #[arg(long)]
+    screenshot: Option<std::path::PathBuf>,
+}
+
+/// The city's fly-through, played in a loop.
+#[derive(Resource)]
+struct Flight(cullet::CameraPath);
+
+/// The text on screen.
+#[derive(Component)]
+struct Hud;
+
+/// When the frame's visibility systems started and ended, and the run's sums.
+#[derive(Resource, Default)]
+struct Timing {
+    start: Option<Instant>,
+    visibility: Duration,
+    frames: u64,
+    visibility_sum: Duration,
+    frame_sum: Duration,
+}
+
+fn main() -> AppExit {
+    let args = Args::parse();
+    let (width, height) = args
+        .resolution
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+        .expect("--resolution WIDTHxHEIGHT");
+    let mut app = App::new();
+    app.add_plugins(DefaultPlugins.set(WindowPlugin {
+        primary_window: Some(Window {
+            title: "Cullet city in Bevy: C switches the plugin, O occlusion".into(),
+            resolution: (width, height).into(),
+            ..default()
+        }),
+        ..default()
+    }))
+    .add_plugins((CulletPlugin, FrameTimeDiagnosticsPlugin::default()))
+    .insert_resource(CulletSettings { enabled: !args.bevy_check, ..default() })
+    .insert_resource(args)
+    .init_resource::<Timing>()
+    .add_systems(Startup, setup)
+    .add_systems(Update, (fly, keys, show))
+    .add_systems(PostUpdate, (start_timer.in_set(CulletSystems::Mirror), stop_timer.after(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible)));
+    app.run()
+}
+
+/// Spawns the city (one Bevy mesh per Cullet mesh, one material per colour), the camera, a light and the text.
+fn setup(world: &mut World) {
+    let args = world.resource::<Args>().clone();
+    let city = CityScene::generate(CityParams::with_objects(args.objects));
+    let mesh_handles: Vec<Handle<Mesh>> = {
+        let mut meshes = world.resource_mut::<Assets<Mesh>>();
+        city.scene.meshes.iter().map(|mesh| meshes.add(bevy_mesh(mesh))).collect()
+    };
+    let mut materials: HashMap<[u8; 4], Handle<StandardMaterial>> = HashMap::new();
+    for object in &city.scene.objects {
+        if !materials.contains_key(&object.color) {
+            let [r, g, b, _] = object.color;
+            let material = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
+                base_color: Color::srgb_u8(r, g, b),
+                perceptual_roughness: 0.9,
+                ..default()
+            });
+            materials.insert(object.color, material);
+        }
+    }
+    spawn_scene(world, &city.scene, |object, entity| {
+        entity.insert((
+            Mesh3d(mesh_handles[object.mesh as usize].clone()),
+            MeshMaterial3d(materials[&object.color].clone()),
+        ));
+    });
+    let path = city.flythrough();
+    world.spawn((
+        Camera3d::default(),
+        Projection::Perspective(PerspectiveProjection { fov: 60f32.to_radians(), near: 0.1, far: 1e5, ..default() }),
+        camera_transform(&path, 0.0),
+    ));
+    world.spawn((
+        DirectionalLight { illuminance: 12000.0, ..default() },
+        Transform::from_xyz(300.0, 800.0, 200.0).looking_at(Vec3::ZERO, Vec3::Y),
+    ));
+    world.spawn((
+        Hud,
+        Text::new(""),
+        TextFont { font_size: FontSize::Px(16.0), ..default() },
+        Node { position_type: PositionType::Absolute, top: Val::Px(8.0), left: Val::Px(8.0), ..default() },
+        BackgroundColor(Color::srgba(0.0, 0.0, 0.0, 0.6)),
+    ));
+    world.insert_resource(Flight(path));
+}
+
+/// A Cullet mesh as a Bevy one: flat-shaded, so each triangle gets its own vertices and normal.
+fn bevy_mesh(mesh: &cullet::mesh::Mesh) -> Mesh {
+    let positions: Vec<[f32; 3]> = mesh.indices.iter().map(|&i| mesh.positions[i as usize].to_array()).collect();
+    let mut mesh = Mesh::new(bevy::mesh::PrimitiveTopology::TriangleList, default())
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, positions);
+    mesh.compute_flat_normals();
+    mesh
+}
+
+fn camera_transform(path: &cullet::CameraPath, t: f32) -> Transform {
+    let (position, target) = path.sample(t);
+    let v = |v: glam::Vec3| Vec3::from_array(v.to_array());
+    Transform::from_translation(v(position)).looking_at(v(target), Vec3::Y)
+}
+
+/// Flies the camera along the path, looping.
+fn fly(time: Res<Time>, flight: Res<Flight>, mut camera: Single<&mut Transform, With<Camera3d>>) {
+    let t = time.elapsed_secs() % flight.0.duration();
+    **camera = camera_transform(&flight.0, t);
+}
+
+fn keys(keys: Res<ButtonInput<KeyCode>>, mut settings: ResMut<CulletSettings>, mut exit: MessageWriter<AppExit>) {
+    if keys.just_pressed(KeyCode::KeyC) {
+        settings.enabled = !settings.enabled;
+    }
+    if keys.just_pressed(KeyCode::KeyO) {
+        settings.occlusion.enabled = !settings.occlusion.enabled;
+    }
+    if keys.just_pressed(KeyCode::Escape) {
+        exit.write(AppExit::Success);
+    }
+}
+
+fn start_timer(mut timing: ResMut<Timing>) {
+    timing.start = Some(Instant::now());
+}
+
+fn stop_timer(mut timing: ResMut<Timing>) {
+    if let Some(start) = timing.start.take() {
+        timing.visibility = start.elapsed();
+    }
+}
+
+/// Updates the text; with `--frames`, sums the times, saves the screenshot and quits at the end.
+fn show(
+    mut commands: Commands,
+    args: Res<Args>,
+    settings: Res<CulletSettings>,
+    diagnostics: Res<DiagnosticsStore>,
+    time: Res<Time>,
+    mut timing: ResMut<Timing>,
+    camera: Single<(&CulletView, &VisibleEntities)>,
+    mut text: Single<&mut Text, With<Hud>>,
+    mut exit: MessageWriter<AppExit>,
+) {
+    let (view, visible) = *camera;
+    let stats = view.stats();
+    let fps = diagnostics.get(&FrameTimeDiagnosticsPlugin::FPS).and_then(|d| d.smoothed()).unwrap_or(0.0);
+    let culling = if settings.enabled { "Cullet" } else { "Bevy's check" };
+    let occlusion = if settings.occlusion.enabled { "on" } else { "off" };
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    text.0 = format!(
+        "{fps:.0} fps   visibility systems {:.2} ms   culling: {culling} (C)   occlusion: {occlusion} (O)\n\
+         meshes drawn: {}\n\
+         Cullet: {} objects, frustum kept {}, occlusion kept {} ({} occluders)\n\
+         stages: frustum {:.2} ms, raster {:.2} ms, occlusion {:.2} ms, write {:.2} ms",
+        ms(timing.visibility),
+        visible.len(TypeId::of::<Mesh3d>()),
+        stats.objects,
+        stats.after_frustum,
+        stats.after_occlusion,
+        stats.occluders,
+        ms(stats.frustum_time),
+        ms(stats.raster_time),
+        ms(stats.occlusion_time),
+        ms(stats.write_time),
+    );
+    let Some(frames) = args.frames else { return };
+    // The first frames load and mirror everything.
+    timing.frames += 1;
+    if timing.frames > 5 {
+        let (visibility, delta) = (timing.visibility, time.delta());
+        timing.visibility_sum += visibility;
+        timing.frame_sum += delta;
+    }
+    if timing.frames == frames {
+        if let Some(path) = &args.screenshot {
+            commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
+        }
+    }
+    if timing.frames == frames + 2 {
+        let counted = (frames - 5) as f64;
+        println!(
+            "{} objects, {culling}: mean frame {:.2} ms, visibility systems {:.3} ms over {} frames",
+            args.objects,
+            ms(timing.frame_sum) / counted,
+            ms(timing.visibility_sum) / counted,
+            counted
+        );
+        exit.write(AppExit::Success);
+    }
+}
