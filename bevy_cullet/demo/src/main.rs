@@ -78,7 +78,13 @@ fn main() -> AppExit {
     .init_resource::<Timing>()
     .add_systems(Startup, setup)
     .add_systems(Update, (fly, keys, show))
-    .add_systems(PostUpdate, (start_timer.in_set(CulletSystems::Mirror), stop_timer.after(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible)));
+    .add_systems(
+        PostUpdate,
+        (
+            start_timer.in_set(CulletSystems::Mirror),
+            stop_timer.after(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+        ),
+    );
     app.run()
 }
 
