@@ -306,7 +306,8 @@ pub(crate) fn cull_views(
                 },
             );
         }
-        let frustum_culls = !no_cpu_culling && settings.frustum;
+        // `settings.frustum` is off for a camera with `NoCpuCulling` (above).
+        let frustum_culls = settings.frustum;
         drawables.p1().par_iter_mut().for_each_init(
             || queues.borrow_local_mut(),
             |queue, (entity, drawable, sphere)| {
