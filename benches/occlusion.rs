@@ -4,70 +4,19 @@
 //!
 //! `cargo bench -p cullet-benches --bench occlusion`
 
-use bevy_ecs::entity::Entity;
+#[path = "street/mod.rs"]
+mod street;
+
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use cullet::VisibleSet;
 use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
-use cullet::frustum::cull_frustum;
-use cullet::occluder::Occluder;
-use cullet::occluder::OccluderInstance;
-use cullet::occluder::select_occluders;
-use cullet::occlusion::test_occlusion;
 use cullet::raster::{RasterMode, rasterize};
-use cullet::scene::city::{CityParams, CityScene};
-use cullet::{BoundsStore, Camera, VisibleSet};
 use std::hint::black_box;
 use std::time::Duration;
+use street::StreetView;
 
-/// A city from its street-corner benchmark camera: bounds, frustum survivors and its occluders.
-struct Fixture {
-    store: BoundsStore,
-    camera: Camera,
-    frustum_visible: VisibleSet,
-    /// Occluder and transform by store slot.
-    occluders: std::collections::HashMap<usize, (Occluder, glam::Affine3A)>,
-}
-
-fn fixture(objects: usize) -> Fixture {
-    let city = CityScene::generate(CityParams::with_objects(objects));
-    let mut store = BoundsStore::default();
-    let mut occluders = std::collections::HashMap::new();
-    for (i, object) in city.scene.objects.iter().enumerate() {
-        let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
-        let local = city.scene.mesh_bounds[object.mesh as usize];
-        let slot = store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
-        if let Some(occluder) = &object.occluder {
-            store.set_occluder(slot, true).unwrap();
-            occluders.insert(slot, (occluder.clone(), object.transform));
-        }
-    }
-    let camera = city.benchmark_cameras()[0].1;
-    let mut frustum_visible = VisibleSet::default();
-    cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
-    Fixture { store, camera, frustum_visible, occluders }
-}
-
-impl Fixture {
-    /// The occludee test of every frustum survivor against `pyramid`.
-    fn test(
-        &self,
-        view: &ScreenView,
-        pyramid: &DepthPyramid,
-        visible: &mut VisibleSet,
-        occluded: &mut VisibleSet,
-    ) -> cullet::occlusion::OcclusionStats {
-        test_occlusion(&self.store, &self.frustum_visible, view, pyramid, visible, occluded)
-    }
-
-    /// The best occluders in view, up to `budget` triangles.
-    fn select(&self, budget: usize) -> Vec<OccluderInstance<'_>> {
-        select_occluders(&self.store, &self.frustum_visible, self.camera.position, budget, |slot| {
-            let (occluder, transform) = self.occluders.get(&slot)?;
-            Some(OccluderInstance { occluder, transform: *transform })
-        })
-        .into_iter()
-        .map(|(_, instance)| instance)
-        .collect()
-    }
+fn fixture(objects: usize) -> StreetView {
+    StreetView::new(objects)
 }
 
 fn configure(group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>) {

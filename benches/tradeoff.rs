@@ -1,17 +1,23 @@
 //! Run time against error: sweeps the software occlusion buffer's resolution, its mode and the occluder
 //! budget over the city's fly-through, judging every frame against the exact ground truth, and writes
-//! `target/tradeoff/tradeoff.csv` and `target/tradeoff/tradeoff.png` (the Pareto front).
+//! `target/tradeoff/tradeoff.csv` and `target/tradeoff/tradeoff.png` (the Pareto front). Intel's Masked
+//! Occlusion Culling is a series of its own where it is built (see `build.rs`): at each resolution and the
+//! viewport's, given each frame the frustum survivors and occluders of Cullet's default configuration.
 //!
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
 //! `CULLET_TRADEOFF_FRAMES` (default 200) size the run.
 
-use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
+#[path = "moc/mod.rs"]
+mod moc;
+
+use cullet::pipeline::{CullStats, FrustumVisible, OcclusionSettings, OcclusionState};
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use cullet_truth::judge::{occlusion_ideal, render_world, stage_metrics};
 use cullet_truth::metrics::OcclusionIdeal;
-use cullet_truth::{ExactVisibility, PathMetrics, ReferenceSettings};
+use cullet_truth::{ExactVisibility, FrameMetrics, PathMetrics, ReferenceSettings};
+use moc::{Moc, Occludees};
 use plotters::prelude::*;
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -32,10 +38,15 @@ struct Row {
     occlusion_us: f64,
     accuracy: PathMetrics,
     on_front: bool,
+    /// Intel MOC at `settings`' resolution, not Cullet.
+    moc: bool,
 }
 
 impl Row {
     fn label(&self) -> String {
+        if self.moc {
+            return format!("MOC {}x{} {}", self.settings.width, self.settings.height, self.settings.triangle_budget);
+        }
         if !self.settings.enabled {
             return "frustum only".into();
         }
@@ -47,7 +58,7 @@ impl Row {
     }
 
     fn is_default(&self) -> bool {
-        self.settings == OcclusionSettings::default()
+        !self.moc && self.settings == OcclusionSettings::default()
     }
 
     fn efficiency(&self) -> f64 {
@@ -148,20 +159,14 @@ fn main() {
             occlusion_us: mean(fastest, |s| s.occlusion_time.as_secs_f64() * 1e6),
             accuracy,
             on_front: false,
+            moc: false,
         };
-        println!(
-            "{:<28} {:8.1} us/frame  efficiency {:5.1}%  vs ideal {:5.1}%  false negatives {:7.2}/frame  \
-             image error {:8.1} px/frame  ({:.1} s)",
-            row.label(),
-            row.cull_us,
-            100.0 * row.efficiency(),
-            100.0 * row.accuracy.occlusion_efficiency().unwrap_or(f64::NAN),
-            row.false_negatives_per_frame(),
-            row.image_error_per_frame(),
-            start.elapsed().as_secs_f64()
-        );
+        print_row(&row, start);
         rows.push(row);
     }
+    let default = rows.iter().find(|r| r.is_default()).unwrap();
+    let frustum_us = default.cull_us - default.raster_us - default.occlusion_us;
+    rows.extend(moc_rows(flight(OcclusionSettings::default()), &truth, frustum_us));
     mark_pareto_front(&mut rows);
     let default = rows.iter().find(|r| r.is_default()).unwrap();
     println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
@@ -173,13 +178,94 @@ fn main() {
     println!("wrote {}", dir.canonicalize().unwrap().display());
 }
 
+fn print_row(row: &Row, start: Instant) {
+    println!(
+        "{:<28} {:8.1} us/frame  efficiency {:5.1}%  vs ideal {:5.1}%  false negatives {:7.2}/frame  \
+             image error {:8.1} px/frame  ({:.1} s)",
+        row.label(),
+        row.cull_us,
+        100.0 * row.efficiency(),
+        100.0 * row.accuracy.occlusion_efficiency().unwrap_or(f64::NAN),
+        row.false_negatives_per_frame(),
+        row.image_error_per_frame(),
+        start.elapsed().as_secs_f64()
+    );
+}
+
+/// Intel MOC at each resolution of the sweep and the viewport's (1920x1080), with the default triangle
+/// budget: `run` is Cullet's default configuration, whose frustum survivors and selected occluders MOC gets
+/// each frame. MOC rasterizes on its own 2-thread pool and tests on rayon's. Its time per frame is its raster
+/// and `TestRect` plus `frustum_us` (the default's bounds and frustum time): projecting the boxes, which MOC
+/// leaves to its caller, is not counted (Cullet's time counts its own, and choosing the occluders). The
+/// fastest of [`TIMED_PASSES`] passes counts. None where MOC is not built.
+fn moc_rows(mut run: Flight, truth: &[ExactVisibility], frustum_us: f64) -> Vec<Row> {
+    let start = Instant::now();
+    let sizes: Vec<(u32, u32)> = RESOLUTIONS.iter().copied().chain([(1920, 1080)]).collect();
+    let near = run.path.camera_at(0.0, run.aspect).near;
+    let mut peers = match sizes.iter().map(|&(w, h)| Moc::new(w, h, near, 2)).collect::<Result<Vec<_>, _>>() {
+        Ok(peers) => peers,
+        Err(why) => {
+            println!("SKIPPED the Intel MOC series: {why}");
+            return Vec::new();
+        }
+    };
+    println!("Intel MOC, {} back end, given the default's survivors and occluders", peers[0].implementation());
+    let mut accuracy = vec![PathMetrics::default(); sizes.len()];
+    // Per size and pass: summed raster and TestRect seconds.
+    let mut times = vec![[(0.0, 0.0); TIMED_PASSES]; sizes.len()];
+    // Per size: the fastest projection of the boxes, summed over frames (shown, not counted).
+    let mut project = vec![0.0; sizes.len()];
+    let mut scratch = Occludees::default();
+    for (frame, exact) in truth.iter().enumerate() {
+        run.run_frame(frame as u32);
+        let survivors = &run.world.resource::<FrustumVisible>().0;
+        for (i, peer) in peers.iter_mut().enumerate() {
+            let mut fastest_project = f64::MAX;
+            for (pass, time) in times[i].iter_mut().enumerate() {
+                let culled = moc::cull_world(peer, &run.world, 2, &mut scratch);
+                time.0 += culled.raster.as_secs_f64();
+                time.1 += culled.test.as_secs_f64();
+                fastest_project = fastest_project.min(culled.project.as_secs_f64());
+                if pass == 0 {
+                    accuracy[i]
+                        .add(&FrameMetrics::new(exact, &[("frustum", survivors), ("occlusion", &culled.visible)]));
+                }
+            }
+            project[i] += fastest_project;
+        }
+    }
+    let frames = truth.len().max(1) as f64;
+    sizes
+        .into_iter()
+        .zip(accuracy.into_iter().zip(times).zip(project))
+        .map(|((width, height), ((accuracy, times), project))| {
+            let (raster, occlusion) = times.into_iter().min_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1))).unwrap();
+            let (raster_us, occlusion_us) = (raster / frames * 1e6, occlusion / frames * 1e6);
+            let row = Row {
+                settings: OcclusionSettings { width, height, ..OcclusionSettings::default() },
+                cull_us: frustum_us + raster_us + occlusion_us,
+                raster_us,
+                occlusion_us,
+                accuracy,
+                on_front: false,
+                moc: true,
+            };
+            print_row(&row, start);
+            println!("    (MOC's box projection, not counted above: {:.1} us/frame)", project / frames * 1e6);
+            row
+        })
+        .collect()
+}
+
 /// Marks the conservative configurations (occlusion off, or on in conservative mode: never a false negative by
 /// construction, and none measured) that no other conservative one dominates: none is both at least as fast
 /// and at least as efficient, and better in one. Fast mode is left out even where this path happened to show
 /// no false negative: it guarantees none.
 fn mark_pareto_front(rows: &mut [Row]) {
     let conservative = |r: &Row| {
-        r.accuracy.false_negatives == 0 && (!r.settings.enabled || r.settings.mode == RasterMode::Conservative)
+        !r.moc
+            && r.accuracy.false_negatives == 0
+            && (!r.settings.enabled || r.settings.mode == RasterMode::Conservative)
     };
     let exact: Vec<(f64, f64)> = rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us, r.efficiency())).collect();
     for row in rows.iter_mut().filter(|r| conservative(r)) {
@@ -190,7 +276,7 @@ fn mark_pareto_front(rows: &mut [Row]) {
 
 fn csv(rows: &[Row]) -> String {
     let mut out = String::from(
-        "config,occlusion,width,height,mode,triangle_budget,frames,mean_cull_us,mean_raster_us,mean_occlusion_us,\
+        "config,peer,occlusion,width,height,mode,triangle_budget,frames,mean_cull_us,mean_raster_us,mean_occlusion_us,\
          frustum_efficiency,culling_efficiency,occlusion_efficiency_vs_ideal,false_negatives,\
          frames_with_false_negatives,image_error_pixels_per_frame,worst_image_error_pixels,pareto_front\n",
     );
@@ -198,8 +284,9 @@ fn csv(rows: &[Row]) -> String {
         let s = &r.settings;
         writeln!(
             out,
-            "{},{},{},{},{:?},{},{},{:.1},{:.1},{:.1},{:.4},{:.4},{},{},{},{:.1},{},{}",
+            "{},{},{},{},{},{:?},{},{},{:.1},{:.1},{:.1},{:.4},{:.4},{},{},{},{:.1},{},{}",
             r.label(),
+            if r.moc { "moc" } else { "cullet" },
             s.enabled,
             s.width,
             s.height,
@@ -270,13 +357,21 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
                 .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         }
         for (name, mode) in [("conservative", RasterMode::Conservative), ("fast", RasterMode::Fast)] {
-            let series = rows.iter().filter(|r| r.settings.enabled && r.settings.mode == mode);
+            let series = rows.iter().filter(|r| !r.moc && r.settings.enabled && r.settings.mode == mode);
             let c = if mode == RasterMode::Fast { RED } else { BLUE };
             chart
                 .draw_series(series.map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, color(r).filled())))?
                 .label(name)
                 .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
         }
+        chart
+            .draw_series(
+                rows.iter()
+                    .filter(|r| r.moc)
+                    .map(|r| TriangleMarker::new((r.cull_us / 1e3, value(r)), 7, MAGENTA.filled())),
+            )?
+            .label("Intel MOC")
+            .legend(|(x, y)| TriangleMarker::new((x + 10, y), 7, MAGENTA.filled()));
         chart.draw_series(
             rows.iter()
                 .filter(|r| !r.settings.enabled)
@@ -287,7 +382,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
                 .filter(|r| r.is_default())
                 .map(|r| Circle::new((r.cull_us / 1e3, value(r)), 10, ShapeStyle::from(&GREEN).stroke_width(3))),
         )?;
-        let labelled = |r: &&Row| r.is_default() || (efficiency_panel && (r.on_front || !r.settings.enabled));
+        let labelled = |r: &&Row| r.is_default() || (efficiency_panel && (r.on_front || r.moc || !r.settings.enabled));
         chart.draw_series(rows.iter().filter(labelled).map(|r| {
             let label = if r.is_default() { format!("{} (default)", r.label()) } else { r.label() };
             Text::new(label, (r.cull_us / 1e3, value(r)), ("sans-serif", 13))
