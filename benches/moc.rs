@@ -30,7 +30,7 @@ use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use cullet::scene::gltf_import::load_gltf;
 use cullet_truth::judge::{render_world, stage_metrics};
-use cullet_truth::{ExactVisibility, FrameMetrics, PathMetrics, ReferenceSettings};
+use cullet_truth::{ExactVisibility, PathMetrics, ReferenceSettings};
 use moc::{Moc, Occludees};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -219,8 +219,7 @@ fn judged_paths() -> String {
                 ours.add(&stage_metrics(&run.world, exact));
                 let peer_frame = moc::cull_world(&mut peer, &run.world, 2, &mut scratch);
                 their_time += peer_frame.raster + peer_frame.test;
-                let survivors = &run.world.resource::<cullet::pipeline::FrustumVisible>().0;
-                theirs.add(&FrameMetrics::new(exact, &[("frustum", survivors), ("occlusion", &peer_frame.visible)]));
+                theirs.add(&peer_frame.judge(&run.world, exact));
             }
             for (peer, metrics, time) in [("cullet", &ours, our_time), ("moc", &theirs, their_time)] {
                 let mean = ms(time) / path.frames as f64;

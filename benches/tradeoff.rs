@@ -10,13 +10,13 @@
 #[path = "moc/mod.rs"]
 mod moc;
 
-use cullet::pipeline::{CullStats, FrustumVisible, OcclusionSettings, OcclusionState};
+use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use cullet_truth::judge::{occlusion_ideal, render_world, stage_metrics};
 use cullet_truth::metrics::OcclusionIdeal;
-use cullet_truth::{ExactVisibility, FrameMetrics, PathMetrics, ReferenceSettings};
+use cullet_truth::{ExactVisibility, PathMetrics, ReferenceSettings};
 use moc::{Moc, Occludees};
 use plotters::prelude::*;
 use std::collections::HashMap;
@@ -181,7 +181,7 @@ fn main() {
 fn print_row(row: &Row, start: Instant) {
     println!(
         "{:<28} {:8.1} us/frame  efficiency {:5.1}%  vs ideal {:5.1}%  false negatives {:7.2}/frame  \
-             image error {:8.1} px/frame  ({:.1} s)",
+         image error {:8.1} px/frame  ({:.1} s)",
         row.label(),
         row.cull_us,
         100.0 * row.efficiency(),
@@ -218,7 +218,6 @@ fn moc_rows(mut run: Flight, truth: &[ExactVisibility], frustum_us: f64) -> Vec<
     let mut scratch = Occludees::default();
     for (frame, exact) in truth.iter().enumerate() {
         run.run_frame(frame as u32);
-        let survivors = &run.world.resource::<FrustumVisible>().0;
         for (i, peer) in peers.iter_mut().enumerate() {
             let mut fastest_project = f64::MAX;
             for (pass, time) in times[i].iter_mut().enumerate() {
@@ -227,8 +226,7 @@ fn moc_rows(mut run: Flight, truth: &[ExactVisibility], frustum_us: f64) -> Vec<
                 time.1 += culled.test.as_secs_f64();
                 fastest_project = fastest_project.min(culled.project.as_secs_f64());
                 if pass == 0 {
-                    accuracy[i]
-                        .add(&FrameMetrics::new(exact, &[("frustum", survivors), ("occlusion", &culled.visible)]));
+                    accuracy[i].add(&culled.judge(&run.world, exact));
                 }
             }
             project[i] += fastest_project;

@@ -9,6 +9,8 @@
 use cullet::occluder::OccluderInstance;
 use cullet::pipeline::{FrustumVisible, OcclusionState};
 use cullet::{BoundsStore, Camera, ObjectTransform, Occluder, VisibleSet};
+use cullet_truth::judge::STAGES;
+use cullet_truth::{ExactVisibility, FrameMetrics};
 use glam::{DAffine3, DMat4, Mat4, Vec3, Vec4};
 use rayon::prelude::*;
 use std::marker::PhantomData;
@@ -53,6 +55,15 @@ pub struct MocFrame {
     pub test: Duration,
     /// The frustum survivors MOC keeps, by store slot.
     pub visible: VisibleSet,
+}
+
+impl MocFrame {
+    /// Judges this frame of `world` (the one MOC culled in [`cull_world`]) against the exact visibility
+    /// `truth`: the frustum stage, then MOC in place of Cullet's occlusion stage.
+    pub fn judge(&self, world: &bevy_ecs::world::World, truth: &ExactVisibility) -> FrameMetrics {
+        let survivors = &world.resource::<FrustumVisible>().0;
+        FrameMetrics::new(truth, &[(STAGES[0], survivors), (STAGES[1], &self.visible)])
+    }
 }
 
 #[cfg(moc)]
@@ -102,20 +113,21 @@ impl Moc {
     /// rasterizes on MOC's `CullingThreadpool` with that many workers.
     ///
     /// # Errors
-    /// MOC needs a width that is a multiple of 8 and a height that is a multiple of 4, and its pool needs at
-    /// least one 32x16 bin a thread.
+    /// Where the shim refuses the size (MOC needs a width that is a multiple of 8 and a height that is a
+    /// multiple of 4) or the threads (its pool needs a bin of at least one tile a thread).
     pub fn new(width: u32, height: u32, near: f32, threads: usize) -> Result<Self, &'static str> {
-        let bins = (width / 32).clamp(1, 4) * (height / 16).clamp(1, 4);
-        if !width.is_multiple_of(8) || !height.is_multiple_of(4) || (threads > 1 && (bins as usize) < threads) {
-            return Err("MOC needs a width that is a multiple of 8, a height a multiple of 4, and a bin a thread");
-        }
-        // SAFETY: `cullet_moc_new` returns a new MOC object (it aborts if allocation fails), owned here and
-        // freed once in `drop`.
+        // SAFETY: `cullet_moc_new` returns a new MOC object or null; a non-null one is owned here and freed
+        // once in `drop`.
         let raw = unsafe { ffi::cullet_moc_new(width, height, near) };
-        let raw = std::ptr::NonNull::new(raw).ok_or("MOC could not allocate its buffer")?;
-        // SAFETY: `raw` is live; the pool is freed in `drop` before it.
-        let pool = (threads > 1).then(|| unsafe { ffi::cullet_moc_pool_new(raw.as_ptr(), threads as u32) });
-        Ok(Self { raw, pool: pool.and_then(std::ptr::NonNull::new), indices: Vec::new() })
+        let raw = std::ptr::NonNull::new(raw)
+            .ok_or("MOC needs a buffer width that is a multiple of 8 and a height that is a multiple of 4")?;
+        let mut moc = Self { raw, pool: None, indices: Vec::new() };
+        if threads > 1 {
+            // SAFETY: `raw` is live; a non-null pool is freed in `drop` before it.
+            let pool = unsafe { ffi::cullet_moc_pool_new(raw.as_ptr(), threads as u32) };
+            moc.pool = Some(std::ptr::NonNull::new(pool).ok_or("MOC's pool needs a 32x16 bin a thread")?);
+        }
+        Ok(moc)
     }
 
     /// The SIMD back end MOC chose for this CPU.

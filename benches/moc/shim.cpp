@@ -22,7 +22,10 @@ const MaskedOcclusionCulling::VertexLayout kLayout(12, 4, 8);
 
 extern "C" {
 
+// A buffer, or null for a size MOC cannot take (it asserts a width that is a multiple of 8 and a height that is
+// a multiple of 4).
 MaskedOcclusionCulling* cullet_moc_new(unsigned width, unsigned height, float near_distance) {
+    if (width == 0 || height == 0 || width % 8 != 0 || height % 4 != 0) return nullptr;
     MaskedOcclusionCulling* moc = MaskedOcclusionCulling::Create();
     moc->SetResolution(width, height);
     moc->SetNearClipPlane(near_distance);
@@ -71,12 +74,14 @@ struct CulletMocPool {
 
 // `threads` workers, 4x4 bins (MOC's sample's setting) where the buffer has room, fewer on small buffers: a bin
 // narrower than one of MOC's tiles (32 pixels wide, up to 16 high) would be empty, and MOC divides by its size.
-// The workers start suspended.
+// Null where that leaves fewer bins than threads (MOC asserts at least one a thread). The workers start
+// suspended.
 CulletMocPool* cullet_moc_pool_new(MaskedOcclusionCulling* moc, unsigned threads) {
     unsigned width = 0, height = 0;
     moc->GetResolution(width, height);
     const unsigned bins_wide = std::max(1u, std::min(4u, width / 32));
     const unsigned bins_high = std::max(1u, std::min(4u, height / 16));
+    if (bins_wide * bins_high < threads) return nullptr;
     CulletMocPool* pool = new CulletMocPool(threads, bins_wide, bins_high);
     pool->pool.SetBuffer(moc);
     return pool;
