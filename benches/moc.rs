@@ -3,7 +3,8 @@
 //!
 //! 1. **Street view:** the 400k-object city from its street camera, 10k occluder triangles, every frustum
 //!    survivor tested; raster, test and total time on 1 and 2 threads at 256x144, 512x288, 1024x576 and
-//!    1920x1080, and the boxes each keeps. Fastest of `CULLET_MOC_RUNS` (default 15) runs.
+//!    1920x1080 (Cullet's conservative buffer at each, and its pixel-centre buffer at 1920x1080), and the
+//!    boxes each keeps. Fastest of `CULLET_MOC_RUNS` (default 15) runs.
 //! 2. **Judged paths:** the city's fly-through and truck_town's orbit (automatic occluders), every frame
 //!    judged against the exact rendering: false negatives, culling efficiency and image error of both, each
 //!    given the occluders Cullet's pipeline selected that frame.
@@ -21,7 +22,7 @@ mod street;
 
 use cullet::VisibleSet;
 use cullet::camera::CameraPath;
-use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
+use cullet::depth::{DepthPyramid, ScreenView};
 use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::{RasterMode, rasterize};
 use cullet::scene::Scene;
@@ -37,8 +38,15 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use street::StreetView;
 
-/// The buffer sizes compared: Cullet's default, two steps up, and the viewport's.
-const RESOLUTIONS: [(u32, u32); 4] = [(256, 144), (512, 288), (1024, 576), (1920, 1080)];
+/// Cullet's configurations compared, each against MOC at the same size: the default conservative buffer at
+/// 256x144, two steps up and the viewport's resolution, and the pixel-centre buffer at the viewport's.
+const CONFIGS: [(u32, u32, RasterMode); 5] = [
+    (256, 144, RasterMode::Conservative),
+    (512, 288, RasterMode::Conservative),
+    (1024, 576, RasterMode::Conservative),
+    (1920, 1080, RasterMode::Conservative),
+    (1920, 1080, RasterMode::PixelCentres),
+];
 
 fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
@@ -83,7 +91,7 @@ fn street_view(runs: usize) -> String {
         survivors.count()
     );
     println!(
-        "{:<10} {:>7} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<24} {:>7} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "buffer",
         "threads",
         "C raster",
@@ -97,20 +105,19 @@ fn street_view(runs: usize) -> String {
         "M proj"
     );
     let mut csv = String::from(
-        "width,height,threads,cullet_raster_ms,cullet_test_ms,cullet_total_ms,cullet_kept,moc_raster_ms,\
+        "width,height,cullet_mode,threads,cullet_raster_ms,cullet_test_ms,cullet_total_ms,cullet_kept,moc_raster_ms,\
          moc_testrect_ms,moc_total_ms,moc_kept,moc_project_ms,survivors,occluder_triangles\n",
     );
-    for (width, height) in RESOLUTIONS {
+    for (width, height, mode) in CONFIGS {
         for threads in [1, 2] {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             let view = ScreenView::new(&camera, width, height);
-            let (mut depth, mut pyramid) = (DepthBuffer::default(), DepthPyramid::default());
+            let mut pyramid = DepthPyramid::default();
             let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
             let cullet = pool.install(|| {
                 fastest(runs, || {
                     let start = Instant::now();
-                    rasterize(&view, &selected, RasterMode::Conservative, &mut depth);
-                    pyramid.build(&depth);
+                    rasterize(&view, &selected, mode, &mut pyramid);
                     let raster = start.elapsed();
                     let start = Instant::now();
                     street.test(&view, &pyramid, &mut visible, &mut occluded);
@@ -140,8 +147,10 @@ fn street_view(runs: usize) -> String {
                 format!("{:.3}", ms(project)),
             ];
             let cells: Vec<String> = figures.iter().map(|f| format!("{f:>8}")).collect();
-            println!("{:<10} {:>7} | {}", format!("{width}x{height}"), threads, cells.join(" "));
-            writeln!(csv, "{width},{height},{threads},{},{},{triangles}", figures.join(","), survivors.count())
+            let name = format!("{width}x{height} {}", mode.name());
+            println!("{name:<24} {threads:>7} | {}", cells.join(" "));
+            let mode = mode.name();
+            writeln!(csv, "{width},{height},{mode},{threads},{},{},{triangles}", figures.join(","), survivors.count())
                 .unwrap();
         }
     }
@@ -177,19 +186,19 @@ fn judged_paths() -> String {
         paths.push(JudgedPath { name: "truck_town", scene: town, path: town.orbit_path(), frames: 60 });
     }
     let mut csv = String::from(
-        "scene,frames,width,height,peer,mean_stage_ms,culling_efficiency,false_negatives,\
+        "scene,frames,width,height,cullet_mode,peer,mean_stage_ms,culling_efficiency,false_negatives,\
          frames_with_false_negatives,image_error_pixels_per_frame\n",
     );
     let reference = ReferenceSettings::default();
     for path in paths {
-        let flight = |width, height| {
-            let settings = OcclusionSettings { width, height, ..OcclusionSettings::default() };
+        let flight = |width, height, mode| {
+            let settings = OcclusionSettings { width, height, mode, ..OcclusionSettings::default() };
             Flight::new(path.path.clone(), 16.0 / 9.0, path.frames, settings, |world| {
                 path.scene.spawn(world);
             })
         };
         let start = Instant::now();
-        let mut truth_flight = flight(256, 144);
+        let mut truth_flight = flight(256, 144, RasterMode::Conservative);
         let truth: Vec<ExactVisibility> = (0..path.frames)
             .map(|frame| {
                 truth_flight.run_frame(frame);
@@ -206,8 +215,8 @@ fn judged_paths() -> String {
             reference.height,
             start.elapsed().as_secs_f64()
         );
-        for (width, height) in RESOLUTIONS {
-            let mut run = flight(width, height);
+        for (width, height, mode) in CONFIGS {
+            let mut run = flight(width, height, mode);
             let mut peer = Moc::new(width, height, run.path.camera_at(0.0, 16.0 / 9.0).near, 2).unwrap();
             let mut scratch = Occludees::default();
             let (mut ours, mut theirs) = (PathMetrics::default(), PathMetrics::default());
@@ -224,10 +233,10 @@ fn judged_paths() -> String {
             for (peer, metrics, time) in [("cullet", &ours, our_time), ("moc", &theirs, their_time)] {
                 let mean = ms(time) / path.frames as f64;
                 println!(
-                    "{:<10} {:>9} {:<6} {:>7.3} ms  efficiency {:5.1}%  false negatives {:5} in {:3} frames  \
+                    "{:<10} {:>24} {:<6} {:>7.3} ms  efficiency {:5.1}%  false negatives {:5} in {:3} frames  \
                      image error {:7.1} px/frame",
                     path.name,
-                    format!("{width}x{height}"),
+                    format!("{width}x{height} {}", mode.name()),
                     peer,
                     mean,
                     100.0 * metrics.efficiency(1),
@@ -237,9 +246,10 @@ fn judged_paths() -> String {
                 );
                 writeln!(
                     csv,
-                    "{},{},{width},{height},{peer},{mean:.4},{:.4},{},{},{:.1}",
+                    "{},{},{width},{height},{},{peer},{mean:.4},{:.4},{},{},{:.1}",
                     path.name,
                     path.frames,
+                    mode.name(),
                     metrics.efficiency(1),
                     metrics.false_negatives,
                     metrics.frames_with_false_negatives,

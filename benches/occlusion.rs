@@ -9,7 +9,7 @@ mod street;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use cullet::VisibleSet;
-use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
+use cullet::depth::{DepthPyramid, ScreenView};
 use cullet::raster::{RasterMode, rasterize};
 use std::hint::black_box;
 use std::time::Duration;
@@ -27,7 +27,7 @@ fn raster(c: &mut Criterion) {
     let fixture = fixture(1_000_000);
     let mut group = c.benchmark_group("occlusion");
     configure(&mut group);
-    let mut depth = DepthBuffer::default();
+    let mut pyramid = DepthPyramid::default();
     for triangles in [1_000, 10_000, 100_000] {
         let occluders = fixture.select(triangles);
         let submitted: usize = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
@@ -36,7 +36,7 @@ fn raster(c: &mut Criterion) {
             let view = ScreenView::new(&fixture.camera, width, height);
             let id = BenchmarkId::new(format!("raster/{triangles}"), format!("{width}x{height}"));
             group.bench_function(id, |b| {
-                b.iter(|| black_box(rasterize(&view, &occluders, RasterMode::Conservative, &mut depth)))
+                b.iter(|| black_box(rasterize(&view, &occluders, RasterMode::Conservative, &mut pyramid)))
             });
         }
     }
@@ -50,10 +50,8 @@ fn test(c: &mut Criterion) {
     for objects in [10_000, 100_000, 1_000_000] {
         let fixture = fixture(objects);
         let view = ScreenView::new(&fixture.camera, 256, 144);
-        let mut depth = DepthBuffer::default();
-        rasterize(&view, &fixture.select(10_000), RasterMode::Conservative, &mut depth);
         let mut pyramid = DepthPyramid::default();
-        pyramid.build(&depth);
+        rasterize(&view, &fixture.select(10_000), RasterMode::Conservative, &mut pyramid);
         group.throughput(Throughput::Elements(fixture.frustum_visible.count() as u64));
         group.bench_function(BenchmarkId::new("test", objects), |b| {
             b.iter(|| black_box(fixture.test(&view, &pyramid, &mut visible, &mut occluded)))
@@ -72,7 +70,6 @@ fn combined(c: &mut Criterion) {
     let max_threads = std::thread::available_parallelism().map_or(2, |n| n.get()).max(2);
     let view = ScreenView::new(&fixture.camera, 256, 144);
     let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
-    let mut depth = DepthBuffer::default();
     let mut pyramid = DepthPyramid::default();
     group.throughput(Throughput::Elements(fixture.frustum_visible.count() as u64));
     for threads in 1..=max_threads {
@@ -83,8 +80,7 @@ fn combined(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("raster10k+pyramid+test/threads", threads), |b| {
             pool.install(|| {
                 b.iter(|| {
-                    rasterize(&view, &selected, RasterMode::Conservative, &mut depth);
-                    pyramid.build(&depth);
+                    rasterize(&view, &selected, RasterMode::Conservative, &mut pyramid);
                     black_box(fixture.test(&view, &pyramid, &mut visible, &mut occluded))
                 })
             })
@@ -93,8 +89,7 @@ fn combined(c: &mut Criterion) {
             pool.install(|| {
                 b.iter(|| {
                     let occluders = fixture.select(10_000);
-                    rasterize(&view, &occluders, RasterMode::Conservative, &mut depth);
-                    pyramid.build(&depth);
+                    rasterize(&view, &occluders, RasterMode::Conservative, &mut pyramid);
                     black_box(fixture.test(&view, &pyramid, &mut visible, &mut occluded))
                 })
             })

@@ -6,7 +6,7 @@
 //!   fixed: efficiency `T(1, n) / T(p, p n)`.
 //! - The memory-bandwidth bound: the time to read the seven SoA arrays once, in parallel, per object.
 //! - An Amdahl fit per stage, `T(p) = serial + parallel / p` (least squares over the thread counts), and the
-//!   parts of the occlusion stage timed apart (selection, raster, pyramid, test), which names the serial ones.
+//!   parts of the occlusion stage timed apart (selection, raster with its pyramid, test), which names the serial ones.
 //!
 //! Each configuration flies `CULLET_SCALING_FRAMES` frames (default 20) of the path three times with every
 //! stage on every frame (no reuse, no gating); a frame's time is the fastest of its three passes (the work is
@@ -20,7 +20,7 @@
 //! `CULLET_SCALING_THREADS=1,2,4` choose other sizes and thread counts.
 
 use bevy_ecs::schedule::SingleThreadedExecutor;
-use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
+use cullet::depth::{DepthPyramid, ScreenView};
 use cullet::frustum::cull_frustum;
 use cullet::occluder::{Occluder, OccluderInstance, select_occluders};
 use cullet::occlusion::test_occlusion;
@@ -42,7 +42,7 @@ const BYTES_PER_OBJECT: f64 = 28.0;
 /// Stages timed, in pipeline order, and the whole frame.
 const STAGES: [&str; 5] = ["bounds", "frustum", "raster", "occlusion", "frame"];
 /// Parts of the occlusion stages timed apart for the street camera.
-const PARTS: [&str; 4] = ["select", "raster", "pyramid", "test"];
+const PARTS: [&str; 3] = ["select", "raster+pyramid", "test"];
 
 fn env_list(name: &str, default: &[usize]) -> Vec<usize> {
     std::env::var(name)
@@ -125,7 +125,7 @@ fn read_ns_per_object(store: &BoundsStore) -> f64 {
 }
 
 /// The occlusion stages' parts for the city's street camera, timed apart: [`PARTS`], nanoseconds.
-fn time_parts(city: &CityScene, flight: &Flight) -> [f64; 4] {
+fn time_parts(city: &CityScene, flight: &Flight) -> [f64; 3] {
     let store = flight.world.resource::<BoundsStore>();
     let camera = city.benchmark_cameras()[0].1;
     let settings = OcclusionSettings::default();
@@ -140,20 +140,19 @@ fn time_parts(city: &CityScene, flight: &Flight) -> [f64; 4] {
     let select = || select_occluders(store, &frustum_visible, camera.position, settings.triangle_budget, occluder_of);
     let chosen: Vec<OccluderInstance> = select().into_iter().map(|(_, instance)| instance).collect();
     let view = ScreenView::new(&camera, settings.width, settings.height);
-    let (mut depth, mut pyramid) = (DepthBuffer::default(), DepthPyramid::default());
+    let mut pyramid = DepthPyramid::default();
     let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
     let runs = 15;
     let select_ns = fastest_ns(runs, || {
         std::hint::black_box(select());
     });
     let raster_ns = fastest_ns(runs, || {
-        rasterize(&view, &chosen, settings.mode, &mut depth);
+        rasterize(&view, &chosen, settings.mode, &mut pyramid);
     });
-    let pyramid_ns = fastest_ns(runs, || pyramid.build(&depth));
     let test_ns = fastest_ns(runs, || {
         test_occlusion(store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded);
     });
-    [select_ns, raster_ns, pyramid_ns, test_ns]
+    [select_ns, raster_ns, test_ns]
 }
 
 /// Least-squares fit of `t = serial + parallel / p` over `(p, t)`: `(serial, parallel)`.
@@ -208,7 +207,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Strong scaling, the bandwidth bound and the occlusion parts.
     let mut strong = Vec::new();
     let mut bandwidth: Vec<(usize, usize, f64)> = Vec::new();
-    let mut parts: Vec<(usize, usize, [f64; 4])> = Vec::new();
+    let mut parts: Vec<(usize, usize, [f64; 3])> = Vec::new();
     for &objects in &sizes {
         if !fits_in_memory(objects) {
             println!("{objects} objects: skipped, not enough memory");

@@ -1,5 +1,5 @@
 //! Run time against error: sweeps the software occlusion buffer's resolution, its mode and the occluder
-//! budget over the city's fly-through, judging every frame against the exact ground truth, and writes
+//! budget over the city's fly-through (and the pixel-centre mode at the viewport's resolution, 1920x1080), judging every frame against the exact ground truth, and writes
 //! `target/tradeoff/tradeoff.csv` and `target/tradeoff/tradeoff.png` (the Pareto front). Intel's Masked
 //! Occlusion Culling is a series of its own where it is built (see `build.rs`): at each resolution and the
 //! viewport's, given each frame the frustum survivors and occluders of Cullet's default configuration.
@@ -50,11 +50,8 @@ impl Row {
         if !self.settings.enabled {
             return "frustum only".into();
         }
-        let mode = match self.settings.mode {
-            RasterMode::Conservative => "conservative",
-            RasterMode::Fast => "fast",
-        };
-        format!("{}x{} {mode} {}", self.settings.width, self.settings.height, self.settings.triangle_budget)
+        let s = &self.settings;
+        format!("{}x{} {} {}", s.width, s.height, s.mode.name(), s.triangle_budget)
     }
 
     fn is_default(&self) -> bool {
@@ -114,6 +111,11 @@ fn main() {
             }
         }
     }
+    // Pixel centres are conservative at the resolution of the rendering judged, the viewport's.
+    for triangle_budget in BUDGETS {
+        let (width, height, mode) = (reference.width, reference.height, RasterMode::PixelCentres);
+        configs.push(OcclusionSettings { enabled: true, width, height, mode, triangle_budget });
+    }
     // Frustum survivors an exact 1920x1080 buffer of the same occluders culls, per budget and frame.
     let mut ideal: HashMap<usize, Vec<usize>> = HashMap::new();
     let mut rows = Vec::new();
@@ -167,7 +169,7 @@ fn main() {
     let default = rows.iter().find(|r| r.is_default()).unwrap();
     let frustum_us = default.cull_us - default.raster_us - default.occlusion_us;
     rows.extend(moc_rows(flight(OcclusionSettings::default()), &truth, frustum_us));
-    mark_pareto_front(&mut rows);
+    mark_pareto_front(&mut rows, (reference.width, reference.height));
     let default = rows.iter().find(|r| r.is_default()).unwrap();
     println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
 
@@ -255,15 +257,16 @@ fn moc_rows(mut run: Flight, truth: &[ExactVisibility], frustum_us: f64) -> Vec<
         .collect()
 }
 
-/// Marks the conservative configurations (occlusion off, or on in conservative mode: never a false negative by
-/// construction, and none measured) that no other conservative one dominates: none is both at least as fast
-/// and at least as efficient, and better in one. Fast mode is left out even where this path happened to show
-/// no false negative: it guarantees none.
-fn mark_pareto_front(rows: &mut [Row]) {
+/// Marks the conservative configurations (occlusion off, or on in a mode conservative for the `viewport` judged:
+/// never a false negative by construction, and none measured) that no other conservative one dominates: none
+/// is both at least as fast and at least as efficient, and better in one. Fast mode is left out even where this
+/// path happened to show no false negative: it guarantees none.
+fn mark_pareto_front(rows: &mut [Row], viewport: (u32, u32)) {
     let conservative = |r: &Row| {
+        let s = &r.settings;
         !r.moc
             && r.accuracy.false_negatives == 0
-            && (!r.settings.enabled || r.settings.mode == RasterMode::Conservative)
+            && (!s.enabled || s.mode.is_conservative_for((s.width, s.height), viewport))
     };
     let exact: Vec<(f64, f64)> = rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us, r.efficiency())).collect();
     for row in rows.iter_mut().filter(|r| conservative(r)) {
@@ -325,6 +328,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
     let color = |r: &Row| match (r.settings.enabled, r.settings.mode) {
         (false, _) => BLACK,
         (_, RasterMode::Conservative) => BLUE,
+        (_, RasterMode::PixelCentres) => CYAN,
         (_, RasterMode::Fast) => RED,
     };
     let panel_specs: [Panel; 3] = [
@@ -354,9 +358,14 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
                 .label("Pareto front of the conservative configurations")
                 .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         }
-        for (name, mode) in [("conservative", RasterMode::Conservative), ("fast", RasterMode::Fast)] {
+        let modes = [
+            ("conservative", RasterMode::Conservative),
+            ("pixel centres at 1920x1080", RasterMode::PixelCentres),
+            ("fast", RasterMode::Fast),
+        ];
+        for (name, mode) in modes {
             let series = rows.iter().filter(|r| !r.moc && r.settings.enabled && r.settings.mode == mode);
-            let c = if mode == RasterMode::Fast { RED } else { BLUE };
+            let c = color(series.clone().next().unwrap_or(&rows[0]));
             chart
                 .draw_series(series.map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, color(r).filled())))?
                 .label(name)

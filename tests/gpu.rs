@@ -51,7 +51,7 @@ impl Setup {
         self.flight.schedule.run(&mut self.flight.world);
         let state = self.flight.world.resource::<OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|s| s as u32).collect();
-        let depth = state.depth.clone();
+        let depth = state.depth().clone();
         let output = self.culler.run(context, &camera, &visible, &depth, settings).expect("GPU frame");
         (output, visible, depth)
     }

@@ -1,9 +1,10 @@
-//! Software occlusion culling: exact cases with known answers, and a property test against an f64
-//! full-resolution (1920x1080) depth buffer of the same occluders.
+//! Software occlusion culling: exact cases with known answers, and property tests against an f64 depth buffer
+//! of the same occluders: at full resolution (1920x1080) for the conservative mode, at the buffer's own
+//! resolution for the pixel-centre mode.
 
 use bevy_ecs::entity::Entity;
 use cullet::bounds::LocalBounds;
-use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
+use cullet::depth::{DepthPyramid, ScreenView};
 use cullet::frustum::cull_frustum;
 use cullet::mesh::Mesh;
 use cullet::occluder::OccluderInstance;
@@ -46,10 +47,8 @@ fn cull(
         .zip(occluders)
         .map(|(occluder, (_, transform))| OccluderInstance { occluder, transform: *transform })
         .collect();
-    let mut depth = DepthBuffer::default();
-    rasterize(&view, &instances, mode, &mut depth);
     let mut pyramid = DepthPyramid::default();
-    pyramid.build(&depth);
+    rasterize(&view, &instances, mode, &mut pyramid);
     let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
     test_occlusion(&store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded);
     for slot in 0..boxes.len() {
@@ -217,10 +216,10 @@ fn scene_strategy() -> impl Strategy<Value = (Camera, Vec<Occluder>, Vec<(Vec3, 
     )
 }
 
-/// The occluders in an exact 1920x1080 depth buffer.
-fn exact_depth(camera: &Camera, occluders: &[Occluder]) -> ExactOccluderDepth {
+/// The occluders in an exact depth buffer of `size` pixels.
+fn exact_depth(camera: &Camera, occluders: &[Occluder], size: (u32, u32)) -> ExactOccluderDepth {
     let occluders: Vec<(&[Vec3], Affine3A)> = occluders.iter().map(|(t, a)| (&t[..], *a)).collect();
-    ExactOccluderDepth::rasterize(camera, &occluders, 1920, 1080)
+    ExactOccluderDepth::rasterize(camera, &occluders, size.0, size.1)
 }
 
 /// Culls one scene in conservative mode and checks every occlusion-culled box against the f64 1920x1080
@@ -231,15 +230,29 @@ fn check_against_full_resolution(
     boxes: &[(Vec3, Vec3)],
     size: (u32, u32),
 ) -> usize {
-    let (frustum, visible) = cull(camera, occluders, boxes, RasterMode::Conservative, size);
-    let reference = exact_depth(camera, occluders);
+    check_against_reference(camera, occluders, boxes, RasterMode::Conservative, size, (1920, 1080))
+}
+
+/// Culls one scene with a `size` buffer in `mode` and checks every occlusion-culled box against an f64
+/// reference of `reference` pixels. Returns how many boxes occlusion culled.
+fn check_against_reference(
+    camera: &Camera,
+    occluders: &[Occluder],
+    boxes: &[(Vec3, Vec3)],
+    mode: RasterMode,
+    size: (u32, u32),
+    reference: (u32, u32),
+) -> usize {
+    assert!(mode.is_conservative_for(size, reference), "{mode:?} at {size:?} promises nothing at {reference:?}");
+    let (frustum, visible) = cull(camera, occluders, boxes, mode, size);
+    let exact = exact_depth(camera, occluders, reference);
     let mut culled = 0;
     for (slot, &(center, extent)) in boxes.iter().enumerate() {
         if frustum.contains(slot) && !visible.contains(slot) {
             culled += 1;
             assert!(
-                !reference.box_visible(center, extent),
-                "box {slot} {center} ± {extent} culled but visible at full resolution ({size:?})"
+                !exact.box_visible(center, extent),
+                "box {slot} {center} ± {extent} culled by {mode:?} at {size:?} but visible at {reference:?}"
             );
         }
     }
@@ -282,6 +295,68 @@ proptest! {
     }
 }
 
+/// [`scene_strategy`] with every box shrunk to at most `1e-3` units across: at the distances drawn, most cover
+/// no pixel centre at all, or one.
+fn tiny_box_scene_strategy() -> impl Strategy<Value = (Camera, Vec<Occluder>, Vec<(Vec3, Vec3)>)> {
+    scene_strategy().prop_map(|(camera, occluders, boxes)| {
+        (camera, occluders, boxes.into_iter().map(|(p, e)| (p, e.min(Vec3::splat(5e-4)))).collect())
+    })
+}
+
+/// Buffer sizes the pixel-centre mode is checked at, each against a reference of the same size: the
+/// viewport's, a smaller one and one with odd sides.
+const PIXEL_CENTRE_SIZES: [(u32, u32); 3] = [(1920, 1080), (640, 360), (333, 187)];
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// The pixel-centre mode never culls a box that an f64 depth buffer of the same occluders at the same
+    /// resolution shows at some pixel centre; the occluders include ones crossing the near plane.
+    #[test]
+    fn pixel_centre_mode_never_culls_what_the_same_resolution_shows(
+        (camera, occluders, boxes) in scene_strategy(),
+        size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
+    ) {
+        check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, size, size);
+    }
+
+    /// The same for sub-pixel boxes, which the buffer sees at one pixel centre or none.
+    #[test]
+    fn pixel_centre_mode_never_culls_sub_pixel_boxes_the_same_resolution_shows(
+        (camera, occluders, boxes) in tiny_box_scene_strategy(),
+        size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
+    ) {
+        check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, size, size);
+    }
+
+    /// And for boxes in one group, whose group box is tested first.
+    #[test]
+    fn pixel_centre_mode_never_culls_what_the_same_resolution_shows_in_clustered_groups(
+        (camera, occluders, boxes) in clustered_scene_strategy(),
+        size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
+    ) {
+        check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, size, size);
+    }
+}
+
+/// The pixel-centre property tests are not vacuous either, and the mode at the viewport's resolution culls at
+/// least as much as the conservative mode at 256x144 on the same scenes.
+#[test]
+fn the_pixel_centre_mode_occludes_more_than_the_default() {
+    use proptest::strategy::ValueTree;
+    let mut runner = proptest::test_runner::TestRunner::deterministic();
+    let strategy = scene_strategy();
+    let (mut centres, mut conservative, mut total) = (0, 0, 0);
+    for _ in 0..48 {
+        let (camera, occluders, boxes) = strategy.new_tree(&mut runner).unwrap().current();
+        let full = (1920, 1080);
+        centres += check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, full, full);
+        conservative += check_against_full_resolution(&camera, &occluders, &boxes, BUFFER);
+        total += boxes.len();
+    }
+    assert!(centres > conservative && centres * 10 > total, "{centres} and {conservative} of {total} boxes occluded");
+}
+
 /// The property test's scenes are not vacuous: over a fixed sample of them, occlusion culls many boxes.
 #[test]
 fn the_random_scenes_do_occlude() {
@@ -320,7 +395,7 @@ fn city_street_view_is_occluded_conservatively() {
         .iter()
         .filter_map(|o| o.occluder.as_ref().map(|occ| (occ.triangles.to_vec(), o.transform)))
         .collect();
-    let reference = exact_depth(&camera, &occluders);
+    let reference = exact_depth(&camera, &occluders, (1920, 1080));
     let store = world.resource::<cullet::BoundsStore>();
     let state = world.resource::<OcclusionState>();
     for slot in state.occluded.iter() {

@@ -60,7 +60,6 @@ pub struct ViewStats {
 pub struct CulletView {
     frustum_visible: VisibleSet,
     coherence: PlaneCoherence,
-    depth: DepthBuffer,
     pyramid: DepthPyramid,
     /// Store slots kept by both stages.
     visible: VisibleSet,
@@ -79,7 +78,7 @@ impl CulletView {
     /// The occluder depth buffer of the last frame (`1/w` of the farthest occluder per texel, 0 for none);
     /// empty where occlusion did not run.
     pub fn depth(&self) -> &DepthBuffer {
-        &self.depth
+        self.pyramid.base()
     }
 
     /// Store slots ([`crate::CulletStore::store`]) kept by the frustum and occlusion stages, before Bevy's
@@ -144,7 +143,6 @@ impl CulletView {
         (self.stats.occluders, self.stats.occluder_triangles) = (chosen.len(), 0);
         let Some(camera) = view.camera.filter(|_| !chosen.is_empty()) else {
             // Nothing to occlude with: the stage costs the selection alone.
-            self.depth.reset(0, 0);
             self.pyramid = DepthPyramid::default();
             self.visible.clone_from(&self.frustum_visible);
             self.stats.after_occlusion = self.stats.after_frustum;
@@ -152,8 +150,7 @@ impl CulletView {
             return;
         };
         let screen = ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height);
-        let raster = rasterize(&screen, &chosen, settings.occlusion.mode, &mut self.depth);
-        self.pyramid.build(&self.depth);
+        let raster = rasterize(&screen, &chosen, settings.occlusion.mode, &mut self.pyramid);
         self.stats.occluder_triangles = raster.triangles_rasterized;
         self.stats.raster_time = start.elapsed();
 

@@ -17,7 +17,13 @@
 //!   mesh (a quad's diagonal, the edge between two walls) leave no holes: a texel is covered whole when some
 //!   front face covers its centre and no boundary edge of the union (silhouette, open border, near-plane
 //!   cut) touches it.
-//! - [`RasterMode::Fast`]: sampled at texel centres like Collin's 256x144 buffer; not conservative.
+//! - [`RasterMode::PixelCentres`]: a texel is written where an occluder's front face covers its *centre*, with
+//!   the face's depth there less a bound on rounding error. That is how a rasterizer samples a pixel, so for
+//!   a buffer at the viewport's resolution it is conservative against the rendering it will draw: an object
+//!   seen at some pixel centre has a point nearer than every occluder there. It is not conservative for
+//!   renderings finer than the buffer: at 256x144 it would hide what a 1920x1080 frame shows.
+//! - [`RasterMode::Fast`]: sampled at texel centres like Collin's 256x144 buffer, with no margins; lossy
+//!   below the viewport's resolution.
 //!
 //! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64; only the
 //! per-texel loop runs in f32, with margins that cover its rounding. Nothing is clipped against the sides of
@@ -25,7 +31,8 @@
 //! skipped: a closed occluder's front faces hide everything its back faces would, and from inside an occluder
 //! nothing is hidden by it.
 
-use crate::depth::{DepthBuffer, ScreenView};
+use crate::depth::{DepthPyramid, ScreenView, reduce_rows};
+use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DVec3, Vec3};
 use rayon::prelude::*;
@@ -42,8 +49,34 @@ pub enum RasterMode {
     /// Whole-texel coverage and farthest depth: never hides a visible object.
     #[default]
     Conservative,
+    /// Texel-centre sampling with rounding margins: never hides an object visible at a pixel centre of a
+    /// rendering at the buffer's own resolution. Meant for a buffer as large as the viewport.
+    PixelCentres,
     /// Texel-centre sampling: hides more, and may hide what is visible.
     Fast,
+}
+
+impl RasterMode {
+    /// Whether a `buffer` (width, height) in this mode never hides an object that a rendering of `viewport`
+    /// pixels shows at some pixel centre (given occluders that lie inside the geometry they stand for):
+    /// always for [`RasterMode::Conservative`], only at the viewport's own resolution for
+    /// [`RasterMode::PixelCentres`], never for [`RasterMode::Fast`].
+    pub fn is_conservative_for(self, buffer: (u32, u32), viewport: (u32, u32)) -> bool {
+        match self {
+            Self::Conservative => true,
+            Self::PixelCentres => buffer == viewport,
+            Self::Fast => false,
+        }
+    }
+
+    /// A short lowercase name for tables and logs: `conservative`, `pixel-centres` or `fast`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Conservative => "conservative",
+            Self::PixelCentres => "pixel-centres",
+            Self::Fast => "fast",
+        }
+    }
 }
 
 /// A triangle ready for the per-texel loop, in f32, all offsets and margins folded into constant terms.
@@ -128,14 +161,18 @@ pub struct RasterStats {
     pub triangles_rejected: usize,
 }
 
-/// Rasterizes `occluders` into `buffer` (cleared first, resized to the view), in parallel over bands of rows.
+/// Rasterizes `occluders` into level 0 of `pyramid` (resized to the view and cleared first), in parallel over
+/// bands of rows, and builds the pyramid's other levels from it.
+///
+/// Each band clears its rows just before rasterizing them and reduces them into the next
+/// [`FUSED_LEVELS`] levels right after, while they are in its core's cache; the few rows above are reduced
+/// once every band is done.
 pub fn rasterize(
     view: &ScreenView,
     occluders: &[OccluderInstance<'_>],
     mode: RasterMode,
-    buffer: &mut DepthBuffer,
+    pyramid: &mut DepthPyramid,
 ) -> RasterStats {
-    buffer.reset(view.width, view.height);
     let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
     // A few chunks a worker, each setting up its occluders into one arena.
     let chunk = occluders.len().div_ceil(4 * rayon::current_num_threads()).max(16);
@@ -161,8 +198,9 @@ pub fn rasterize(
         triangles_rasterized,
         triangles_rejected: triangles_in.saturating_sub(triangles_rasterized),
     };
-    if setups.is_empty() {
-        return stats;
+    pyramid.resize_for_overwrite(view.width, view.height);
+    if view.width == 0 || view.height == 0 {
+        return stats; // No texel to write, at any level.
     }
 
     let width = view.width as usize;
@@ -174,26 +212,49 @@ pub fn rasterize(
             bin.push(index as u32);
         }
     }
-    buffer.texels_mut().par_chunks_mut(width * BAND_ROWS).zip(bins.par_iter()).enumerate().for_each(
-        |(band, (texels, bin))| {
-            let band_y0 = (band * BAND_ROWS) as u32;
-            let band_y1 = band_y0 + (texels.len() / width) as u32;
-            let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
-            let mut scratch = Scratch::default();
-            for &index in bin {
-                let occluder = &setups[index as usize];
-                if band.hides(occluder.rect, occluder.nearest) {
-                    continue;
-                }
-                match mode {
-                    RasterMode::Conservative => raster_union(occluder, &arenas, band.reborrow(), &mut scratch),
-                    RasterMode::Fast => raster_centres(occluder.triangles(&arenas), band.reborrow()),
+    // Each band's rows in level 0 and in the fused levels above it: level k holds BAND_ROWS >> k of them
+    // (ceil-halving sizes give every band its share, the last band a shorter one).
+    let levels = pyramid.levels_mut();
+    let fused = FUSED_LEVELS.min(levels.len() - 1);
+    let level_widths: Vec<usize> = levels[..=fused].iter().map(|level| level.width() as usize).collect();
+    let mut band_rows: Vec<Vec<&mut [f32]>> = (0..bands).map(|_| Vec::with_capacity(fused + 1)).collect();
+    for (k, level) in levels[..=fused].iter_mut().enumerate() {
+        let chunk = level.width() as usize * (BAND_ROWS >> k);
+        for (rows, slice) in band_rows.iter_mut().zip(level.texels_mut().chunks_mut(chunk)) {
+            rows.push(slice);
+        }
+    }
+    let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+    band_rows.into_par_iter().zip(bins.par_iter()).enumerate().for_each(|(band, (mut rows, bin))| {
+        let texels = &mut *rows[0];
+        texels.fill(0.0);
+        let band_y0 = (band * BAND_ROWS) as u32;
+        let band_y1 = band_y0 + (texels.len() / width) as u32;
+        let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
+        let mut scratch = Scratch::default();
+        for &index in bin {
+            let occluder = &setups[index as usize];
+            if band.hides(occluder.rect, occluder.nearest) {
+                continue;
+            }
+            match mode {
+                RasterMode::Conservative => raster_union(occluder, &arenas, band.reborrow(), &mut scratch),
+                RasterMode::PixelCentres | RasterMode::Fast => {
+                    raster_centres_with_backend(avx2, occluder.triangles(&arenas), band.reborrow())
                 }
             }
-        },
-    );
+        }
+        for k in 1..rows.len() {
+            let (fine, coarse) = rows.split_at_mut(k);
+            reduce_rows(fine[k - 1], level_widths[k - 1], coarse[0]);
+        }
+    });
+    pyramid.reduce_from(fused);
     stats
 }
+
+/// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1).
+const FUSED_LEVELS: usize = 3;
 
 /// The rows `y0..y1` of the depth buffer one task owns.
 struct Band<'a> {
@@ -214,7 +275,9 @@ impl Band<'_> {
         let rect = self.clip(rect);
         (rect.y0..rect.y1).all(|y| {
             let row = &self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize];
-            row.iter().all(|&texel| texel > nearest)
+            // Counting the texels that are not nearer vectorizes; an early exit per group keeps the common
+            // case (a visible occluder) short.
+            row.chunks(32).all(|group| group.iter().map(|&texel| (texel <= nearest) as u32).sum::<u32>() == 0)
         })
     }
 
@@ -235,24 +298,93 @@ struct Scratch {
     farthest: Vec<f32>,
 }
 
-/// Fast mode: each triangle writes its centre depth wherever it covers the texel centre.
+/// [`raster_centres`], compiled for AVX2 where `avx2` (detected on this processor): its texel loop then runs 8
+/// lanes wide. The arithmetic is the same (Rust never fuses a multiply and an add by itself), so both give the
+/// same texels.
+fn raster_centres_with_backend(avx2: bool, triangles: &[SetupTriangle], band: Band<'_>) {
+    match avx2 {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `avx2` is set only where AVX2 was detected.
+        true => unsafe { raster_centres_avx2(triangles, band) },
+        _ => raster_centres(triangles, band),
+    }
+}
+
+/// [`raster_centres`] with AVX2 enabled.
+///
+/// # Safety
+/// The processor must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn raster_centres_avx2(triangles: &[SetupTriangle], band: Band<'_>) {
+    raster_centres(triangles, band)
+}
+
+/// Centre-sampled modes ([`RasterMode::PixelCentres`], [`RasterMode::Fast`]): each triangle writes its depth at
+/// the texel centre wherever its three edge tests pass there.
+#[inline(always)]
 fn raster_centres(triangles: &[SetupTriangle], band: Band<'_>) {
     for tri in triangles {
         let rect = band.clip(tri.rect);
+        let [p, q, r] = tri.depth;
+        let [[a0, b0, c0, _], [a1, b1, c1, _], [a2, b2, c2, _]] = tri.edges;
         for y in rect.y0..rect.y1 {
-            let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
-            let [[a0, b0, c0, _], [a1, b1, c1, _], [a2, b2, c2, _]] = tri.edges;
             let yf = y as f32;
-            let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
-            let [p, q, r] = tri.depth;
-            let rz = q * yf + r;
-            for (i, texel) in row.iter_mut().enumerate() {
-                let xf = (rect.x0 + i as u32) as f32;
-                let inside = (a0 * xf + r0 >= 0.0) & (a1 * xf + r1 >= 0.0) & (a2 * xf + r2 >= 0.0);
-                let depth = p * xf + rz;
-                *texel = if inside { texel.max(depth) } else { *texel };
+            let rows = [b0 * yf + c0, b1 * yf + c1, b2 * yf + c2];
+            let (x0, x1) = candidate_columns([a0, a1, a2], rows, rect.x0, rect.x1);
+            if x0 >= x1 {
+                continue;
             }
+            let row = &mut band.texels[(y - band.y0) as usize * band.width..][x0 as usize..x1 as usize];
+            write_covered(row, x0, [a0, a1, a2], rows, p, q * yf + r);
         }
+    }
+}
+
+/// A run of columns within `lo..hi` outside which no centre passes the edge tests `a[i]*x + rows[i] >= 0` of
+/// one row: each edge's zero crossing `-rows[i]/a[i]` widened by 2 columns. The f32 test and the division
+/// each place the crossing within a few ulps of `x` of the exact one, far less than 2 columns for any column
+/// the clamp lets through, so the run is a superset and [`write_covered`] decides each texel.
+#[inline(always)]
+fn candidate_columns(a: [f32; 3], rows: [f32; 3], lo: u32, hi: u32) -> (u32, u32) {
+    let (mut x0, mut x1) = (lo as f32, hi as f32);
+    for (a, row) in a.into_iter().zip(rows) {
+        let crossing = (-row / a).clamp(lo as f32 - 4.0, hi as f32 + 4.0);
+        if a > 0.0 {
+            x0 = x0.max(crossing - 2.0);
+        } else if a < 0.0 {
+            x1 = x1.min(crossing + 2.0);
+        } else if row < 0.0 {
+            return (0, 0);
+        }
+    }
+    // Also maps a NaN crossing (there is none for finite set-up planes) to an empty run.
+    if x0 < x1 { (x0.max(lo as f32) as u32, (x1.ceil() as u32).min(hi)) } else { (0, 0) }
+}
+
+/// Raises each texel of `row` (whose first column is `x0`) whose centre passes the three edge tests
+/// `a[i]*x + rows[i] >= 0` to the plane depth `p*x + rz` where that is nearer. Groups of 8 columns go through
+/// fixed-width loops the compiler vectorizes; every test and depth is the same f32 expression as for a single
+/// texel (`x0 + k` is exact in f32 for any buffer width).
+#[inline(always)]
+fn write_covered(row: &mut [f32], x0: u32, a: [f32; 3], rows: [f32; 3], p: f32, rz: f32) {
+    const OFFSETS: [f32; 8] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+    let texel = |texel: &mut f32, x: f32| {
+        let inside = (a[0] * x + rows[0] >= 0.0) & (a[1] * x + rows[1] >= 0.0) & (a[2] * x + rows[2] >= 0.0);
+        // Written unconditionally as a maximum: a conditional write becomes a masked store, slow on many cores.
+        let depth = if inside { p * x + rz } else { f32::NEG_INFINITY };
+        *texel = texel.max(depth);
+    };
+    let mut chunks = row.chunks_exact_mut(8);
+    let mut base = x0 as f32;
+    for chunk in &mut chunks {
+        for (t, offset) in chunk.iter_mut().zip(OFFSETS) {
+            texel(t, base + offset);
+        }
+        base += 8.0;
+    }
+    for (t, offset) in chunks.into_remainder().iter_mut().zip(OFFSETS) {
+        texel(t, base + offset);
     }
 }
 
@@ -504,6 +636,8 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
         let c = -(a * p.x + b * p.y);
         let centre = c + 0.5 * (a + b);
         let outer = centre + 0.5 * (a.abs() + b.abs()) + margin(a, b, c);
+        // Pixel centres count as covered only when the f32 test cannot pass for a centre outside.
+        let centre = if mode == RasterMode::PixelCentres { centre - margin(a, b, c) } else { centre };
         *edge = [a as f32, b as f32, centre as f32, outer as f32];
     }
     // Depth plane z = p*x + q*y + r through the three vertices (Cramer's rule on the edge vectors).
@@ -515,6 +649,7 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     let centre = r + 0.5 * (p + q);
     let r_written = match mode {
         RasterMode::Conservative => centre - 0.5 * (p.abs() + q.abs()) - margin(p, q, r),
+        RasterMode::PixelCentres => centre - margin(p, q, r),
         RasterMode::Fast => centre,
     };
     let depth = [p as f32, q as f32, r_written as f32];

@@ -4,6 +4,7 @@
 
 use crate::camera::Camera;
 use glam::{DMat4, Mat4, Vec3};
+use rayon::prelude::*;
 
 /// The camera as the depth buffer sees it: camera-relative clip matrices and the buffer size.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,11 +39,23 @@ impl ScreenView {
 }
 
 /// A `width` x `height` buffer of `1/w` depths, row-major, row 0 at the top of the screen.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Debug, Default, PartialEq)]
 pub struct DepthBuffer {
     width: u32,
     height: u32,
     texels: Vec<f32>,
+}
+
+impl Clone for DepthBuffer {
+    fn clone(&self) -> Self {
+        Self { width: self.width, height: self.height, texels: self.texels.clone() }
+    }
+
+    /// Reuses this buffer's allocation: the pyramid copies its base every frame.
+    fn clone_from(&mut self, source: &Self) {
+        (self.width, self.height) = (source.width, source.height);
+        self.texels.clone_from(&source.texels);
+    }
 }
 
 impl DepthBuffer {
@@ -76,6 +89,14 @@ impl DepthBuffer {
         &self.texels
     }
 
+    /// Resizes to `width` x `height`, leaving the texels' values unspecified (finite): for a caller that then
+    /// writes every texel.
+    pub(crate) fn resize_for_overwrite(&mut self, width: u32, height: u32) {
+        self.width = width;
+        self.height = height;
+        self.texels.resize(width as usize * height as usize, 0.0);
+    }
+
     /// Resizes to `width` x `height` and clears to "no occluder".
     pub fn reset(&mut self, width: u32, height: u32) {
         self.width = width;
@@ -96,30 +117,52 @@ pub struct DepthPyramid {
 
 impl DepthPyramid {
     /// Rebuilds the pyramid from `base`, reusing allocations. Level 0 is a copy of `base`.
+    /// [`crate::raster::rasterize`] fills a pyramid directly, without the copy.
     pub fn build(&mut self, base: &DepthBuffer) {
-        let mut count = 1;
-        let (mut w, mut h) = (base.width, base.height);
+        self.resize_for_overwrite(base.width, base.height);
+        self.levels[0].texels.copy_from_slice(&base.texels);
+        self.reduce_from(0);
+    }
+
+    /// Sizes the levels for a `width` x `height` base, leaving their texels unspecified (finite), for a caller
+    /// that then writes level 0 and reduces the rest.
+    pub(crate) fn resize_for_overwrite(&mut self, width: u32, height: u32) {
+        let mut sizes = vec![(width, height)];
+        let (mut w, mut h) = (width, height);
         while w > 1 || h > 1 {
             (w, h) = (w.div_ceil(2), h.div_ceil(2));
-            count += 1;
+            sizes.push((w, h));
         }
-        self.levels.resize_with(count, DepthBuffer::default);
-        self.levels[0].clone_from(base);
-        for level in 1..count {
-            let (fine, coarse) = self.levels.split_at_mut(level);
-            let fine = &fine[level - 1];
-            let coarse = &mut coarse[0];
-            coarse.reset(fine.width.div_ceil(2), fine.height.div_ceil(2));
-            for y in 0..coarse.height {
-                let (fy0, fy1) = (2 * y, (2 * y + 1).min(fine.height - 1));
-                for x in 0..coarse.width {
-                    let (fx0, fx1) = (2 * x, (2 * x + 1).min(fine.width - 1));
-                    let farthest =
-                        fine.get(fx0, fy0).min(fine.get(fx1, fy0)).min(fine.get(fx0, fy1)).min(fine.get(fx1, fy1));
-                    coarse.texels[(y * coarse.width + x) as usize] = farthest;
-                }
+        self.levels.resize_with(sizes.len(), DepthBuffer::default);
+        for (level, (w, h)) in self.levels.iter_mut().zip(sizes) {
+            level.resize_for_overwrite(w, h);
+        }
+    }
+
+    /// All levels, writable, for [`crate::raster::rasterize`].
+    pub(crate) fn levels_mut(&mut self) -> &mut [DepthBuffer] {
+        &mut self.levels
+    }
+
+    /// Recomputes every level above `level` from the one below it.
+    pub(crate) fn reduce_from(&mut self, level: usize) {
+        for coarse in level + 1..self.levels.len() {
+            let (fine, rest) = self.levels.split_at_mut(coarse);
+            let (fine, coarse) = (&fine[coarse - 1], &mut rest[0]);
+            let (fine_width, coarse_width) = (fine.width as usize, coarse.width as usize);
+            if coarse.texels.len() > PARALLEL_REDUCE_ABOVE {
+                let pairs = fine.texels.par_chunks(2 * fine_width).zip(coarse.texels.par_chunks_mut(coarse_width));
+                pairs.for_each(|(fine, coarse)| reduce_rows(fine, fine_width, coarse));
+            } else {
+                reduce_rows(&fine.texels, fine_width, &mut coarse.texels);
             }
         }
+    }
+
+    /// Level 0, the depth buffer the pyramid was built from; an empty (0x0) buffer for a pyramid never built.
+    pub fn base(&self) -> &DepthBuffer {
+        static EMPTY: DepthBuffer = DepthBuffer { width: 0, height: 0, texels: Vec::new() };
+        self.levels.first().unwrap_or(&EMPTY)
     }
 
     /// Number of levels (level 0 is the full buffer).
@@ -144,6 +187,34 @@ impl DepthPyramid {
         }
         farthest
     }
+}
+
+/// Coarse texels of a level below which one task reduces the whole level.
+const PARALLEL_REDUCE_ABOVE: usize = 1 << 15;
+
+/// Reduces whole rows of one level, `fine` (`fine_width` texels a row), into the rows of the next one over them,
+/// `coarse` (`ceil(fine rows / 2)` rows of `ceil(fine_width / 2)`): each texel the farthest (least) of the up
+/// to 2x2 fine texels under it. The inner loop is branch-free so that it vectorizes.
+pub(crate) fn reduce_rows(fine: &[f32], fine_width: usize, coarse: &mut [f32]) {
+    let coarse_width = fine_width.div_ceil(2);
+    let fine_rows = fine.len() / fine_width;
+    for (y, out) in coarse.chunks_exact_mut(coarse_width).enumerate() {
+        let row = |y: usize| &fine[y * fine_width..][..fine_width];
+        let (top, bottom) = (row(2 * y), row((2 * y + 1).min(fine_rows - 1)));
+        for ((out, top), bottom) in out.iter_mut().zip(top.chunks_exact(2)).zip(bottom.chunks_exact(2)) {
+            *out = farther(farther(top[0], top[1]), farther(bottom[0], bottom[1]));
+        }
+        if fine_width % 2 == 1 {
+            out[coarse_width - 1] = farther(top[fine_width - 1], bottom[fine_width - 1]);
+        }
+    }
+}
+
+/// The farther (lesser) of two depths. Depths are never NaN, so the plain comparison (one `minps`) serves where
+/// `f32::min`'s NaN handling would not vectorize as well.
+#[inline(always)]
+fn farther(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
 }
 
 #[cfg(test)]

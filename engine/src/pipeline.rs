@@ -229,9 +229,8 @@ impl Default for OcclusionSettings {
 /// Output and working memory of the occlusion stage.
 #[derive(Resource, Default, Debug, Clone)]
 pub struct OcclusionState {
-    /// The occluder depth buffer of this frame.
-    pub depth: DepthBuffer,
-    /// Its farthest-depth pyramid.
+    /// The farthest-depth pyramid of this frame's occluder depth buffer, which is its level 0
+    /// ([`OcclusionState::depth`]); empty where nothing was rasterized.
     pub pyramid: DepthPyramid,
     /// Store slots still visible after occlusion culling: the input of the next stage.
     pub visible: VisibleSet,
@@ -240,6 +239,14 @@ pub struct OcclusionState {
     /// Store slots the frustum kept and occlusion hid. It stays until the next frame's occlusion stage runs,
     /// so earlier stages of the next frame can use it (for instance to test last frame's occluded first).
     pub occluded: VisibleSet,
+}
+
+impl OcclusionState {
+    /// This frame's occluder depth buffer (`1/w` of the farthest occluder covering each texel, 0 for none): the
+    /// pyramid's level 0, or an empty (0x0) buffer where nothing was rasterized.
+    pub fn depth(&self) -> &DepthBuffer {
+        self.pyramid.base()
+    }
 }
 
 /// The settings of every CPU stage, installed together by [`install`]; each is a resource of the world
@@ -450,7 +457,6 @@ pub fn occlusion_stage(
     state.occluder_slots = slots;
     stats.occluders = chosen.len();
     if chosen.is_empty() {
-        state.depth.reset(0, 0);
         state.pyramid = DepthPyramid::default();
         state.visible.clone_from(&frustum_visible.0);
         state.occluded.reset(store.len());
@@ -461,8 +467,7 @@ pub fn occlusion_stage(
         return;
     }
     let view = ScreenView::new(&camera, settings.width, settings.height);
-    let raster = rasterize(&view, &chosen, settings.mode, &mut state.depth);
-    state.pyramid.build(&state.depth);
+    let raster = rasterize(&view, &chosen, settings.mode, &mut state.pyramid);
     stats.occluder_triangles = raster.triangles_rasterized;
     stats.raster_time = start.elapsed();
 

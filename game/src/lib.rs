@@ -61,8 +61,13 @@ struct Args {
     #[arg(long, default_value = "256x144")]
     occlusion_resolution: String,
     /// Sample the occlusion buffer at texel centres (not conservative) instead of whole-texel coverage.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "pixel_centres")]
     fast_occlusion: bool,
+    /// Make the occlusion buffer as large as the viewport (`--resolution`, in place of
+    /// `--occlusion-resolution`) and sample it at pixel centres: conservative for the frame drawn, and it
+    /// culls more than the default at a higher cost.
+    #[arg(long)]
+    pixel_centres: bool,
     /// Turn the software occlusion stage off.
     #[arg(long)]
     no_occlusion: bool,
@@ -235,12 +240,17 @@ pub struct Prepared {
 fn prepare(args: &Args) -> Result<Prepared, String> {
     let (width, height) = parse_resolution(&args.resolution)?;
     let aspect = width as f32 / height as f32;
-    let (occlusion_width, occlusion_height) = parse_resolution(&args.occlusion_resolution)?;
+    let (occlusion_width, occlusion_height) =
+        if args.pixel_centres { (width, height) } else { parse_resolution(&args.occlusion_resolution)? };
     let occlusion = OcclusionSettings {
         enabled: !args.no_occlusion,
         width: occlusion_width,
         height: occlusion_height,
-        mode: if args.fast_occlusion { RasterMode::Fast } else { RasterMode::Conservative },
+        mode: match (args.fast_occlusion, args.pixel_centres) {
+            (true, _) => RasterMode::Fast,
+            (_, true) => RasterMode::PixelCentres,
+            _ => RasterMode::Conservative,
+        },
         triangle_budget: args.occluder_budget,
     };
 

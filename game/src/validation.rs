@@ -3,7 +3,6 @@
 use bevy_ecs::world::World;
 use cullet::mesh::Mesh;
 use cullet::pipeline::OcclusionSettings;
-use cullet::raster::RasterMode;
 use cullet_truth::{FrameMetrics, JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 
 /// The judge of a run, and what it found so far.
@@ -40,7 +39,8 @@ impl Validation {
     pub fn judge(&mut self, world: &World, meshes: &[Mesh]) -> &FrameMetrics {
         let metrics = judge_frame(world, meshes, &self.judge).metrics;
         self.total.add(&metrics);
-        if is_conservative(world.resource::<OcclusionSettings>()) {
+        let reference = &self.judge.reference;
+        if is_conservative(world.resource::<OcclusionSettings>(), (reference.width, reference.height)) {
             self.conservative_false_negatives += metrics.false_negatives.len();
         }
         self.last.insert(metrics)
@@ -77,7 +77,7 @@ pub fn frame_efficiency(metrics: &FrameMetrics, index: usize) -> f64 {
     one.efficiency(index)
 }
 
-/// Whether `occlusion` promises no false negatives.
-fn is_conservative(occlusion: &OcclusionSettings) -> bool {
-    !occlusion.enabled || occlusion.mode == RasterMode::Conservative
+/// Whether `occlusion` promises no false negatives in a rendering of `viewport` pixels.
+fn is_conservative(occlusion: &OcclusionSettings, viewport: (u32, u32)) -> bool {
+    !occlusion.enabled || occlusion.mode.is_conservative_for((occlusion.width, occlusion.height), viewport)
 }

@@ -400,7 +400,7 @@ impl Game {
         let source = match self.view {
             View::Shaded | View::Tinted => Source::Color(&color),
             View::Pyramid if levels > 0 => Source::Depth(state.pyramid.level(self.pyramid_level)),
-            View::OcclusionBuffer | View::Pyramid => Source::Depth(&state.depth),
+            View::OcclusionBuffer | View::Pyramid => Source::Depth(state.depth()),
         };
         graphics.present.record(context, &mut encoder, source, &target, self.size);
 
@@ -412,7 +412,7 @@ impl Game {
             fps: self.fps,
             hud_time: self.hud_times.iter().rev().find(|t| t.rebuilt).map_or(Duration::ZERO, |t| t.cpu),
             following_path: self.autopilot.is_some(),
-            buffer: (state.depth.width(), state.depth.height()),
+            buffer: (state.depth().width(), state.depth().height()),
             pyramid,
             viewport: self.size,
         };

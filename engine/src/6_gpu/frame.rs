@@ -649,7 +649,7 @@ impl GpuCuller {
         let state = world.resource::<OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
-        self.run_from(context, &camera, draw_camera, &visible, &state.depth, settings)
+        self.run_from(context, &camera, draw_camera, &visible, state.depth(), settings)
     }
 
     /// Copies to the GPU the instances of the store slots written since the last call (every slot after a

@@ -140,7 +140,7 @@ mod tests {
         let after = flight.run_frame(3);
         assert_eq!(after.after_frustum, after.objects);
         let state = flight.world.resource::<OcclusionState>();
-        assert_eq!((state.depth.width(), state.depth.height()), (512, 288));
+        assert_eq!((state.depth().width(), state.depth().height()), (512, 288));
         // And the GPU switches go where the game reads them.
         controls.set_clusters(false);
         controls.set_triangles(false);

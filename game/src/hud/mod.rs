@@ -389,8 +389,13 @@ fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
     if controls.frozen {
         ui.colored_label(WARNING_COLOUR, "culling FROZEN at an earlier camera (F)");
     }
-    if controls.occlusion.enabled && controls.occlusion.mode == RasterMode::Fast {
-        ui.colored_label(WARNING_COLOUR, "fast occlusion: lossy, may cull visible objects");
+    let occlusion = &controls.occlusion;
+    if occlusion.enabled && !occlusion.mode.is_conservative_for((occlusion.width, occlusion.height), frame.viewport) {
+        let why = match occlusion.mode {
+            RasterMode::PixelCentres => "pixel centres below the viewport's size",
+            _ => "fast occlusion",
+        };
+        ui.colored_label(WARNING_COLOUR, format!("{why}: lossy, may cull visible objects"));
     }
     ui.label(if frame.following_path { "camera: following its path (P)" } else { "camera: free flight (P)" });
 }
@@ -483,6 +488,7 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
     );
     ui.horizontal(|ui| {
         ui.radio_value(&mut occlusion.mode, RasterMode::Conservative, "conservative");
+        ui.radio_value(&mut occlusion.mode, RasterMode::PixelCentres, "pixel centres (at the viewport's size)");
         ui.radio_value(&mut occlusion.mode, RasterMode::Fast, "fast (lossy)");
     });
     ui.add(egui::Slider::new(&mut occlusion.triangle_budget, 64..=65536).logarithmic(true).text("occluder triangles"));
