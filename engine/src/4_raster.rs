@@ -232,9 +232,10 @@ pub fn rasterize(
         let band_y1 = band_y0 + (texels.len() / width) as u32;
         let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
         let mut scratch = Scratch::default();
+        let (mut blocks, mut columns) = (vec![0.0; width.div_ceil(BLOCK_COLUMNS)], Vec::new());
         for &index in bin {
             let occluder = &setups[index as usize];
-            if band.hides(occluder.rect, occluder.nearest) {
+            if band.hides(&blocks, occluder.rect, occluder.nearest) {
                 continue;
             }
             match mode {
@@ -243,6 +244,7 @@ pub fn rasterize(
                     raster_centres_with_backend(avx2, occluder.triangles(&arenas), band.reborrow())
                 }
             }
+            band.update_blocks(&mut blocks, occluder.rect, &mut columns);
         }
         for k in 1..rows.len() {
             let (fine, coarse) = rows.split_at_mut(k);
@@ -255,6 +257,9 @@ pub fn rasterize(
 
 /// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1).
 const FUSED_LEVELS: usize = 3;
+
+/// Columns of a band summarised by one farthest depth, which [`Band::hides`] reads.
+const BLOCK_COLUMNS: usize = 8;
 
 /// The rows `y0..y1` of the depth buffer one task owns.
 struct Band<'a> {
@@ -269,9 +274,16 @@ impl Band<'_> {
         Band { texels: self.texels, width: self.width, y0: self.y0, y1: self.y1 }
     }
 
-    /// Whether every texel of `rect` within the band already holds a depth nearer than `nearest`: an occluder
-    /// no nearer than that can add nothing there.
-    fn hides(&self, rect: TexelRect, nearest: f32) -> bool {
+    /// Whether every texel of `rect` within the band already holds a depth nearer than `nearest`, so that an
+    /// occluder no nearer than that can add nothing there. First reads `blocks`, the farthest depth of each
+    /// [`BLOCK_COLUMNS`] columns of the band's rows (kept by [`Band::update_blocks`]): a block covers at least
+    /// the texels of `rect` in its columns, so when every block is nearer, so is every texel. Where the blocks
+    /// cannot tell (they also cover rows and columns outside `rect`), the texels are read.
+    fn hides(&self, blocks: &[f32], rect: TexelRect, nearest: f32) -> bool {
+        let columns = rect.x0 as usize / BLOCK_COLUMNS..(rect.x1 as usize).div_ceil(BLOCK_COLUMNS);
+        if blocks[columns].iter().all(|&farthest| farthest > nearest) {
+            return true;
+        }
         let rect = self.clip(rect);
         (rect.y0..rect.y1).all(|y| {
             let row = &self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize];
@@ -279,6 +291,25 @@ impl Band<'_> {
             // case (a visible occluder) short.
             row.chunks(32).all(|group| group.iter().map(|&texel| (texel <= nearest) as u32).sum::<u32>() == 0)
         })
+    }
+
+    /// Recomputes the farthest depth of the blocks under `rect`'s columns after an occluder was drawn there.
+    /// `columns` is working memory.
+    fn update_blocks(&self, blocks: &mut [f32], rect: TexelRect, columns: &mut Vec<f32>) {
+        let first = rect.x0 as usize / BLOCK_COLUMNS;
+        let end = (rect.x1 as usize).div_ceil(BLOCK_COLUMNS);
+        let span = first * BLOCK_COLUMNS..(end * BLOCK_COLUMNS).min(self.width);
+        // Farthest of each column over the band's rows (elementwise, so it vectorizes), then of each block.
+        columns.clear();
+        columns.resize(span.len(), f32::INFINITY);
+        for row in self.texels.chunks_exact(self.width) {
+            for (farthest, &texel) in columns.iter_mut().zip(&row[span.clone()]) {
+                *farthest = if texel < *farthest { texel } else { *farthest };
+            }
+        }
+        for (farthest, block) in blocks[first..end].iter_mut().zip(columns.chunks(BLOCK_COLUMNS)) {
+            *farthest = block.iter().fold(f32::INFINITY, |farthest, &texel| farthest.min(texel));
+        }
     }
 
     /// The part of `rect` inside the band.
