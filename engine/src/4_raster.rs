@@ -1,5 +1,5 @@
-//! Stage 4, occluder raster: a software rasterizer of occluder triangles into a small [`DepthBuffer`], from
-//! which a farthest-depth mip pyramid ([`crate::depth::DepthPyramid`], a CPU HiZ) is built. Testing
+//! Stage 4, occluder raster: a software rasterizer of occluder triangles into a small depth buffer, level 0 of
+//! the farthest-depth mip pyramid ([`crate::depth::DepthPyramid`], a CPU HiZ) it builds as it goes. Testing
 //! occludees against it is the next stage, [`crate::occlusion`]; the two are kept apart as in Intel's Masked
 //! Occlusion Culling.
 //!
@@ -164,9 +164,8 @@ pub struct RasterStats {
 /// Rasterizes `occluders` into level 0 of `pyramid` (resized to the view and cleared first), in parallel over
 /// bands of rows, and builds the pyramid's other levels from it.
 ///
-/// Each band clears its rows just before rasterizing them and reduces them into the next
-/// [`FUSED_LEVELS`] levels right after, while they are in its core's cache; the few rows above are reduced
-/// once every band is done.
+/// Each band clears its rows just before rasterizing them and reduces them into the next three levels right
+/// after, while they are in its core's cache; the few rows above are reduced once every band is done.
 pub fn rasterize(
     view: &ScreenView,
     occluders: &[OccluderInstance<'_>],

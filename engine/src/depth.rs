@@ -51,7 +51,7 @@ impl Clone for DepthBuffer {
         Self { width: self.width, height: self.height, texels: self.texels.clone() }
     }
 
-    /// Reuses this buffer's allocation: the pyramid copies its base every frame.
+    /// Reuses this buffer's allocation (a pyramid's levels are cloned into each other's).
     fn clone_from(&mut self, source: &Self) {
         (self.width, self.height) = (source.width, source.height);
         self.texels.clone_from(&source.texels);
@@ -150,6 +150,9 @@ impl DepthPyramid {
             let (fine, rest) = self.levels.split_at_mut(coarse);
             let (fine, coarse) = (&fine[coarse - 1], &mut rest[0]);
             let (fine_width, coarse_width) = (fine.width as usize, coarse.width as usize);
+            if coarse.texels.is_empty() {
+                continue; // A buffer with no column (or no row) has nothing to reduce.
+            }
             if coarse.texels.len() > PARALLEL_REDUCE_ABOVE {
                 let pairs = fine.texels.par_chunks(2 * fine_width).zip(coarse.texels.par_chunks_mut(coarse_width));
                 pairs.for_each(|(fine, coarse)| reduce_rows(fine, fine_width, coarse));
@@ -220,6 +223,17 @@ fn farther(a: f32, b: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn buffers_without_texels_give_empty_pyramids() {
+        let mut pyramid = DepthPyramid::default();
+        assert_eq!(pyramid.base().width(), 0);
+        for (width, height) in [(0, 0), (0, 5), (7, 0)] {
+            pyramid.build(&DepthBuffer::new(width, height));
+            assert_eq!((pyramid.base().width(), pyramid.base().height()), (width, height));
+            assert!((0..pyramid.level_count()).all(|k| pyramid.level(k).texels().is_empty()));
+        }
+    }
 
     #[test]
     fn pyramid_keeps_odd_edges() {
