@@ -92,6 +92,27 @@ pub fn gating_and_savings_columns(gpu: Option<&GpuFrameOutput>, savings: &DrawSa
     )
 }
 
+/// Mean, median, 95th percentile and maximum of some per-frame figures.
+pub struct Spread {
+    pub mean: f64,
+    pub median: f64,
+    pub p95: f64,
+    pub max: f64,
+}
+
+impl Spread {
+    /// The spread of `values`; all zero for none.
+    pub fn of(mut values: Vec<f64>) -> Self {
+        if values.is_empty() {
+            return Self { mean: 0.0, median: 0.0, p95: 0.0, max: 0.0 };
+        }
+        values.sort_by(f64::total_cmp);
+        let percentile = |p: usize| values[(values.len() * p / 100).min(values.len() - 1)];
+        let mean = values.iter().sum::<f64>() / values.len() as f64;
+        Self { mean, median: percentile(50), p95: percentile(95), max: values[values.len() - 1] }
+    }
+}
+
 /// Prints each CPU stage's mean, median and worst time and what it kept over `frames`.
 pub fn print_summary(frames: &[CullStats]) {
     if frames.is_empty() {
@@ -99,10 +120,8 @@ pub fn print_summary(frames: &[CullStats]) {
     }
     let n = frames.len() as f64;
     let summarize = |times: Vec<f64>| {
-        let mut sorted = times;
-        sorted.sort_by(f64::total_cmp);
-        let mean = sorted.iter().sum::<f64>() / n;
-        (mean, sorted[sorted.len() / 2], sorted[sorted.len() - 1])
+        let spread = Spread::of(times);
+        (spread.mean, spread.median, spread.max)
     };
     let objects = frames[0].objects as f64;
     let kept = frames.iter().map(|f| f.after_frustum as f64).sum::<f64>() / n;
@@ -140,4 +159,17 @@ pub fn print_summary(frames: &[CullStats]) {
          objects that moved (same view); occlusion skipped in {gated} (it had removed under the threshold)",
         frames.len()
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Spread;
+
+    #[test]
+    fn spread_of_a_few_frames() {
+        let spread = Spread::of(vec![4.0, 1.0, 3.0, 2.0]);
+        assert_eq!((spread.mean, spread.median, spread.p95, spread.max), (2.5, 3.0, 4.0, 4.0));
+        let none = Spread::of(Vec::new());
+        assert_eq!((none.mean, none.max), (0.0, 0.0));
+    }
 }

@@ -115,8 +115,7 @@ fn print_hud_summary(times: &[HudTime]) {
         return;
     }
     let ms = |duration: Duration| duration.as_secs_f64() * 1e3;
-    let mut cpu: Vec<f64> = times.iter().map(|t| ms(t.cpu)).collect();
-    cpu.sort_by(f64::total_cmp);
+    let cpu = crate::report::Spread::of(times.iter().map(|t| ms(t.cpu)).collect());
     let rebuilds: Vec<&HudTime> = times.iter().filter(|t| t.rebuilt).collect();
     let per_rebuild = |value: &dyn Fn(&HudTime) -> Duration| {
         rebuilds.iter().map(|t| ms(value(t))).sum::<f64>() / rebuilds.len().max(1) as f64
@@ -126,9 +125,9 @@ fn print_hud_summary(times: &[HudTime]) {
          again in {} of them (every {:.0} ms, or on input): {:.3} ms CPU each (wall: build {:.3}, tessellate \
          {:.3}, upload and record {:.3})",
         times.len(),
-        cpu.iter().sum::<f64>() / cpu.len() as f64,
-        cpu[cpu.len() / 2],
-        cpu[(cpu.len() * 95 / 100).min(cpu.len() - 1)],
+        cpu.mean,
+        cpu.median,
+        cpu.p95,
         rebuilds.len(),
         crate::hud::REFRESH_SECONDS * 1e3,
         per_rebuild(&|t| t.cpu),
