@@ -19,6 +19,7 @@ use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::test_occlusion;
+use cullet::raster::RasterMode::PixelCentres;
 use cullet::raster::rasterize;
 use cullet::visible::VisibleSet;
 use std::any::TypeId;
@@ -247,7 +248,11 @@ pub(crate) fn cull_views(
         if occluders_changed {
             view.last = None;
         }
-        let settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
+        let mut settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
+        // A pixel-centre buffer is conservative only at the resolution drawn: the camera's viewport.
+        if let Some(size) = camera.physical_viewport_size().filter(|_| settings.occlusion.mode == PixelCentres) {
+            (settings.occlusion.width, settings.occlusion.height) = (size.x, size.y);
+        }
         view.cull(&cullet, &culled, &settings, !no_occlusion && !no_cpu_culling, |slot| {
             let (occluder, transform, inherited, layers) = occluders.get(cullet.store.entities()[slot]).ok()?;
             let shown =

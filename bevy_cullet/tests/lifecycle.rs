@@ -140,6 +140,24 @@ fn occluders_hide_what_is_behind_them_while_they_are_shown() {
 }
 
 #[test]
+fn a_pixel_centre_buffer_takes_the_cameras_viewport_size() {
+    let (mut app, camera, _, hidden_box) = walled();
+    app.world_mut().resource_mut::<CulletSettings>().occlusion.mode = cullet::raster::RasterMode::PixelCentres;
+    let viewport = bevy_camera::Viewport { physical_size: bevy_math::UVec2::new(320, 180), ..Default::default() };
+    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport);
+    app.update();
+    let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
+    assert_eq!((buffer.width(), buffer.height()), (320, 180));
+    assert!(!visible(&app, hidden_box));
+    // A camera with no size known (no viewport, no render target in this headless app) uses the settings'.
+    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = None;
+    app.update();
+    let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
+    assert_eq!((buffer.width(), buffer.height()), (256, 144));
+    assert!(!visible(&app, hidden_box));
+}
+
+#[test]
 fn settings_and_the_per_camera_opt_out_turn_occlusion_off() {
     let (mut app, camera, _, hidden_box) = walled();
     app.world_mut().resource_mut::<CulletSettings>().occlusion.enabled = false;

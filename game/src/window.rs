@@ -16,6 +16,7 @@ use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
+use cullet::raster::RasterMode;
 use glam::Vec3;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -533,7 +534,14 @@ impl ApplicationHandler for Game {
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
-                self.size = (size.width, size.height);
+                let before = std::mem::replace(&mut self.size, (size.width, size.height));
+                // A pixel-centre buffer is conservative only at the frame's size: it follows the window.
+                let mut controls = self.controls();
+                let occlusion = &mut controls.occlusion;
+                if occlusion.mode == RasterMode::PixelCentres && (occlusion.width, occlusion.height) == before {
+                    (occlusion.width, occlusion.height) = self.size;
+                    self.set_controls(controls);
+                }
                 if let Some(graphics) = self.graphics.as_mut() {
                     graphics.config.width = size.width;
                     graphics.config.height = size.height;
