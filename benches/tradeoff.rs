@@ -262,12 +262,7 @@ fn moc_rows(mut run: Flight, truth: &[ExactVisibility], frustum_us: f64) -> Vec<
 /// is both at least as fast and at least as efficient, and better in one. Fast mode is left out even where this
 /// path happened to show no false negative: it guarantees none.
 fn mark_pareto_front(rows: &mut [Row], viewport: (u32, u32)) {
-    let conservative = |r: &Row| {
-        let s = &r.settings;
-        !r.moc
-            && r.accuracy.false_negatives == 0
-            && (!s.enabled || s.mode.is_conservative_for((s.width, s.height), viewport))
-    };
+    let conservative = |r: &Row| !r.moc && r.accuracy.false_negatives == 0 && r.settings.is_conservative_for(viewport);
     let exact: Vec<(f64, f64)> = rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us, r.efficiency())).collect();
     for row in rows.iter_mut().filter(|r| conservative(r)) {
         let (time, efficiency) = (row.cull_us, row.efficiency());
@@ -325,12 +320,12 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
     )?;
     let panels = root.split_evenly((1, 3));
     let max_time = rows.iter().map(|r| r.cull_us / 1e3).fold(0.0, f64::max) * 1.1;
-    let color = |r: &Row| match (r.settings.enabled, r.settings.mode) {
-        (false, _) => BLACK,
-        (_, RasterMode::Conservative) => BLUE,
-        (_, RasterMode::PixelCentres) => CYAN,
-        (_, RasterMode::Fast) => RED,
+    let mode_color = |mode| match mode {
+        RasterMode::Conservative => BLUE,
+        RasterMode::PixelCentres => CYAN,
+        RasterMode::Fast => RED,
     };
+    let color = |r: &Row| if r.settings.enabled { mode_color(r.settings.mode) } else { BLACK };
     let panel_specs: [Panel; 3] = [
         ("culling efficiency (%)", |r| 100.0 * r.efficiency()),
         ("false negatives per frame (objects)", |r| r.false_negatives_per_frame()),
@@ -365,7 +360,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
         ];
         for (name, mode) in modes {
             let series = rows.iter().filter(|r| !r.moc && r.settings.enabled && r.settings.mode == mode);
-            let c = color(series.clone().next().unwrap_or(&rows[0]));
+            let c = mode_color(mode);
             chart
                 .draw_series(series.map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, color(r).filled())))?
                 .label(name)

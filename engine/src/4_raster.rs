@@ -31,7 +31,7 @@
 //! skipped: a closed occluder's front faces hide everything its back faces would, and from inside an occluder
 //! nothing is hidden by it.
 
-use crate::depth::{DepthPyramid, ScreenView, reduce_rows};
+use crate::depth::{DepthPyramid, ScreenView, farther, reduce_rows};
 use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DVec3, Vec3};
@@ -303,11 +303,11 @@ impl Band<'_> {
         columns.resize(span.len(), f32::INFINITY);
         for row in self.texels.chunks_exact(self.width) {
             for (farthest, &texel) in columns.iter_mut().zip(&row[span.clone()]) {
-                *farthest = if texel < *farthest { texel } else { *farthest };
+                *farthest = farther(texel, *farthest);
             }
         }
         for (farthest, block) in blocks[first..end].iter_mut().zip(columns.chunks(BLOCK_COLUMNS)) {
-            *farthest = block.iter().fold(f32::INFINITY, |farthest, &texel| farthest.min(texel));
+            *farthest = block.iter().copied().fold(f32::INFINITY, farther);
         }
     }
 

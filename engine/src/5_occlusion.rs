@@ -11,7 +11,7 @@
 //! error, so the test culls only what the pyramid provably hides.
 
 use crate::bounds::{BoundsStore, GroupBounds};
-use crate::depth::{DepthPyramid, ScreenView};
+use crate::depth::{DepthPyramid, ScreenView, farther};
 use crate::frustum::SimdBackend;
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
@@ -325,9 +325,8 @@ fn farthest_in<const WINDOW: u32>(rect: &ScreenRect, pyramid: &DepthPyramid, lev
         let start = (y0 + dy).min(y1) as usize * width;
         let row = &texels.texels()[start..start + width];
         for dx in 0..WINDOW {
-            let texel = row[(x0 + dx).min(x1) as usize];
             // A plain select, not `f32::min` (which pays to handle NaN): a NaN texel is skipped either way.
-            farthest = if texel < farthest { texel } else { farthest };
+            farthest = farther(row[(x0 + dx).min(x1) as usize], farthest);
         }
     }
     farthest

@@ -39,23 +39,11 @@ impl ScreenView {
 }
 
 /// A `width` x `height` buffer of `1/w` depths, row-major, row 0 at the top of the screen.
-#[derive(Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct DepthBuffer {
     width: u32,
     height: u32,
     texels: Vec<f32>,
-}
-
-impl Clone for DepthBuffer {
-    fn clone(&self) -> Self {
-        Self { width: self.width, height: self.height, texels: self.texels.clone() }
-    }
-
-    /// Reuses this buffer's allocation (a pyramid's levels are cloned into each other's).
-    fn clone_from(&mut self, source: &Self) {
-        (self.width, self.height) = (source.width, source.height);
-        self.texels.clone_from(&source.texels);
-    }
 }
 
 impl DepthBuffer {
@@ -216,7 +204,7 @@ pub(crate) fn reduce_rows(fine: &[f32], fine_width: usize, coarse: &mut [f32]) {
 /// The farther (lesser) of two depths. Depths are never NaN, so the plain comparison (one `minps`) serves where
 /// `f32::min`'s NaN handling would not vectorize as well.
 #[inline(always)]
-fn farther(a: f32, b: f32) -> f32 {
+pub(crate) fn farther(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 

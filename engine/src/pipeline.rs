@@ -220,6 +220,14 @@ pub struct OcclusionSettings {
     pub triangle_budget: usize,
 }
 
+impl OcclusionSettings {
+    /// Whether these settings never hide an object a rendering of `viewport` (width, height) pixels shows: the
+    /// stage is off, or its mode is conservative at that size ([`RasterMode::is_conservative_for`]).
+    pub fn is_conservative_for(&self, viewport: (u32, u32)) -> bool {
+        !self.enabled || self.mode.is_conservative_for((self.width, self.height), viewport)
+    }
+}
+
 impl Default for OcclusionSettings {
     fn default() -> Self {
         Self { enabled: true, width: 256, height: 144, mode: RasterMode::Conservative, triangle_budget: 4096 }

@@ -40,7 +40,7 @@ impl Validation {
         let metrics = judge_frame(world, meshes, &self.judge).metrics;
         self.total.add(&metrics);
         let reference = &self.judge.reference;
-        if is_conservative(world.resource::<OcclusionSettings>(), (reference.width, reference.height)) {
+        if world.resource::<OcclusionSettings>().is_conservative_for((reference.width, reference.height)) {
             self.conservative_false_negatives += metrics.false_negatives.len();
         }
         self.last.insert(metrics)
@@ -75,9 +75,4 @@ pub fn frame_efficiency(metrics: &FrameMetrics, index: usize) -> f64 {
     let mut one = PathMetrics::default();
     one.add(metrics);
     one.efficiency(index)
-}
-
-/// Whether `occlusion` promises no false negatives in a rendering of `viewport` pixels.
-fn is_conservative(occlusion: &OcclusionSettings, viewport: (u32, u32)) -> bool {
-    !occlusion.enabled || occlusion.mode.is_conservative_for((occlusion.width, occlusion.height), viewport)
 }

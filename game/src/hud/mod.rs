@@ -390,7 +390,7 @@ fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
         ui.colored_label(WARNING_COLOUR, "culling FROZEN at an earlier camera (F)");
     }
     let occlusion = &controls.occlusion;
-    if occlusion.enabled && !occlusion.mode.is_conservative_for((occlusion.width, occlusion.height), frame.viewport) {
+    if !occlusion.is_conservative_for(frame.viewport) {
         let why = match occlusion.mode {
             RasterMode::PixelCentres => "pixel centres below the viewport's size",
             _ => "fast occlusion",
