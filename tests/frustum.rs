@@ -1,24 +1,11 @@
 //! Frustum culling against an exact f64 reference: conservative everywhere, identical across SIMD backends,
 //! and stable at extreme cameras.
 
-use bevy_ecs::entity::Entity;
-use cullet::bounds::LocalBounds;
 use cullet::frustum::{PlaneCoherence, SimdBackend, cull_frustum_coherent, cull_frustum_with};
-use cullet::{BoundsStore, Camera, DepthConvention, Frustum, VisibleSet, WorldBounds};
-use cullet_test_support::{reference_keeps, reference_planes};
-use glam::{Affine3A, Vec3};
+use cullet::{BoundsStore, Camera, DepthConvention, Frustum, VisibleSet};
+use cullet_test_support::{reference_keeps, reference_planes, store_of};
+use glam::Vec3;
 use proptest::prelude::*;
-
-fn store_of(boxes: &[(Vec3, Vec3)]) -> BoundsStore {
-    let mut store = BoundsStore::default();
-    for (i, &(center, half_extent)) in boxes.iter().enumerate() {
-        let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
-        let local = LocalBounds { center: Vec3::ZERO, half_extent };
-        let bounds = WorldBounds::from_local(entity, &local, &Affine3A::from_translation(center)).unwrap();
-        store.insert(entity, &bounds).unwrap();
-    }
-    store
-}
 
 /// Culls with every backend, checks they agree bit for bit and never cull what the f64 reference keeps, and
 /// returns the visible set.

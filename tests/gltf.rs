@@ -9,22 +9,9 @@ use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
 use cullet::scene::city::{CityParams, CityScene, TEST_SCENE_OBJECTS};
 use cullet::scene::gltf_export::write_gltf;
 use cullet::scene::gltf_import::{GltfError, GltfScene, load_gltf, parse_gltf};
+use cullet_test_support::{repo_file, shared_scene};
 use cullet_truth::PathMetrics;
-use std::path::{Path, PathBuf};
-
-fn repo_file(relative: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
-}
-
-/// A third-party scene of `../shared/scenes`, or `None` (with a visible message) where that folder is absent.
-fn shared_scene(relative: &str) -> Option<GltfScene> {
-    let path = repo_file("../shared/scenes").join(relative);
-    if !path.exists() {
-        eprintln!("SKIPPED: {} not found (the shared scenes sit beside the repository)", path.display());
-        return None;
-    }
-    Some(load_gltf(&path).unwrap_or_else(|e| panic!("{e}")))
-}
+use std::path::Path;
 
 fn parse(json: &str) -> Result<GltfScene, GltfError> {
     parse_gltf(json.as_bytes(), None, "test.gltf")

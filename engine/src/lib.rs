@@ -5,7 +5,9 @@
 //!
 //! 1. [`bounds`]: world-space bounding boxes as linear SoA arrays in a `bevy_ecs` resource, updated only where
 //!    transforms changed;
-//! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset;
+//! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset; many
+//!    views (cameras, shadow cascades, cube faces) in one pass with [`frustum::cull_views`], a light view
+//!    keeping only the shadow casters whose shadows the camera can see;
 //! 3. [`occluder`]: the artist occluders, and which of them to rasterize this frame;
 //! 4. [`raster`]: those occluders rasterized into a small conservative [`depth::DepthBuffer`], reduced to its
 //!    farthest-depth [`depth::DepthPyramid`];
@@ -52,7 +54,7 @@
 
 #[path = "1_bounds/mod.rs"]
 pub mod bounds;
-#[path = "2_frustum.rs"]
+#[path = "2_frustum/mod.rs"]
 pub mod frustum;
 #[cfg(feature = "gpu")]
 #[path = "6_gpu/mod.rs"]
@@ -86,7 +88,7 @@ pub use visible::VisibleSet;
 pub mod prelude {
     pub use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
     pub use crate::camera::{Camera, CameraPath};
-    pub use crate::frustum::DepthConvention;
+    pub use crate::frustum::{DepthConvention, Light, View, cull_views};
     #[cfg(feature = "gpu")]
     pub use crate::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError, GpuGating};
     pub use crate::mesh::{Mesh, MeshRef, ObjectColor};

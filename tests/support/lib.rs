@@ -1,7 +1,40 @@
 //! Shared helpers of Cullet's integration tests: exact (f64) references that the fast paths are judged against.
 
-use cullet::{Camera, WorldBounds};
-use glam::{DMat4, DVec3, DVec4};
+use bevy_ecs::entity::Entity;
+use cullet::bounds::LocalBounds;
+use cullet::{BoundsStore, Camera, WorldBounds};
+use glam::{Affine3A, DMat4, DVec3, DVec4, Vec3};
+
+/// A path inside the repository.
+pub fn repo_file(relative: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
+}
+
+/// A third-party scene of `../shared/scenes`, or `None` (with a visible message) where that folder is absent.
+///
+/// # Panics
+/// If the scene is there but does not load.
+pub fn shared_scene(relative: &str) -> Option<cullet::scene::gltf_import::GltfScene> {
+    let path = repo_file("../shared/scenes").join(relative);
+    if !path.exists() {
+        eprintln!("SKIPPED: {} not found (the shared scenes sit beside the repository)", path.display());
+        return None;
+    }
+    Some(cullet::scene::gltf_import::load_gltf(&path).unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// A store of boxes `(centre, half extent)`, the world bounds each gets from its translation, entity `i + 1`
+/// for box `i`.
+pub fn store_of(boxes: &[(Vec3, Vec3)]) -> BoundsStore {
+    let mut store = BoundsStore::default();
+    for (i, &(center, half_extent)) in boxes.iter().enumerate() {
+        let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
+        let local = LocalBounds { center: Vec3::ZERO, half_extent };
+        let bounds = WorldBounds::from_local(entity, &local, &Affine3A::from_translation(center)).unwrap();
+        store.insert(entity, &bounds).unwrap();
+    }
+    store
+}
 
 /// The camera's clip-from-relative matrix in f64, from its parameters: the true frustum, free of the f32
 /// rounding the engine's culling arithmetic works with. (The depth conventions themselves are checked by the

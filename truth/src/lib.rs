@@ -12,6 +12,7 @@
 //! - [`metrics`]: false negatives (with the stage that culled them), false positives, culling efficiency per
 //!   stage, occlusion efficiency against the ideal, and image error; per frame and over a camera path.
 //! - [`judge`]: all of the above for a `bevy_ecs` world that has just run the culling schedule.
+//! - [`shadows`]: which shadow casters a light view needs, decided exactly.
 //! - [`stress`]: scenes and cameras at the edges of the numeric range, judged on the CPU and GPU paths.
 
 #![warn(missing_docs)]
@@ -20,6 +21,7 @@ pub mod judge;
 pub mod metrics;
 pub mod occluders;
 pub mod render;
+pub mod shadows;
 pub mod stress;
 mod triangle;
 

@@ -289,14 +289,7 @@ pub fn projection_error(camera: &Camera) -> f64 {
 /// `n · p + d >= 0` (p camera-relative), planes at infinity left out; not normalized (sign tests do not need it).
 /// The exact reference both for the stress report and for the frustum tests.
 pub fn exact_half_spaces(camera: &Camera) -> Vec<DVec4> {
-    let m = camera.clip_from_relative_f64().transpose();
-    let (r0, r1, r2, r3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
-    let (near, far) = match camera.depth {
-        DepthConvention::Standard => (r2, r3 - r2),
-        DepthConvention::Reversed => (r3 - r2, r2),
-        DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2),
-    };
-    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far].into_iter().filter(|p| p.truncate().length() > 0.0).collect()
+    crate::shadows::half_spaces(camera.clip_from_relative_f64(), camera.depth)
 }
 
 /// [`exact_half_spaces`] normalized to unit normals.

@@ -1,9 +1,12 @@
 //! Stage 2, frustum: planes extracted from a view-projection matrix, and the SoA box-versus-frustum test run
-//! in parallel over blocks of the [`BoundsStore`], 8 objects a SIMD step.
+//! in parallel over blocks of the [`BoundsStore`], 8 objects a SIMD step; many views in one pass over the
+//! bounds, light views keeping only shadow casters ([`cull_views`], module `views`).
 //!
 //! Each group of 64 consecutive objects, and each supergroup of 64 groups, has a box ([`GroupBounds`]) tested
-//! first (a two-level hierarchy, as in the hierarchical culling of seed 000 section 19.4): a group outside or
-//! inside the frustum is decided without touching its objects. Scenes stored in spatial order (the city is) decide most groups this way; in a shuffled store
+//! first (a hierarchy, as in the hierarchical culling of seed 000 section 19.4): a group outside or inside the
+//! frustum is decided without touching its objects. Between the two, a supergroup that crosses the frustum
+//! has its blocks of 8 groups boxed on the fly and tested in one 8-lane step, so a block outside skips its 8
+//! group tests. Scenes stored in spatial order (the city is) decide most groups this way; in a shuffled store
 //! every group crosses and every object is tested. The per-object kernel runs all six planes, fully unrolled:
 //! branch-free, it is faster than skipping the planes a group lies inside. One branch it does take is temporal
 //! coherence (Assarsson and Möller, seed 000 section 19.4): [`PlaneCoherence`] remembers, per block of 8
@@ -28,6 +31,11 @@ use crate::visible::VisibleSet;
 use glam::{DMat4, DVec4, Mat4, Vec3};
 use rayon::prelude::*;
 use thiserror::Error;
+
+mod views;
+pub use views::{
+    Light, View, ViewError, cascade_clip_from_relative, cascade_frustum, cube_face_cameras, cull_views, cull_views_with,
+};
 
 /// Relative slack of the plane test, a bound on the rounding error of the camera-relative `f32` arithmetic
 /// (about 16 units in the last place) so that the fast test never culls what the exact test keeps.
@@ -375,77 +383,188 @@ fn cull(
     visible: &mut VisibleSet,
     coherence: Option<&mut PlaneCoherence>,
 ) -> usize {
+    let view = View::new(*frustum);
+    cull_pass(store, std::slice::from_ref(&view), backend, vec![(visible, coherence)])[0]
+}
+
+/// Most views one pass tests; [`cull_views`] runs more in several passes. Each task keeps its per-view state
+/// in arrays of this size on its stack.
+const MAX_VIEWS_PER_PASS: usize = 32;
+
+/// The one pass over the store behind every frustum entry point: each task takes one supergroup (64 bitset
+/// words), and each word of 64 objects is tested against every view in turn while its bounds are in cache.
+/// Each view runs its own group hierarchy. Returns each view's visible count.
+///
+/// # Panics
+/// If `views` has more than [`MAX_VIEWS_PER_PASS`] views, or a different number from `outputs`.
+fn cull_pass(
+    store: &BoundsStore,
+    views: &[View],
+    backend: SimdBackend,
+    mut outputs: Vec<(&mut VisibleSet, Option<&mut PlaneCoherence>)>,
+) -> Vec<usize> {
+    assert!(views.len() <= MAX_VIEWS_PER_PASS && views.len() == outputs.len());
     let len = store.len();
-    visible.reset(len);
+    let words = len.div_ceil(64);
+    let tasks = words.div_ceil(WORDS_PER_TASK);
     let backend = backend.resolve();
-    let tasks = visible.words().len().div_ceil(WORDS_PER_TASK);
-    // Each task's slice of the coherence planes, or none.
-    let task_planes: Vec<Option<&mut [u8]>> = match coherence {
+    if let [(visible, coherence)] = &mut outputs[..] {
+        // One view: its words straight from its set, with nothing allocated per task.
+        visible.reset(len);
+        let planes = task_planes(coherence.take(), words);
+        let count = visible
+            .words_mut()
+            .par_chunks_mut(WORDS_PER_TASK)
+            .zip(planes)
+            .enumerate()
+            .map(|(task, (words, planes))| cull_task::<1>(store, views, backend, task, &mut [(words, planes)])[0])
+            .sum();
+        return vec![count];
+    }
+    // Per task, per view: its bitset words and, with coherence, their blocks' planes.
+    let mut task_outputs: Vec<Vec<TaskOutput<'_>>> = (0..tasks).map(|_| Vec::with_capacity(views.len())).collect();
+    for (visible, coherence) in outputs {
+        visible.reset(len);
+        let chunks = visible.words_mut().chunks_mut(WORDS_PER_TASK);
+        for ((task, chunk), planes) in chunks.enumerate().zip(task_planes(coherence, words)) {
+            task_outputs[task].push((chunk, planes));
+        }
+    }
+    let counts = task_outputs
+        .into_par_iter()
+        .enumerate()
+        .map(|(task, mut outputs)| cull_task::<MAX_VIEWS_PER_PASS>(store, views, backend, task, &mut outputs))
+        .reduce(
+            || [0; MAX_VIEWS_PER_PASS],
+            |mut total, counts| {
+                total.iter_mut().zip(counts).for_each(|(total, count)| *total += count);
+                total
+            },
+        );
+    counts[..views.len()].to_vec()
+}
+
+/// One view's part of one task: its bitset words, and their blocks' coherence planes where it keeps them.
+type TaskOutput<'a> = (&'a mut [u64], Option<&'a mut [u8]>);
+
+/// Each task's slice of `coherence`'s planes (resized to `words` bitset words), or none for each task.
+fn task_planes(coherence: Option<&mut PlaneCoherence>, words: usize) -> Vec<Option<&mut [u8]>> {
+    match coherence {
         Some(coherence) => {
-            coherence.planes.resize(visible.words().len() * BLOCKS_PER_WORD, NO_PLANE);
+            coherence.planes.resize(words * BLOCKS_PER_WORD, NO_PLANE);
             coherence.planes.chunks_mut(WORDS_PER_TASK * BLOCKS_PER_WORD).map(Some).collect()
         }
-        None => (0..tasks).map(|_| None).collect(),
-    };
-    visible
-        .words_mut()
-        .par_chunks_mut(WORDS_PER_TASK)
-        .zip(task_planes)
-        .enumerate()
-        .map(|(task, (words, mut planes))| {
-            let mut count = 0;
-            let supergroup = frustum.classify_group(&store.supergroups()[task]);
-            let mut classes = [supergroup; SIMD_LANES];
-            for (offset, word) in words.iter_mut().enumerate() {
-                let group = task * WORDS_PER_TASK + offset;
-                let base = group * 64;
-                if supergroup == GroupClass::Crossing && offset % SIMD_LANES == 0 {
-                    let groups = &store.groups()[group..(group + SIMD_LANES).min(store.groups().len())];
-                    let (outside, inside) = match backend {
-                        #[cfg(target_arch = "x86_64")]
-                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2; the function reads
-                        // `groups` through safe indexing only.
-                        SimdBackend::Avx2 => unsafe { avx2::classify_groups(frustum, groups) },
-                        _ => frustum.classify_groups(groups),
-                    };
-                    for (lane, class) in classes.iter_mut().enumerate() {
-                        *class = match (outside >> lane & 1, inside >> lane & 1) {
-                            (1, _) => GroupClass::Outside,
-                            (_, 1) => GroupClass::Inside,
-                            _ => GroupClass::Crossing,
-                        };
+        None => (0..words.div_ceil(WORDS_PER_TASK)).map(|_| None).collect(),
+    }
+}
+
+/// One task of [`cull_pass`]: the words of supergroup `task` for every view, written to `outputs` (per view,
+/// its words of this task, cleared, and their coherence planes). Returns the visible counts, per view.
+///
+/// Views take turns per block of 8 words (512 objects, whose bounds stay in the L1 cache between views), and
+/// a view skips the words of a supergroup it has wholly outside (they stay clear).
+fn cull_task<const VIEWS: usize>(
+    store: &BoundsStore,
+    views: &[View],
+    backend: SimdBackend,
+    task: usize,
+    outputs: &mut [TaskOutput<'_>],
+) -> [usize; VIEWS] {
+    let len = store.len();
+    let mut counts = [0; VIEWS];
+    // Per view: the supergroup's class, then the bits of its blocks of 8 groups outside and inside.
+    let mut blocks_outside = [u8::MAX; VIEWS];
+    let mut blocks_inside = [0u8; VIEWS];
+    let groups = store.groups();
+    let task_groups = &groups[task * WORDS_PER_TASK..((task + 1) * WORDS_PER_TASK).min(groups.len())];
+    // The boxes of the blocks of 8 groups, a level between the supergroup and its groups, computed only where
+    // a view crosses the supergroup, and once for every view.
+    let mut blocks: Option<[GroupBounds; SIMD_LANES]> = None;
+    for (v, view) in views.iter().enumerate() {
+        match view.classify_group(&store.supergroups()[task], backend) {
+            GroupClass::Outside => {}
+            GroupClass::Inside => (blocks_outside[v], blocks_inside[v]) = (0, u8::MAX),
+            GroupClass::Crossing => {
+                let blocks = blocks.get_or_insert_with(|| {
+                    let mut blocks = [GroupBounds::EMPTY; SIMD_LANES];
+                    for (block, groups) in blocks.iter_mut().zip(task_groups.chunks(SIMD_LANES)) {
+                        *block = groups.iter().fold(GroupBounds::EMPTY, |block, group| block.union(group));
                     }
-                }
-                *word = match classes[offset % SIMD_LANES] {
-                    GroupClass::Outside => 0,
-                    GroupClass::Inside => u64::MAX,
-                    GroupClass::Crossing => match backend {
-                        #[cfg(target_arch = "x86_64")]
-                        // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2 (the target feature).
-                        // `base + 64 <= store.padded_len()`: `visible` has `len.div_ceil(64)` words and `base` is
-                        // 64 times one of their indices, while the store's SoA layout invariant (`BoundsStore`,
-                        // established and checked in `insert` and `remove`) makes every array `len` rounded up to
-                        // a multiple of 64 long.
-                        SimdBackend::Avx2 => unsafe {
-                            let mut none = [NO_PLANE; BLOCKS_PER_WORD];
-                            let planes = match planes.as_deref_mut() {
-                                Some(planes) => &mut planes[offset * BLOCKS_PER_WORD..(offset + 1) * BLOCKS_PER_WORD],
-                                None => &mut none,
-                            };
-                            avx2::cull_word(frustum, store, base, planes)
-                        },
-                        _ => frustum.cull_word_scalar(store, base),
-                    },
+                    blocks
+                });
+                (blocks_outside[v], blocks_inside[v]) = view.classify_groups(blocks, backend);
+            }
+        }
+    }
+    let task_words = outputs.first().map_or(0, |(words, _)| words.len());
+    for (block, groups) in task_groups.chunks(SIMD_LANES).enumerate() {
+        let first_word = block * SIMD_LANES;
+        let first_group = task * WORDS_PER_TASK + first_word;
+        for (v, (view, (words, planes))) in views.iter().zip(outputs.iter_mut()).enumerate() {
+            let (outside, inside) = if blocks_outside[v] >> block & 1 != 0 {
+                continue; // Its words stay clear.
+            } else if blocks_inside[v] >> block & 1 != 0 {
+                (0, u8::MAX)
+            } else {
+                view.classify_groups(groups, backend)
+            };
+            for (lane, offset) in (first_word..(first_word + SIMD_LANES).min(task_words)).enumerate() {
+                let base = (first_group + lane) * 64;
+                let mut word = if outside >> lane & 1 != 0 {
+                    0
+                } else if inside >> lane & 1 != 0 {
+                    u64::MAX
+                } else {
+                    let planes = planes
+                        .as_deref_mut()
+                        .map(|planes| &mut planes[offset * BLOCKS_PER_WORD..(offset + 1) * BLOCKS_PER_WORD]);
+                    view.cull_word(store, base, backend, planes)
                 };
                 if len - base < 64 {
                     // Padding slots hold zero-size boxes at the origin, which may test visible.
-                    *word &= (1u64 << (len - base)) - 1;
+                    word &= (1u64 << (len - base)) - 1;
                 }
-                count += word.count_ones() as usize;
+                words[offset] = word;
+                counts[v] += word.count_ones() as usize;
             }
-            count
-        })
-        .sum()
+        }
+    }
+    counts
+}
+
+impl Frustum {
+    /// Classifies up to 8 groups with `backend` (already resolved): the bits of those outside and inside.
+    #[inline]
+    fn classify_groups_with(&self, groups: &[GroupBounds], backend: SimdBackend) -> (u8, u8) {
+        match backend {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2; the function reads `groups`
+            // through safe indexing only.
+            SimdBackend::Avx2 => unsafe { avx2::classify_groups(self, groups) },
+            _ => self.classify_groups(groups),
+        }
+    }
+
+    /// The visibility bits of the 64 objects from `base`, with `backend` (already resolved) and, where given,
+    /// the coherence planes of their 8 blocks.
+    ///
+    /// # Panics
+    /// If `base + 64` exceeds the store's padded length.
+    #[inline]
+    fn cull_word_with(&self, store: &BoundsStore, base: usize, backend: SimdBackend, planes: Option<&mut [u8]>) -> u64 {
+        debug_assert!(base + 64 <= store.padded_len(), "word past the store padded arrays");
+        match backend {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2 (the target feature), and
+            // `base + 64 <= store.padded_len()` was asserted above; the store's SoA layout invariant
+            // (`BoundsStore`, established and checked in `insert` and `remove`) makes every array that long.
+            SimdBackend::Avx2 => unsafe {
+                let mut none = [NO_PLANE; BLOCKS_PER_WORD];
+                avx2::cull_word(self, store, base, planes.unwrap_or(&mut none))
+            },
+            _ => self.cull_word_scalar(store, base),
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]

@@ -1,0 +1,207 @@
+//! Many views in one pass: each plain view gives the bits a single frustum pass gives, and each light view keeps
+//! every shadow caster the exact reference (`cullet_truth::shadows`) needs, for cascades, cube faces with near
+//! planes down to 1e-4, orthographic views with huge extents, and cameras far from the origin.
+
+use cullet::frustum::{
+    Light, SimdBackend, View, cascade_clip_from_relative, cascade_frustum, cube_face_cameras, cull_frustum, cull_views,
+    cull_views_with,
+};
+use cullet::{BoundsStore, Camera, DepthConvention, Frustum, VisibleSet};
+use cullet_test_support::store_of;
+use cullet_truth::shadows::{ExactLight, caster_needed, half_spaces, moved};
+use cullet_truth::stress::exact_half_spaces;
+use glam::{DVec4, Vec3};
+use proptest::prelude::*;
+
+/// Cascade splits, in view distance.
+const SPLITS: [f32; 5] = [0.0, 5.0, 20.0, 60.0, 150.0];
+
+/// A light view under test: what it culls with, and its exact half-spaces and light relative to the camera.
+struct LightView {
+    view: View,
+    half_spaces: Vec<DVec4>,
+    light: ExactLight,
+}
+
+/// The camera's four cascades for a sun shining along `direction`, and one orthographic view 100 km across.
+fn cascades(camera: &Camera, direction: Vec3) -> Vec<LightView> {
+    let receivers = camera.frustum().unwrap();
+    SPLITS
+        .windows(2)
+        .chain([[0.0, 1.0e5].as_slice()])
+        .map(|split| {
+            let frustum = cascade_frustum(camera, direction, split[0], split[1]).unwrap();
+            let matrix = cascade_clip_from_relative(camera, direction, split[0], split[1]).unwrap();
+            LightView {
+                view: View::shadow_casters(frustum, Light::Directional { direction }, &receivers).unwrap(),
+                half_spaces: half_spaces(matrix, DepthConvention::Standard),
+                light: ExactLight::Directional(direction.as_dvec3()),
+            }
+        })
+        .collect()
+}
+
+/// The six cube faces of a point light at `lamp`.
+fn cube_faces(camera: &Camera, lamp: Vec3, near: f32, far: Option<f32>) -> Vec<LightView> {
+    let receivers = camera.frustum().unwrap();
+    let from_camera = lamp.as_dvec3() - camera.position.as_dvec3();
+    cube_face_cameras(lamp, near, far)
+        .iter()
+        .map(|face| LightView {
+            view: View::shadow_casters(face.frustum().unwrap(), Light::Point { position: lamp }, &receivers).unwrap(),
+            half_spaces: moved(&exact_half_spaces(face), lamp.as_dvec3(), camera.position.as_dvec3()),
+            light: ExactLight::Point(from_camera),
+        })
+        .collect()
+}
+
+/// Culls `plain` and `lights` in one pass; checks that every backend gives the same bits, each plain view
+/// against its own single-view pass and each light view against the exact reference. Returns the light views' kept counts.
+fn cull_and_check(store: &BoundsStore, camera: &Camera, plain: &[Frustum], lights: &[LightView]) -> Vec<usize> {
+    let views: Vec<View> =
+        plain.iter().map(|&frustum| View::new(frustum)).chain(lights.iter().map(|light| light.view.clone())).collect();
+    let mut visible = Vec::new();
+    let counts = cull_views(store, &views, &mut visible);
+    let mut scalar = Vec::new();
+    assert_eq!(cull_views_with(store, &views, SimdBackend::Scalar, &mut scalar), counts);
+    assert_eq!(scalar, visible, "the scalar and SIMD backends disagree");
+    for ((frustum, set), &count) in plain.iter().zip(&visible).zip(&counts) {
+        let mut single = VisibleSet::default();
+        assert_eq!(cull_frustum(store, frustum, &mut single), count);
+        assert_eq!(&single, set, "one pass over many views differs from a pass of its own");
+    }
+    let receivers = exact_half_spaces(camera);
+    let origin = camera.position.as_dvec3();
+    for ((light, set), &count) in lights.iter().zip(&visible[plain.len()..]).zip(&counts[plain.len()..]) {
+        assert_eq!(set.count(), count);
+        for slot in 0..store.len() {
+            let bounds = store.get(slot).unwrap();
+            let center = bounds.center.as_dvec3() - origin;
+            let (min, max) = (center - bounds.half_extent.as_dvec3(), center + bounds.half_extent.as_dvec3());
+            if !set.contains(slot) && caster_needed(&light.half_spaces, &receivers, light.light, min, max) {
+                panic!("a light view culled a caster it needs: {bounds:?}, {:?}, camera {camera:?}", light.light);
+            }
+        }
+    }
+    counts[plain.len()..].to_vec()
+}
+
+fn camera_strategy() -> impl Strategy<Value = Camera> {
+    (
+        prop::sample::select(vec![0.0f32, 1.0e5, 1.0e7]),
+        prop::array::uniform3(-10.0f32..10.0),
+        prop::array::uniform3(-1.0f32..1.0),
+        prop::sample::select(vec![1e-4f32, 0.1, 1.0]),
+        prop::option::of(100.0f32..400.0),
+    )
+        .prop_filter("forward must not be parallel to up", |(_, _, f, ..)| {
+            Vec3::from(*f).normalize_or_zero().cross(Vec3::Y).length() > 1e-2
+        })
+        .prop_map(|(offset, position, forward, near, far)| Camera {
+            position: Vec3::splat(offset) + Vec3::from(position),
+            forward: Vec3::from(forward),
+            near,
+            far,
+            ..Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z)
+        })
+}
+
+/// Boxes within 80 units of the camera, from 1 cm to 10 m across.
+fn boxes_strategy() -> impl Strategy<Value = Vec<(Vec3, Vec3)>> {
+    prop::collection::vec((prop::array::uniform3(-80.0f32..80.0), prop::array::uniform3(0.005f32..5.0)), 1..80)
+        .prop_map(|boxes| boxes.into_iter().map(|(c, e)| (Vec3::from(c), Vec3::from(e))).collect())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    #[test]
+    fn light_views_keep_every_caster_they_need(
+        camera in camera_strategy(),
+        boxes in boxes_strategy(),
+        sun in prop::array::uniform3(-1.0f32..1.0),
+        lamp in prop::array::uniform3(-30.0f32..30.0),
+        lamp_near in prop::sample::select(vec![1e-4f32, 0.05, 1.0]),
+        lamp_far in prop::option::of(20.0f32..90.0),
+    ) {
+        let sun = Vec3::from(sun);
+        prop_assume!(sun.length() > 0.1);
+        let boxes: Vec<(Vec3, Vec3)> = boxes.into_iter().map(|(c, e)| (camera.position + c, e)).collect();
+        let store = store_of(&boxes);
+        let lamp = camera.position + Vec3::from(lamp);
+        let mut lights = cascades(&camera, sun);
+        lights.extend(cube_faces(&camera, lamp, lamp_near, lamp_far));
+        // Plain views: the camera, an orthographic view 100 km across, and the lamp's faces unrestricted.
+        let mut plain = vec![camera.frustum().unwrap(), cascade_frustum(&camera, sun, 0.0, 1.0e5).unwrap()];
+        plain.extend(cube_face_cameras(lamp, lamp_near, lamp_far).map(|face| face.frustum().unwrap()));
+        cull_and_check(&store, &camera, &plain, &lights);
+    }
+}
+
+/// A sun straight overhead, a camera looking along -z from the origin: a caster far above the cascade's box is
+/// kept (its shadow falls into view), a caster behind the camera is dropped (its shadow falls behind it) though
+/// it lies inside the cascade's box, and a plain view of the same box keeps both.
+#[test]
+fn a_cascade_keeps_casters_above_it_and_drops_those_whose_shadows_fall_out_of_view() {
+    let camera = Camera { far: Some(100.0), ..Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z) };
+    let sun = Vec3::NEG_Y;
+    let above = (Vec3::new(0.0, 500.0, -10.0), Vec3::ONE);
+    let behind = (Vec3::new(0.0, 0.0, 6.0), Vec3::splat(0.5));
+    let store = store_of(&[above, behind]);
+    let lights = cascades(&camera, sun);
+    let plain = [cascade_frustum(&camera, sun, 0.0, 20.0).unwrap()];
+    let kept = cull_and_check(&store, &camera, &plain, &lights);
+    let mut visible = Vec::new();
+    cull_views(&store, &[View::new(plain[0]), lights[1].view.clone()], &mut visible);
+    assert!(!visible[0].contains(0) && visible[0].contains(1), "the plain cascade box: {:?}", visible[0]);
+    assert!(visible[1].contains(0) && !visible[1].contains(1), "the caster view: {:?}", visible[1]);
+    assert_eq!(kept[1], 1);
+}
+
+/// Every light view of a camera on real scenes' paths: the built-in city and truck_town (where the shared
+/// scenes are present), a sun's cascades and a lamp's faces near the camera, judged by the exact reference.
+#[test]
+fn scenes_lose_no_caster_along_their_paths() {
+    use cullet::scene::city::{CityParams, CityScene};
+    let city = CityScene::generate(CityParams::with_objects(20_000));
+    let mut scenes = vec![("city", city.scene.clone(), city.flythrough())];
+    if let Some(town) = cullet_test_support::shared_scene("truck_town/town_model.gltf") {
+        scenes.push(("truck_town", town.scene.clone(), town.scene.orbit_path()));
+    }
+    for (name, scene, path) in scenes {
+        let mut store = BoundsStore::default();
+        for (i, object) in scene.objects.iter().enumerate() {
+            let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
+            let local = scene.mesh_bounds[object.mesh as usize];
+            store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
+        }
+        let mut casters = [0, 0];
+        for frame in 0..4 {
+            let camera = path.camera_at(path.duration() * (frame as f32 + 0.5) / 4.0, 16.0 / 9.0);
+            let mut lights = cascades(&camera, Vec3::new(0.35, -1.0, 0.25));
+            lights.extend(cube_faces(&camera, camera.position + Vec3::new(4.0, 6.0, -8.0), 1e-4, Some(60.0)));
+            let kept = cull_and_check(&store, &camera, &[camera.frustum().unwrap()], &lights);
+            casters[0] += kept.iter().sum::<usize>();
+            casters[1] += store.len() * lights.len();
+        }
+        println!("{name}: light views keep {} of {} object-views", casters[0], casters[1]);
+    }
+}
+
+/// A lamp's faces keep the caster between the lamp and the camera's view, and drop one whose shadow is thrown
+/// away from it; bad lights are errors, not silent culls.
+#[test]
+fn cube_faces_keep_casters_between_the_lamp_and_the_view() {
+    let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+    let lamp = Vec3::new(0.0, 10.0, -20.0);
+    let between = (Vec3::new(0.0, 5.0, -20.0), Vec3::ONE);
+    let away = (Vec3::new(0.0, 10.0, -10.0), Vec3::splat(0.5));
+    let store = store_of(&[between, away]);
+    let kept = cull_and_check(&store, &camera, &[], &cube_faces(&camera, lamp, 1e-4, None));
+    assert_eq!(kept.iter().sum::<usize>(), 1, "kept per face: {kept:?}");
+    let receivers = camera.frustum().unwrap();
+    let face = cube_face_cameras(lamp, 0.1, None)[0].frustum().unwrap();
+    for light in [Light::Point { position: Vec3::NAN }, Light::Directional { direction: Vec3::ZERO }] {
+        assert!(View::shadow_casters(face, light, &receivers).is_err());
+    }
+}
