@@ -205,3 +205,62 @@ fn cube_faces_keep_casters_between_the_lamp_and_the_view() {
         assert!(View::shadow_casters(face, light, &receivers).is_err());
     }
 }
+
+/// The pipeline culls the `LightViews` with the camera: the same sets as `cull_views` gives, every object kept
+/// where the frustum stage is off, and a bad light reported while the others still cull.
+#[test]
+fn the_pipeline_culls_light_views_with_the_camera() {
+    use bevy_ecs::prelude::*;
+    use cullet::frustum::LightSource;
+    use cullet::prelude::*;
+    let boxes: Vec<(Vec3, Vec3)> = (0..300)
+        .map(|i| (Vec3::new((i % 20) as f32 * 6.0 - 60.0, (i / 100) as f32 * 4.0, -((i / 20) as f32) * 5.0), Vec3::ONE))
+        .collect();
+    let (mut world, mut schedule) = (World::new(), Schedule::default());
+    cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+    let camera =
+        Camera { far: Some(200.0), ..Camera::looking_at(Vec3::new(0.0, 3.0, 10.0), Vec3::new(0.0, 0.0, -30.0)) };
+    world.insert_resource(camera);
+    for (center, half_extent) in &boxes {
+        let local = LocalBounds { center: Vec3::ZERO, half_extent: *half_extent };
+        world.spawn((local, ObjectTransform(glam::Affine3A::from_translation(*center))));
+    }
+    let sun = LightSource::Sun { direction: Vec3::new(0.3, -1.0, 0.2), splits: vec![0.1, 10.0, 40.0] };
+    let lamp = LightSource::Lamp { position: Vec3::new(5.0, 8.0, -20.0), near: 0.05, range: Some(40.0) };
+    world.insert_resource(LightViews(vec![sun.clone(), lamp.clone()]));
+    schedule.run(&mut world);
+    world.clear_trackers();
+
+    let store = world.resource::<BoundsStore>();
+    let mut expected = Vec::new();
+    let built: Vec<_> = [&sun, &lamp].iter().flat_map(|light| light.light_views(&camera).unwrap()).collect();
+    let views: Vec<View> = std::iter::once(View::new(camera.frustum().unwrap()))
+        .chain(built.iter().map(|light| light.view.clone()))
+        .collect();
+    let counts = cull_views(store, &views, &mut expected);
+    let results = &world.resource::<LightViewsVisible>().0;
+    assert_eq!(results.len(), 2 + 6);
+    assert_eq!(world.resource::<FrustumVisible>().0, expected[0]);
+    for (result, (set, &count)) in results.iter().zip(expected[1..].iter().zip(&counts[1..])) {
+        assert_eq!((&result.visible, result.kept), (set, count));
+    }
+    assert_eq!(results.iter().map(|r| r.light).collect::<Vec<_>>(), [0, 0, 1, 1, 1, 1, 1, 1]);
+    let stats = *world.resource::<CullStats>();
+    assert_eq!((stats.light_views, stats.light_view_casters), (8, counts[1..].iter().sum()));
+    assert!(stats.light_view_casters > 0 && stats.light_view_casters < 8 * boxes.len());
+
+    // A lamp with a bad near distance is reported; the sun still culls.
+    let bad_lamp = LightSource::Lamp { position: Vec3::new(5.0, 8.0, -20.0), near: 0.0, range: Some(40.0) };
+    world.insert_resource(LightViews(vec![sun, bad_lamp]));
+    schedule.run(&mut world);
+    world.clear_trackers();
+    let stats = *world.resource::<CullStats>();
+    assert!(stats.light_view_error.is_some());
+    assert_eq!(world.resource::<LightViewsVisible>().0.len(), 2);
+
+    // With the frustum stage off, every light view keeps everything.
+    world.insert_resource(FrustumSettings { enabled: false });
+    schedule.run(&mut world);
+    world.clear_trackers();
+    assert!(world.resource::<LightViewsVisible>().0.iter().all(|view| view.kept == boxes.len()));
+}

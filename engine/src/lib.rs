@@ -88,14 +88,14 @@ pub use visible::VisibleSet;
 pub mod prelude {
     pub use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
     pub use crate::camera::{Camera, CameraPath};
-    pub use crate::frustum::{DepthConvention, Light, View, cull_views};
+    pub use crate::frustum::{DepthConvention, Light, LightSource, View, cull_views};
     #[cfg(feature = "gpu")]
     pub use crate::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError, GpuGating};
     pub use crate::mesh::{Mesh, MeshRef, ObjectColor};
     pub use crate::occluder::Occluder;
     pub use crate::pipeline::{
-        AdaptiveSettings, CullStage, CullStats, FrustumSettings, FrustumVisible, OcclusionSettings, OcclusionState,
-        PipelineSettings, install,
+        AdaptiveSettings, CullStage, CullStats, FrustumSettings, FrustumVisible, LightViews, LightViewsVisible,
+        OcclusionSettings, OcclusionState, PipelineSettings, install,
     };
     pub use crate::raster::RasterMode;
     pub use crate::visible::VisibleSet;

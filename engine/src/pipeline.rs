@@ -7,7 +7,10 @@ use crate::bounds::{
 };
 use crate::camera::Camera;
 use crate::depth::{DepthBuffer, DepthPyramid, ScreenView};
-use crate::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum, cull_frustum_coherent};
+use crate::frustum::{
+    FrustumError, LightSource, LightView, PlaneCoherence, SimdBackend, View, ViewError, cull_frustum,
+    cull_frustum_coherent, cull_views,
+};
 use crate::occluder::{Occluder, OccluderInstance, select_occluders};
 use crate::occlusion::{retest_occlusion, test_occlusion};
 use crate::raster::{RasterMode, rasterize};
@@ -30,6 +33,32 @@ pub enum CullStage {
 #[derive(Resource, Default, Debug, Clone)]
 pub struct FrustumVisible(pub VisibleSet);
 
+/// Lights whose views the frustum stage culls with the camera, in the same pass over the bounds: a sun's
+/// cascades, a lamp's cube faces ([`LightSource`]). Each light view keeps the shadow casters whose shadows can
+/// fall inside the camera's frustum ([`View::shadow_casters`]); the results are in [`LightViewsVisible`].
+/// Empty by default.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct LightViews(pub Vec<LightSource>);
+
+/// One light view's result of the frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LightViewVisible {
+    /// The light in [`LightViews`] it belongs to.
+    pub light: usize,
+    /// Its view and the matrix to draw its shadow map with.
+    pub view: LightView,
+    /// Store slots of the shadow casters it keeps.
+    pub visible: VisibleSet,
+    /// How many.
+    pub kept: usize,
+}
+
+/// Output of the frustum stage for the [`LightViews`]: every light view of the frame, lights in order.
+/// Where the frustum stage does not cull (turned off, or the camera has no valid frustum), each view keeps
+/// every object; a light whose views cannot be built has none, and [`CullStats::light_view_error`] says why.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct LightViewsVisible(pub Vec<LightViewVisible>);
+
 /// Per-frame counts and timings of each stage.
 #[derive(Resource, Default, Debug, Clone, Copy, PartialEq)]
 pub struct CullStats {
@@ -45,6 +74,12 @@ pub struct CullStats {
     pub frustum_time: Duration,
     /// Set when the camera could not produce a frustum; the stage then keeps every object.
     pub frustum_error: Option<FrustumError>,
+    /// Light views culled with the camera this frame ([`LightViews`]).
+    pub light_views: usize,
+    /// Shadow casters those views keep, summed over the views.
+    pub light_view_casters: usize,
+    /// Set when a light of [`LightViews`] gave no views this frame (it is left out, and reported here).
+    pub light_view_error: Option<ViewError>,
     /// Occluders rasterized this frame.
     pub occluders: usize,
     /// Occluder triangles rasterized this frame (after clipping, front faces only).
@@ -183,6 +218,8 @@ impl BenefitGate {
 pub struct AdaptiveState {
     /// The view of the last frame: camera, store layout generation and settings.
     last_view: Option<(Camera, u64, FrustumSettings, OcclusionSettings)>,
+    /// The light views of the last frame.
+    last_lights: LightViews,
     /// The store generation of the last frame.
     last_generation: u64,
     /// The slots the frustum stage re-tested alone this frame, for the occlusion stage to re-test too.
@@ -313,6 +350,8 @@ pub fn install(world: &mut World, schedule: &mut Schedule, settings: PipelineSet
 fn init_world(world: &mut World) {
     world.init_resource::<BoundsStore>();
     world.init_resource::<FrustumVisible>();
+    world.init_resource::<LightViews>();
+    world.init_resource::<LightViewsVisible>();
     world.init_resource::<CullStats>();
     world.init_resource::<AdaptiveState>();
     world.init_resource::<PlaneCoherence>();
@@ -333,14 +372,18 @@ fn add_systems(schedule: &mut Schedule) {
     ));
 }
 
-/// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`]. A camera that gives no valid
-/// frustum culls nothing (everything stays visible) and reports the error in [`CullStats`]; so does a stage
-/// turned off in [`FrustumSettings`]. With [`AdaptiveSettings::reuse_unchanged`] it keeps last frame's result
-/// when nothing changed, and re-tests only the moved objects when nothing else did ([`CullStats::retested`]).
+/// Culls the store against the [`Camera`]'s frustum into [`FrustumVisible`], and for the [`LightViews`] into
+/// [`LightViewsVisible`], all views in one pass over the bounds. A camera that gives no valid frustum culls
+/// nothing (everything stays visible) and reports the error in [`CullStats`]; so does a stage turned off in
+/// [`FrustumSettings`]. With [`AdaptiveSettings::reuse_unchanged`] it keeps last frame's result when nothing
+/// changed, and, without light views, re-tests only the moved objects when nothing else did
+/// ([`CullStats::retested`]).
 #[allow(clippy::too_many_arguments)]
 pub fn frustum_stage(
     mut store: ResMut<BoundsStore>,
     camera: Res<Camera>,
+    lights: Res<LightViews>,
+    mut light_views: ResMut<LightViewsVisible>,
     settings: Res<FrustumSettings>,
     occlusion: Res<OcclusionSettings>,
     adaptive: Res<AdaptiveSettings>,
@@ -355,17 +398,25 @@ pub fn frustum_stage(
     stats.bounds_time = store.last_sync_time();
     let moved = store.take_moved_slots();
     let view = (*camera, store.layout_generation(), *settings, *occlusion);
-    let same_view = adaptive.reuse_unchanged && gate.last_view == Some(view) && changed_occluders.is_empty();
+    let same_view = adaptive.reuse_unchanged
+        && gate.last_view == Some(view)
+        && gate.last_lights == *lights
+        && changed_occluders.is_empty();
     stats.reused = same_view && gate.last_generation == store.generation();
     (gate.last_view, gate.last_generation, gate.retest, stats.retested) = (Some(view), store.generation(), None, 0);
+    if gate.last_lights != *lights {
+        gate.last_lights.clone_from(&lights);
+    }
     if stats.reused {
         // Last frame's counts stand; only the times are this frame's.
         (stats.frustum_time, stats.raster_time, stats.occlusion_time) =
             (start.elapsed(), Duration::ZERO, Duration::ZERO);
         return;
     }
-    // Only objects without occluders moved: the planes and the occluder buffer stand, re-test just those.
-    if let (true, true, Some(moved), Ok(frustum)) = (same_view, settings.enabled, moved, camera.frustum())
+    // Only objects without occluders moved: the planes and the occluder buffer stand, re-test just those (the
+    // light views have no single-object test: with them, the frame runs in full).
+    if let (true, true, true, Some(moved), Ok(frustum)) =
+        (same_view, settings.enabled, lights.0.is_empty(), moved, camera.frustum())
         && moved.iter().all(|&slot| !store.occluders().contains(slot as usize))
     {
         for &slot in &moved {
@@ -380,10 +431,31 @@ pub fn frustum_stage(
         return;
     }
     stats.objects = store.len();
+    // This frame's light views, until culled with the camera below.
+    let mut unculled = Some(light_views_of(&lights, &camera, &mut stats.light_view_error));
     match camera.frustum() {
         Ok(_) if !settings.enabled => {
             visible.0 = VisibleSet::all(store.len());
             stats.after_frustum = store.len();
+            stats.frustum_error = None;
+        }
+        Ok(frustum) if unculled.as_ref().is_some_and(|lit| !lit.is_empty()) => {
+            let lit = unculled.take().unwrap_or_default();
+            // The camera and the light views in one pass over the bounds.
+            let views: Vec<View> =
+                std::iter::once(View::new(frustum)).chain(lit.iter().map(|(_, light)| light.view.clone())).collect();
+            let mut sets: Vec<VisibleSet> = std::iter::once(std::mem::take(&mut visible.0))
+                .chain(light_views.0.iter_mut().map(|view| std::mem::take(&mut view.visible)))
+                .collect();
+            let counts = cull_views(&store, &views, &mut sets);
+            let mut sets = sets.into_iter();
+            visible.0 = sets.next().unwrap_or_default();
+            stats.after_frustum = counts[0];
+            light_views.0 = lit
+                .into_iter()
+                .zip(sets.zip(&counts[1..]))
+                .map(|((light, view), (visible, &kept))| LightViewVisible { light, view, visible, kept })
+                .collect();
             stats.frustum_error = None;
         }
         Ok(frustum) => {
@@ -401,7 +473,32 @@ pub fn frustum_stage(
             stats.frustum_error = Some(error);
         }
     }
+    if let Some(lit) = unculled {
+        // Not culled this frame (the stage is off): every light view keeps everything.
+        let all =
+            |(light, view)| LightViewVisible { light, view, visible: VisibleSet::all(store.len()), kept: store.len() };
+        light_views.0 = lit.into_iter().map(all).collect();
+    }
+    stats.light_views = light_views.0.len();
+    stats.light_view_casters = light_views.0.iter().map(|view| view.kept).sum();
     stats.frustum_time = start.elapsed();
+}
+
+/// The light views of every light in `lights` for `camera`, each with its light's index; a light whose views
+/// cannot be built is left out and its error kept in `error` (cleared where none fails).
+fn light_views_of(lights: &LightViews, camera: &Camera, error: &mut Option<ViewError>) -> Vec<(usize, LightView)> {
+    *error = None;
+    let mut views = Vec::new();
+    for (index, light) in lights.0.iter().enumerate() {
+        match light.light_views(camera) {
+            Ok(built) => views.extend(built.into_iter().map(|view| (index, view))),
+            Err(why) => {
+                tracing::warn!("light {index} has no views this frame: {why}");
+                *error = Some(why);
+            }
+        }
+    }
+    views
 }
 
 /// Selects occluders among the frustum survivors, rasterizes them into the depth buffer, builds its pyramid and

@@ -11,8 +11,9 @@ mod window;
 
 use clap::Parser;
 use cullet::CameraPath;
+use cullet::frustum::LightSource;
 use cullet::gpu::GpuGating;
-use cullet::pipeline::{AdaptiveSettings, OcclusionSettings};
+use cullet::pipeline::{AdaptiveSettings, LightViews, OcclusionSettings};
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
@@ -71,6 +72,12 @@ struct Args {
     /// Turn the software occlusion stage off.
     #[arg(long)]
     no_occlusion: bool,
+    /// Cull light views with the camera, in the same pass: a sun's four shadow cascades (to 400 m) and the
+    /// six cube faces of a lamp 6 m above the camera path's start (60 m range), each keeping only the shadow
+    /// casters whose shadows can reach the camera's view. Their counts are printed and shown in the HUD, and
+    /// --validate judges them exactly.
+    #[arg(long)]
+    light_views: bool,
     /// Most occluder triangles rasterized per frame.
     #[arg(long, default_value_t = OcclusionSettings::default().triangle_budget)]
     occluder_budget: usize,
@@ -275,6 +282,17 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
     let mut flight = Flight::new(path, aspect, args.headless_frames(), occlusion, |world| {
         scene.spawn(world);
     });
+    if args.light_views {
+        let lamp =
+            flight.path.keys.first().map_or(glam::Vec3::ZERO, |key| key.position) + glam::Vec3::new(0.0, 6.0, 0.0);
+        flight.world.insert_resource(LightViews(vec![
+            LightSource::Sun {
+                direction: glam::Vec3::new(0.35, -1.0, 0.25),
+                splits: vec![0.1, 12.0, 40.0, 120.0, 400.0],
+            },
+            LightSource::Lamp { position: lamp, near: 0.05, range: Some(60.0) },
+        ]));
+    }
     if args.fixed_pipeline {
         flight.world.insert_resource(AdaptiveSettings::fixed());
         flight.world.insert_resource(GpuGating::fixed());

@@ -136,6 +136,16 @@ pub fn print_summary(frames: &[CullStats]) {
         "frustum",
         100.0 * (1.0 - kept / objects.max(1.0))
     );
+    if frames[0].light_views > 0 {
+        let views = frames[0].light_views;
+        let casters = frames.iter().map(|f| f.light_view_casters as f64).sum::<f64>() / n;
+        println!(
+            "{:<10} {:>38} {casters:>12.0} {:>9.1}%   ({views} light views, culled in the frustum's pass)",
+            "lights",
+            "",
+            100.0 * (1.0 - casters / (objects * views as f64).max(1.0))
+        );
+    }
     let triangles = frames.iter().map(|f| f.occluder_triangles as f64).sum::<f64>() / n;
     let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.raster_time)).collect());
     println!(

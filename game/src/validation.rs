@@ -3,6 +3,7 @@
 use bevy_ecs::world::World;
 use cullet::mesh::Mesh;
 use cullet::pipeline::OcclusionSettings;
+use cullet_truth::shadows::light_view_false_negatives;
 use cullet_truth::{FrameMetrics, JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 
 /// The judge of a run, and what it found so far.
@@ -14,6 +15,9 @@ pub struct Validation {
     pub last: Option<FrameMetrics>,
     /// False negatives in frames whose settings promise none (conservative occlusion, or none).
     pub conservative_false_negatives: usize,
+    /// Shadow casters the light views culled though they needed them, over all judged frames (the light views
+    /// are always conservative).
+    pub light_view_false_negatives: usize,
 }
 
 impl Validation {
@@ -27,6 +31,7 @@ impl Validation {
             total: PathMetrics::default(),
             last: None,
             conservative_false_negatives: 0,
+            light_view_false_negatives: 0,
         }
     }
 
@@ -43,6 +48,7 @@ impl Validation {
         if world.resource::<OcclusionSettings>().is_conservative_for((reference.width, reference.height)) {
             self.conservative_false_negatives += metrics.false_negatives.len();
         }
+        self.light_view_false_negatives += light_view_false_negatives(world).iter().sum::<usize>();
         self.last.insert(metrics)
     }
 
@@ -51,13 +57,14 @@ impl Validation {
         let total = &self.total;
         format!(
             "validation over {} frames: {} false negatives ({} frames), culling efficiency frustum {:.1}%, \
-             + occlusion {:.1}%, image error {} pixels in all",
+             + occlusion {:.1}%, image error {} pixels in all; light views: {} shadow casters culled that were needed",
             total.frames,
             total.false_negatives,
             total.frames_with_false_negatives,
             100.0 * total.efficiency(0),
             100.0 * total.efficiency(1),
-            total.image_error_pixels
+            total.image_error_pixels,
+            self.light_view_false_negatives
         )
     }
 
@@ -65,6 +72,9 @@ impl Validation {
     pub fn verdict(&self) -> Result<(), String> {
         if self.conservative_false_negatives > 0 {
             return Err("validation failed: a conservative configuration culled visible objects".into());
+        }
+        if self.light_view_false_negatives > 0 {
+            return Err("validation failed: a light view culled shadow casters it needed".into());
         }
         Ok(())
     }

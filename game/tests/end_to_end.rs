@@ -97,9 +97,13 @@ fn built_in_city_validates_with_zero_false_negatives() {
 
 #[test]
 fn city_far_from_the_origin_validates_with_zero_false_negatives() {
-    let (text, rows) = run_validated("offset", &["--scene", "city:2000", "--world-offset", "1e7,0,-1e7"], 12);
+    let args = ["--scene", "city:2000", "--world-offset", "1e7,0,-1e7", "--light-views"];
+    let (text, rows) = run_validated("offset", &args, 12);
     check("offset", &text, &rows);
     assert!(text.contains("moved by"), "{text}");
+    // The light views ran with the camera and lost no shadow caster.
+    assert!(text.contains("(10 light views, culled in the frustum's pass)"), "{text}");
+    assert!(text.contains("light views: 0 shadow casters culled that were needed"), "{text}");
 }
 
 #[test]

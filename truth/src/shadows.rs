@@ -9,8 +9,12 @@
 //! in f64: by one plane that the whole sweep lies outside of, by a point of the box inside `V ∩ C`, and
 //! otherwise by enumerating the vertices of the feasible region. Nothing is sampled.
 
-use cullet::DepthConvention;
+use bevy_ecs::world::World;
+use cullet::frustum::LightSource;
+use cullet::pipeline::{LightViews, LightViewsVisible};
+use cullet::{BoundsStore, Camera, DepthConvention};
 use glam::{DMat4, DVec3, DVec4};
+use rayon::prelude::*;
 
 /// A light, in the frame of the half-spaces it is tested with.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -93,6 +97,41 @@ pub fn caster_needed(view: &[DVec4], receivers: &[DVec4], light: ExactLight, min
         }
     }
     has_vertex(&constraints)
+}
+
+/// For each light view the frame culled ([`LightViewsVisible`] of `world`, which has just run the culling
+/// schedule with [`LightViews`]): how many stored objects it culled that it needs as casters, decided exactly.
+/// Every count is 0 for a conservative engine.
+pub fn light_view_false_negatives(world: &World) -> Vec<usize> {
+    let (Some(results), Some(lights)) = (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>())
+    else {
+        return Vec::new();
+    };
+    let (store, camera) = (world.resource::<BoundsStore>(), world.resource::<Camera>());
+    let origin = camera.position.as_dvec3();
+    let receivers = crate::stress::exact_half_spaces(camera);
+    results
+        .0
+        .iter()
+        .map(|result| {
+            let own = half_spaces(result.view.clip_from_relative, result.view.depth);
+            let view = moved(&own, result.view.origin.as_dvec3(), origin);
+            let light = match &lights.0[result.light] {
+                LightSource::Sun { direction, .. } => ExactLight::Directional(direction.as_dvec3()),
+                LightSource::Lamp { position, .. } => ExactLight::Point(position.as_dvec3() - origin),
+            };
+            (0..store.len())
+                .into_par_iter()
+                .filter(|&slot| !result.visible.contains(slot))
+                .filter(|&slot| {
+                    let bounds = store.get(slot).expect("slots below the store's length are stored");
+                    let center = bounds.center.as_dvec3() - origin;
+                    let extent = bounds.half_extent.as_dvec3();
+                    caster_needed(&view, &receivers, light, center - extent, center + extent)
+                })
+                .count()
+        })
+        .collect()
 }
 
 /// Whether the bounded region `a · z + b >= 0` (every constraint) has a point: it has one exactly when it has a

@@ -34,7 +34,8 @@ use thiserror::Error;
 
 mod views;
 pub use views::{
-    Light, View, ViewError, cascade_clip_from_relative, cascade_frustum, cube_face_cameras, cull_views, cull_views_with,
+    Light, LightSource, LightView, View, ViewError, cascade_clip_from_relative, cascade_frustum, cube_face_cameras,
+    cull_views, cull_views_with,
 };
 
 /// Relative slack of the plane test, a bound on the rounding error of the camera-relative `f32` arithmetic

@@ -178,6 +178,82 @@ pub fn cull_views_with(
         .collect()
 }
 
+/// A light whose views follow the camera each frame: what the pipeline's [`crate::pipeline::LightViews`] lists.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LightSource {
+    /// A sun's shadow cascades: one light view ([`cascade_frustum`]) per consecutive pair of `splits`, view
+    /// distances from the camera in increasing order.
+    Sun {
+        /// The way its light travels (need not be normalized).
+        direction: Vec3,
+        /// Cascade boundaries, e.g. `[0.1, 12.0, 40.0, 120.0, 400.0]` for four cascades.
+        splits: Vec<f32>,
+    },
+    /// A point light's six cube faces ([`cube_face_cameras`]).
+    Lamp {
+        /// World position.
+        position: Vec3,
+        /// Near distance of its faces, > 0.
+        near: f32,
+        /// Far distance of its faces, or `None` for infinite.
+        range: Option<f32>,
+    },
+}
+
+/// One light view of a frame: what it culls with, and the matrix its shadow map is drawn with.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LightView {
+    /// The caster view ([`View::shadow_casters`]) for the frame's camera.
+    pub view: View,
+    /// Clip from `origin`-relative world space, in f64.
+    pub clip_from_relative: DMat4,
+    /// The world point `clip_from_relative` is relative to.
+    pub origin: Vec3,
+    /// The clip-space depth convention of `clip_from_relative`.
+    pub depth: DepthConvention,
+}
+
+impl LightSource {
+    /// Its light views for `camera` (the receivers): a sun's cascades in order, or a lamp's faces in
+    /// [`cube_face_cameras`]' order.
+    ///
+    /// # Errors
+    /// [`ViewError`] for a light or camera that gives no valid frustum (splits not increasing from 0 or more,
+    /// a direction or position that is not finite, a near distance that is not positive).
+    pub fn light_views(&self, camera: &Camera) -> Result<Vec<LightView>, ViewError> {
+        let receivers = camera.frustum()?;
+        match self {
+            Self::Sun { direction, splits } => splits
+                .windows(2)
+                .map(|split| {
+                    let light = Light::Directional { direction: *direction };
+                    let matrix = cascade_clip_from_relative(camera, *direction, split[0], split[1])?;
+                    let frustum =
+                        Frustum::from_clip_from_relative_f64(camera.position, matrix, DepthConvention::Standard)?;
+                    Ok(LightView {
+                        view: View::shadow_casters(frustum, light, &receivers)?,
+                        clip_from_relative: matrix,
+                        origin: camera.position,
+                        depth: DepthConvention::Standard,
+                    })
+                })
+                .collect(),
+            Self::Lamp { position, near, range } => cube_face_cameras(*position, *near, *range)
+                .iter()
+                .map(|face| {
+                    let light = Light::Point { position: *position };
+                    Ok(LightView {
+                        view: View::shadow_casters(face.frustum()?, light, &receivers)?,
+                        clip_from_relative: face.clip_from_relative_f64(),
+                        origin: face.position,
+                        depth: face.depth,
+                    })
+                })
+                .collect(),
+        }
+    }
+}
+
 /// The frustum of a directional light's cascade: an orthographic box looking along `direction` that holds the
 /// part of `camera`'s frustum between view distances `near` and `far` (its bounding sphere, so the box does
 /// not change size as the camera turns). Planes are relative to the camera's position, standard depth.

@@ -323,6 +323,10 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         stage_row(ui, BOUNDS_COLOUR, "bounds", updated, us(stats.bounds_time));
         let kept = format!("{} of {}", stats.after_frustum, stats.objects);
         stage_row(ui, FRUSTUM_COLOUR, "frustum", kept, us(stats.frustum_time));
+        if stats.light_views > 0 {
+            let casters = format!("{} casters in {} views", stats.light_view_casters, stats.light_views);
+            stage_row(ui, FRUSTUM_COLOUR, "light views", casters, "in the frustum's".into());
+        }
         let occluders = format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles);
         stage_row(ui, RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time));
         let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
