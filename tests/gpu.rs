@@ -428,3 +428,51 @@ fn an_out_of_range_slot_is_an_error() {
     let (output, _, _) = setup.run(&context, camera, &settings);
     assert!(output.counters.draws > 0);
 }
+
+/// The sun cascades' culled casters feed real shadow maps: with `LightViews` the draw darkens some pixels and
+/// brightens none, every pixel shows the same object at the same depth, and the culled image still equals the
+/// unculled one (both shaded with the same maps).
+#[test]
+fn sun_cascades_draw_shadows_from_their_culled_casters() {
+    use cullet::frustum::LightSource;
+    use cullet::pipeline::LightViews;
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 5000);
+    let camera = cameras(setup.half)[0].1;
+    let frame = |setup: &mut Setup| {
+        setup.flight.world.insert_resource(camera);
+        setup.flight.schedule.run(&mut setup.flight.world);
+        setup.flight.world.clear_trackers();
+        setup.culler.run_world(&context, &mut setup.flight.world, &GpuCullSettings::default()).unwrap();
+        setup.culler.read_image(&context).unwrap()
+    };
+    let plain = frame(&mut setup);
+    let sun = LightSource::Sun { direction: Vec3::new(0.35, -1.0, 0.25), splits: vec![0.1, 12.0, 40.0, 120.0, 400.0] };
+    setup.flight.world.insert_resource(LightViews(vec![sun]));
+    let shadowed = frame(&mut setup);
+    assert_eq!(setup.culler.read_image(&context).unwrap().object, plain.object);
+    assert_eq!(shadowed.depth, plain.depth, "shadows moved a surface");
+    let luma = |c: [u8; 4]| u32::from(c[0]) + u32::from(c[1]) + u32::from(c[2]);
+    let darker = (0..plain.color.len()).filter(|&i| luma(shadowed.color[i]) < luma(plain.color[i])).count();
+    let brighter = (0..plain.color.len()).filter(|&i| luma(shadowed.color[i]) > luma(plain.color[i])).count();
+    println!("shadows darkened {darker} of {} pixels", plain.color.len());
+    assert!(darker > plain.color.len() / 100, "no shadow drawn: {darker} pixels darker");
+    assert_eq!(brighter, 0, "a shadow brightened {brighter} pixels");
+    let (differing, _) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+    assert_eq!(differing, 0, "culling changed {differing} shaded pixels");
+
+    // Every object as a caster of every cascade: the image must not change, as the casters the light views
+    // dropped cannot shadow anything the camera sees.
+    setup.flight.world.insert_resource(camera);
+    setup.flight.schedule.run(&mut setup.flight.world);
+    setup.flight.world.clear_trackers();
+    let objects = setup.flight.world.resource::<cullet::BoundsStore>().len();
+    for view in &mut setup.flight.world.resource_mut::<cullet::pipeline::LightViewsVisible>().0 {
+        view.visible = cullet::VisibleSet::all(objects);
+    }
+    setup.culler.run_world(&context, &mut setup.flight.world, &GpuCullSettings::default()).unwrap();
+    let all_casters = setup.culler.read_image(&context).unwrap();
+    let changed = (0..plain.color.len()).filter(|&i| all_casters.color[i] != shadowed.color[i]).count();
+    println!("all objects as casters changed {changed} pixels");
+    assert_eq!(changed, 0, "casters the light views dropped shadow {changed} pixels");
+}

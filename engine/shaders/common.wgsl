@@ -67,6 +67,16 @@ struct View {
     _pad2: u32,
 }
 
+// The draw's shadows: each sun cascade's clip space (x, y in -1..1, z in 0..1 from the sun) from the draw
+// camera's relative world space, nearest cascade first; `count` 0 draws without shadows.
+struct Shadows {
+    cascade_from_relative: array<mat4x4<f32>, MAX_CASCADES>,
+    count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
 // One indexed indirect draw, as wgpu's `DrawIndexedIndirectArgs`.
 struct DrawArgs {
     index_count: u32,

@@ -197,7 +197,7 @@ impl DrawPass {
     }
 
     /// Records the draw of `source` into `targets`, clearing them first if `clear` (else drawing over them),
-    /// with `timestamps` at the pass's start and end if given.
+    /// shaded with `shadows`, with `timestamps` at the pass's start and end if given.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -208,6 +208,7 @@ impl DrawPass {
         view: &wgpu::Buffer,
         instances: &wgpu::Buffer,
         positions: &wgpu::Buffer,
+        shadows: &super::shadow::ShadowMaps,
         source: DrawSource<'_>,
         clear: bool,
         timestamps: Option<wgpu::RenderPassTimestampWrites<'_>>,
@@ -215,7 +216,18 @@ impl DrawPass {
         let reversed = depth == DepthConvention::Reversed;
         let load = |value| if clear { wgpu::LoadOp::Clear(value) } else { wgpu::LoadOp::Load };
         let pipeline = &self.pipelines[usize::from(!reversed)];
-        let bind_group = context.bind_buffers("draw", &pipeline.get_bind_group_layout(0), &[(0, view), (1, instances)]);
+        let [uniform, maps, sampler] = shadows.bind_entries();
+        let bind_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("draw"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: view.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: instances.as_entire_binding() },
+                uniform,
+                maps,
+                sampler,
+            ],
+        });
         let color_view = targets.color.create_view(&Default::default());
         let object_view = targets.object.create_view(&Default::default());
         let depth_view = targets.depth.create_view(&Default::default());

@@ -12,14 +12,17 @@ use super::interface::{
 };
 use super::output::{COUNTER_BYTES, GpuCounters, GpuFrameOutput, PassTimer, TIMED_PASSES};
 use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
+use super::shadow::{Cascade, ShadowMaps};
 use super::triangle_cull::{TriangleCullBuffers, TriangleCullPass};
 use super::{GpuContext, GpuError};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::DepthBuffer;
-use crate::frustum::DepthConvention;
+use crate::frustum::{DepthConvention, LightSource};
 use crate::mesh::Mesh;
-use crate::pipeline::{BenefitGate, OcclusionSettings, OcclusionState};
+use crate::pipeline::{
+    BenefitGate, LightViewVisible, LightViews, LightViewsVisible, OcclusionSettings, OcclusionState,
+};
 use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
 use glam::Vec4;
@@ -108,6 +111,8 @@ pub struct GpuCuller {
     cluster_pass: ClusterCullPass,
     triangle_pass: TriangleCullPass,
     draw: DrawPass,
+    /// The sun cascades' shadow maps the draw shades with (none until a world with light views runs).
+    shadows: ShadowMaps,
     targets: RenderTargets,
     view: wgpu::Buffer,
     /// The view the draw pass renders from: the culling view, or another camera's (see [`GpuCuller::run_from`]).
@@ -202,6 +207,7 @@ impl GpuCuller {
             cluster_pass: ClusterCullPass::new(context),
             triangle_pass: TriangleCullPass::new(context),
             draw: DrawPass::new(context),
+            shadows: ShadowMaps::new(context),
             targets: RenderTargets::new(context, width, height),
             view: view_buffer(context, "view"),
             draw_view: view_buffer(context, "draw view"),
@@ -646,10 +652,40 @@ impl GpuCuller {
         }
         self.sync_instances(context, world, |_, instance| instance);
         self.recolored = false;
+        self.draw_shadow_maps(context, world, draw_camera.position);
         let state = world.resource::<OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
         self.run_from(context, &camera, draw_camera, &visible, state.depth(), settings)
+    }
+
+    /// Draws the shadow maps of the world's sun cascades ([`LightViewsVisible`] of its [`LightViews`] suns,
+    /// nearest first), each from the casters its light view kept, for a draw from `draw_origin`; without sun
+    /// cascades the draw shades without shadows.
+    fn draw_shadow_maps(&mut self, context: &GpuContext, world: &World, draw_origin: glam::Vec3) {
+        let (Some(results), Some(lights)) =
+            (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>())
+        else {
+            return;
+        };
+        let suns: Vec<(&LightViewVisible, Vec<u32>)> = results
+            .0
+            .iter()
+            .filter(|result| matches!(lights.0.get(result.light), Some(LightSource::Sun { .. })))
+            .map(|result| (result, result.visible.iter().map(|slot| slot as u32).collect()))
+            .collect();
+        if suns.is_empty() && self.shadows.cascades() == 0 {
+            return;
+        }
+        let cascades: Vec<Cascade<'_>> = suns
+            .iter()
+            .map(|(result, casters)| Cascade {
+                clip_from_relative: result.view.clip_from_relative,
+                origin: result.view.origin,
+                casters,
+            })
+            .collect();
+        self.shadows.draw(context, &self.scene, &cascades, draw_origin);
     }
 
     /// Copies to the GPU the instances of the store slots written since the last call (every slot after a
@@ -743,6 +779,7 @@ impl GpuCuller {
             &self.draw_view,
             &scene.instances,
             &scene.positions,
+            &self.shadows,
             source,
             clear,
             timestamps,

@@ -90,6 +90,22 @@ pub const TRIANGLE_WORKGROUP_SIZE: u32 = 128;
 /// Most workgroups along x of one dispatch; larger counts spread over y (the shaders' `item_index`).
 pub const MAX_WORKGROUPS_X: u32 = 65535;
 
+/// Most sun cascades the draw shades with (`MAX_CASCADES` in WGSL).
+pub const MAX_CASCADES: usize = 4;
+
+/// The draw's shadows (`Shadows` in `common.wgsl`): where each cascade's shadow map lies.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct GpuShadows {
+    /// Per cascade, columns: its clip space (x and y in -1..1, z in 0..1 from the sun) from the draw camera's
+    /// relative world space.
+    pub cascade_from_relative: [[[f32; 4]; 4]; MAX_CASCADES],
+    /// Cascades in use, nearest first; 0 draws without shadows.
+    pub count: u32,
+    /// Padding.
+    pub _pad: [u32; 3],
+}
+
 /// The per-frame uniform every pass reads (`View` in `common.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
@@ -148,6 +164,7 @@ pub fn wgsl_prelude() -> String {
         ("VIEW_DRAW_CLUSTERS", VIEW_DRAW_CLUSTERS),
         ("INSTANCE_CONE_SAFE", INSTANCE_CONE_SAFE),
         ("MAX_HZB_LEVELS", MAX_HZB_LEVELS as u32),
+        ("MAX_CASCADES", MAX_CASCADES as u32),
         ("CLUSTERS_IN", CLUSTERS_IN),
         ("CLUSTERS_FRUSTUM", CLUSTERS_FRUSTUM),
         ("CLUSTERS_CONE", CLUSTERS_CONE),
@@ -207,6 +224,7 @@ mod tests {
             ("cluster_cull", include_str!("../../shaders/cluster_cull.wgsl")),
             ("prepare_triangles", include_str!("../../shaders/prepare_triangles.wgsl")),
             ("triangle_cull", include_str!("../../shaders/triangle_cull.wgsl")),
+            ("shadow", include_str!("../../shaders/shadow.wgsl")),
             ("draw", include_str!("../../shaders/draw.wgsl")),
         ]
         .into_iter()
@@ -253,7 +271,7 @@ mod tests {
         // Each WGSL member against the Rust field (or array element) at the same offset.
         // A struct's name and size, and its members with their offsets.
         type Layout = (&'static str, usize, Vec<(&'static str, usize)>);
-        let expected: [Layout; 6] = [
+        let expected: [Layout; 7] = [
             (
                 "View",
                 size_of::<GpuView>(),
@@ -330,6 +348,17 @@ mod tests {
                     ("first_index", offset_of!(DrawArgs, first_index)),
                     ("base_vertex", offset_of!(DrawArgs, base_vertex)),
                     ("first_instance", offset_of!(DrawArgs, first_instance)),
+                ],
+            ),
+            (
+                "Shadows",
+                size_of::<GpuShadows>(),
+                vec![
+                    ("cascade_from_relative", offset_of!(GpuShadows, cascade_from_relative)),
+                    ("count", offset_of!(GpuShadows, count)),
+                    ("_pad0", offset_of!(GpuShadows, _pad)),
+                    ("_pad1", offset_of!(GpuShadows, _pad) + 4),
+                    ("_pad2", offset_of!(GpuShadows, _pad) + 8),
                 ],
             ),
         ];

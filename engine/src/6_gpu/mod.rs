@@ -44,6 +44,7 @@ pub mod hzb;
 pub mod interface;
 pub mod output;
 pub mod scene;
+pub mod shadow;
 pub mod triangle_cull;
 
 pub use draw::DrawBuffers;
