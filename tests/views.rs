@@ -169,12 +169,7 @@ fn scenes_lose_no_caster_along_their_paths() {
         scenes.push(("truck_town", town.scene.clone(), town.scene.orbit_path()));
     }
     for (name, scene, path) in scenes {
-        let mut store = BoundsStore::default();
-        for (i, object) in scene.objects.iter().enumerate() {
-            let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
-            let local = scene.mesh_bounds[object.mesh as usize];
-            store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
-        }
+        let store = store_of_scene(&scene);
         let mut casters = [0, 0];
         for frame in 0..4 {
             let camera = path.camera_at(path.duration() * (frame as f32 + 0.5) / 4.0, 16.0 / 9.0);
@@ -204,6 +199,32 @@ fn cube_faces_keep_casters_between_the_lamp_and_the_view() {
     for light in [Light::Point { position: Vec3::NAN }, Light::Directional { direction: Vec3::ZERO }] {
         assert!(View::shadow_casters(face, light, &receivers).is_err());
     }
+}
+
+/// The stress suite's scenes and cameras (world offsets up to 1e8, near planes down to 1e-5, fields of view
+/// from 0.5 to 179.5 degrees, every depth convention), each with a sun's cascades and a lamp's faces scaled to
+/// the scene.
+#[test]
+fn the_stress_cases_lose_no_caster() {
+    for case in cullet_truth::stress::cases() {
+        let store = store_of_scene(&case.scene);
+        let camera = case.camera;
+        let mut lights = cascades(&camera, Vec3::new(0.35, -1.0, 0.25));
+        let lamp = camera.position + camera.forward.normalize() * 5.0 + Vec3::Y * 3.0;
+        lights.extend(cube_faces(&camera, lamp, 1e-4, None));
+        cull_and_check(&store, &camera, &[camera.frustum().unwrap()], &lights);
+    }
+}
+
+/// A store of `scene`'s objects, entity `i + 1` for object `i`.
+fn store_of_scene(scene: &cullet::scene::Scene) -> BoundsStore {
+    let mut store = BoundsStore::default();
+    for (i, object) in scene.objects.iter().enumerate() {
+        let entity = bevy_ecs::entity::Entity::from_raw_u32(i as u32 + 1).unwrap();
+        let local = scene.mesh_bounds[object.mesh as usize];
+        store.update(entity, &local, &cullet::ObjectTransform(object.transform)).unwrap();
+    }
+    store
 }
 
 /// The pipeline culls the `LightViews` with the camera: the same sets as `cull_views` gives, every object kept
