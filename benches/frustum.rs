@@ -14,6 +14,10 @@ use rayon::prelude::*;
 use std::hint::black_box;
 use std::time::Duration;
 
+#[path = "bevy_frustum/mod.rs"]
+mod bevy_frustum;
+use bevy_frustum::cull_bevy;
+
 const SIZES: [usize; 3] = [10_000, 100_000, 1_000_000];
 
 /// One city: Cullet's store, and the same objects as Bevy keeps them (local AABB plus world transform).
@@ -71,27 +75,6 @@ fn wide_sum(values: &[f32]) -> f32 {
         acc
     });
     lanes.iter().sum()
-}
-
-/// Bevy's test over all objects, parallel the same way as Cullet's (64 objects a word, 4096 a task).
-fn cull_bevy(objects: &[(Aabb, bevy_math::Affine3A)], frustum: &BevyFrustum, visible: &mut VisibleSet) -> usize {
-    visible.reset(objects.len());
-    visible
-        .words_mut()
-        .par_chunks_mut(64)
-        .zip(objects.par_chunks(64 * 64))
-        .map(|(words, objects)| {
-            let mut count = 0;
-            for (word, objects) in words.iter_mut().zip(objects.chunks(64)) {
-                *word = 0;
-                for (lane, (aabb, transform)) in objects.iter().enumerate() {
-                    *word |= (frustum.intersects_obb(aabb, transform, true, true) as u64) << lane;
-                }
-                count += word.count_ones() as usize;
-            }
-            count
-        })
-        .sum()
 }
 
 fn frustum(c: &mut Criterion) {

@@ -12,9 +12,12 @@ use cullet::frustum::{Light, View, cascade_clip_from_relative, cascade_frustum, 
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Camera, VisibleSet};
 use glam::{DMat4, Vec3};
-use rayon::prelude::*;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
+
+#[path = "bevy_frustum/mod.rs"]
+mod bevy_frustum;
+use bevy_frustum::cull_bevy;
 
 /// Cascade splits, in view distance (m).
 const SPLITS: [f32; 5] = [0.1, 12.0, 40.0, 120.0, 400.0];
@@ -64,26 +67,6 @@ fn frame_views(camera: &Camera) -> FrameViews {
         views.bevy.push(bevy_frustum(face.clip_from_relative_f64() * to_face));
     }
     views
-}
-
-/// Bevy's test over all objects for one view, parallel like Cullet's (64 objects a word, 4096 a task).
-fn cull_bevy(objects: &[(Aabb, bevy_math::Affine3A)], frustum: &BevyFrustum, visible: &mut VisibleSet) -> usize {
-    visible.reset(objects.len());
-    visible
-        .words_mut()
-        .par_chunks_mut(64)
-        .zip(objects.par_chunks(64 * 64))
-        .map(|(words, objects)| {
-            let mut count = 0;
-            for (word, objects) in words.iter_mut().zip(objects.chunks(64)) {
-                for (lane, (aabb, transform)) in objects.iter().enumerate() {
-                    *word |= (frustum.intersects_obb(aabb, transform, true, true) as u64) << lane;
-                }
-                count += word.count_ones() as usize;
-            }
-            count
-        })
-        .sum()
 }
 
 /// The fastest of [`PASSES`] runs of `frame` over every frame, in ms per frame.

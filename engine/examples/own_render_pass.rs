@@ -62,11 +62,8 @@ fn main() -> Result<(), GpuError> {
             module: &module,
             entry_point: Some("vs"),
             compilation_options: Default::default(),
-            buffers: &[Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-            })],
+            // `positions`: three f32 a vertex, at location 0.
+            buffers: &[Some(cullet::gpu::draw::POSITION_LAYOUT)],
         },
         primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
         // The camera's default depth is reversed: nearer is greater, cleared to 0.

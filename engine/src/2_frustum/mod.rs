@@ -255,20 +255,7 @@ impl Frustum {
     /// Written lane-parallel so the compiler vectorizes it (8 lanes where built with AVX2).
     #[inline(always)]
     fn classify_groups(&self, groups: &[GroupBounds]) -> (u8, u8) {
-        let mut center = [[0f32; SIMD_LANES]; 3];
-        let mut extent = [[0f32; SIMD_LANES]; 3];
-        let mut empty = 0u8;
-        for (lane, group) in groups.iter().enumerate().take(SIMD_LANES) {
-            // Centre and extent rounded outward: their f32 error is below an ulp of the corners' magnitude.
-            let corner_magnitude = group.min.abs().max(group.max.abs());
-            let c = (group.min + group.max) * 0.5 - self.origin;
-            let e = (group.max - group.min) * 0.5 + corner_magnitude * f32::EPSILON;
-            for axis in 0..3 {
-                center[axis][lane] = c[axis];
-                extent[axis][lane] = e[axis];
-            }
-            empty |= (!group.min.cmple(group.max).all() as u8) << lane;
-        }
+        let GroupLanes { center, extent, empty, valid } = GroupLanes::of(groups, self.origin);
         let mut magnitude = [0f32; SIMD_LANES];
         for lane in 0..SIMD_LANES {
             magnitude[lane] = center[0][lane].abs()
@@ -290,7 +277,6 @@ impl Frustum {
                 crossing[lane] |= dist - reach - slack < 0.0;
             }
         }
-        let valid = if groups.len() >= SIMD_LANES { 0xFF } else { (1u8 << groups.len()) - 1 };
         let bits = |flags: [bool; SIMD_LANES]| flags.iter().enumerate().fold(0u8, |b, (i, &f)| b | (f as u8) << i);
         let outside = (bits(outside) | empty) & valid;
         (outside, !bits(crossing) & !outside & valid)
@@ -335,6 +321,38 @@ impl Frustum {
             word |= (visible as u64) << lane;
         }
         word
+    }
+}
+
+/// Up to 8 group boxes in SIMD lanes, as every view's group test takes them.
+struct GroupLanes {
+    /// Centres relative to the view's origin, per axis and lane.
+    center: [[f32; SIMD_LANES]; 3],
+    /// Half extents, per axis and lane.
+    extent: [[f32; SIMD_LANES]; 3],
+    /// Lanes holding an empty group (no member).
+    empty: u8,
+    /// Lanes holding a group at all.
+    valid: u8,
+}
+
+impl GroupLanes {
+    /// The first 8 of `groups`, relative to `origin`. Centre and extent are rounded outward: their f32 error is
+    /// below an ulp of the corners' magnitude.
+    #[inline(always)]
+    fn of(groups: &[GroupBounds], origin: Vec3) -> Self {
+        let mut lanes = Self { center: [[0.0; SIMD_LANES]; 3], extent: [[0.0; SIMD_LANES]; 3], empty: 0, valid: 0 };
+        for (lane, group) in groups.iter().enumerate().take(SIMD_LANES) {
+            let corner_magnitude = group.min.abs().max(group.max.abs());
+            let c = (group.min + group.max) * 0.5 - origin;
+            let e = (group.max - group.min) * 0.5 + corner_magnitude * f32::EPSILON;
+            for axis in 0..3 {
+                (lanes.center[axis][lane], lanes.extent[axis][lane]) = (c[axis], e[axis]);
+            }
+            lanes.empty |= (!group.min.cmple(group.max).all() as u8) << lane;
+            lanes.valid |= 1 << lane;
+        }
+        lanes
     }
 }
 

@@ -23,7 +23,8 @@
 //! a box whose sweep misses `V ∩ C` near an edge, never the reverse).
 
 use super::{
-    Frustum, FrustumError, GroupClass, MAX_VIEWS_PER_PASS, PLANE_TEST_TOLERANCE, Plane, SimdBackend, cull_pass,
+    Frustum, FrustumError, GroupClass, GroupLanes, MAX_VIEWS_PER_PASS, PLANE_TEST_TOLERANCE, Plane, SimdBackend,
+    cull_pass,
 };
 use crate::bounds::{BoundsStore, GroupBounds, SIMD_LANES};
 use crate::camera::Camera;
@@ -484,7 +485,7 @@ impl CasterVolume {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn classify_groups_avx2(&self, groups: &[GroupBounds]) -> (u8, u8) {
-        let (center, extent, empty, valid) = self.group_lanes(groups);
+        let GroupLanes { center, extent, empty, valid } = GroupLanes::of(groups, self.origin);
         let register = |lanes: &[f32; SIMD_LANES]| avx2::load(lanes);
         let (outside, inside) =
             avx2::test_lanes(self, center.each_ref().map(register), extent.each_ref().map(register));
@@ -493,32 +494,10 @@ impl CasterVolume {
 
     /// Up to 8 groups: the bits of those outside and of those inside, as `Frustum::classify_groups` gives them.
     fn classify_groups_portable(&self, groups: &[GroupBounds]) -> (u8, u8) {
-        let (center, extent, empty, valid) = self.group_lanes(groups);
+        let GroupLanes { center, extent, empty, valid } = GroupLanes::of(groups, self.origin);
         let (outside, inside) = self.test_lanes(&center, &extent);
         // An empty group (or a lane past the groups) has no member to keep.
         ((outside | empty) & valid, inside & !empty & valid)
-    }
-
-    /// Up to 8 groups in lanes: centres relative to the origin and extents, both rounded outward, the bits of
-    /// the empty groups and of the lanes that hold a group.
-    #[allow(clippy::type_complexity)]
-    #[inline(always)]
-    fn group_lanes(&self, groups: &[GroupBounds]) -> ([[f32; SIMD_LANES]; 3], [[f32; SIMD_LANES]; 3], u8, u8) {
-        let mut center = [[0f32; SIMD_LANES]; 3];
-        let mut extent = [[0f32; SIMD_LANES]; 3];
-        let mut empty = 0u8;
-        for (lane, group) in groups.iter().enumerate().take(SIMD_LANES) {
-            // Centre and extent rounded outward, as `Frustum::classify_groups` does.
-            let corner_magnitude = group.min.abs().max(group.max.abs());
-            let c = (group.min + group.max) * 0.5 - self.origin;
-            let e = (group.max - group.min) * 0.5 + corner_magnitude * f32::EPSILON;
-            for axis in 0..3 {
-                (center[axis][lane], extent[axis][lane]) = (c[axis], e[axis]);
-            }
-            empty |= (!group.min.cmple(group.max).all() as u8) << lane;
-        }
-        let valid = if groups.len() >= SIMD_LANES { u8::MAX } else { (1u8 << groups.len()) - 1 };
-        (center, extent, empty, valid)
     }
 
     fn cull_word(&self, store: &BoundsStore, base: usize, backend: SimdBackend) -> u64 {

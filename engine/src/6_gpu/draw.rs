@@ -12,6 +12,14 @@ const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 /// Object-ID target format: the instance (store slot) per pixel.
 const OBJECT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// The layout of the vertex buffer every draw of the scene reads ([`super::scene::GpuScene::positions`],
+/// [`DrawBuffers::positions`]): three `f32` a vertex, at location 0.
+pub const POSITION_LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferLayout {
+    array_stride: 12,
+    step_mode: wgpu::VertexStepMode::Vertex,
+    attributes: &[wgpu::VertexAttribute { format: wgpu::VertexFormat::Float32x3, offset: 0, shader_location: 0 }],
+};
+
 /// Colour of pixels nothing covers.
 const SKY: wgpu::Color = wgpu::Color { r: 0.55, g: 0.7, b: 0.9, a: 1.0 };
 /// Object ID of pixels nothing covers.
@@ -159,7 +167,6 @@ impl DrawPass {
     /// Builds the pipelines (one per depth direction).
     pub fn new(context: &GpuContext) -> Self {
         let module = context.shader("draw", include_str!("../../shaders/draw.wgsl"));
-        let attributes = wgpu::vertex_attr_array![0 => Float32x3];
         let pipeline = |compare| {
             context.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("draw"),
@@ -168,11 +175,7 @@ impl DrawPass {
                     module: &module,
                     entry_point: Some("vs"),
                     compilation_options: Default::default(),
-                    buffers: &[Some(wgpu::VertexBufferLayout {
-                        array_stride: 12,
-                        step_mode: wgpu::VertexStepMode::Vertex,
-                        attributes: &attributes,
-                    })],
+                    buffers: &[Some(POSITION_LAYOUT)],
                 },
                 primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
                 depth_stencil: Some(wgpu::DepthStencilState {

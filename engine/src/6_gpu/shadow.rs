@@ -4,7 +4,7 @@
 //! shadow-caster culling feeds: only the casters that can shadow what the camera sees are drawn.
 
 use super::GpuContext;
-use super::draw::cluster_draws;
+use super::draw::{POSITION_LAYOUT, cluster_draws};
 use super::interface::{GpuShadows, GpuView, MAX_CASCADES};
 use super::scene::GpuScene;
 use bytemuck::Zeroable;
@@ -179,7 +179,6 @@ impl ShadowMaps {
 /// bias against self-shadowing.
 fn shadow_pipeline(context: &GpuContext) -> wgpu::RenderPipeline {
     let module = context.shader("shadow", include_str!("../../shaders/shadow.wgsl"));
-    let attributes = wgpu::vertex_attr_array![0 => Float32x3];
     context.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
         label: Some("shadow map"),
         layout: None,
@@ -187,11 +186,7 @@ fn shadow_pipeline(context: &GpuContext) -> wgpu::RenderPipeline {
             module: &module,
             entry_point: Some("vs"),
             compilation_options: Default::default(),
-            buffers: &[Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &attributes,
-            })],
+            buffers: &[Some(POSITION_LAYOUT)],
         },
         primitive: Default::default(),
         depth_stencil: Some(wgpu::DepthStencilState {
