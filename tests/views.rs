@@ -266,6 +266,13 @@ fn the_pipeline_culls_light_views_with_the_camera() {
         assert_eq!((&result.visible, result.kept), (set, count));
     }
     assert_eq!(results.iter().map(|r| r.light).collect::<Vec<_>>(), [0, 0, 1, 1, 1, 1, 1, 1]);
+    let named = world.resource::<LightViewsVisible>().kept_by_view(world.resource::<LightViews>());
+    let names: Vec<&str> = named.iter().map(|(name, _)| name.as_str()).collect();
+    assert_eq!(
+        names,
+        ["sun cascade 1", "sun cascade 2", "lamp +x", "lamp -x", "lamp +y", "lamp -y", "lamp +z", "lamp -z"]
+    );
+    assert!(named.iter().zip(results).all(|((_, kept), result)| *kept == result.kept));
     let stats = *world.resource::<CullStats>();
     assert_eq!((stats.light_views, stats.light_view_casters), (8, counts[1..].iter().sum()));
     assert!(stats.light_view_casters > 0 && stats.light_view_casters < 8 * boxes.len());

@@ -59,6 +59,22 @@ pub struct LightViewVisible {
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct LightViewsVisible(pub Vec<LightViewVisible>);
 
+impl LightViewsVisible {
+    /// Each light view's name ([`LightSource::view_name`]) and the casters it kept this frame, in order.
+    pub fn kept_by_view(&self, lights: &LightViews) -> Vec<(String, usize)> {
+        let mut index_in_light = 0;
+        self.0
+            .iter()
+            .enumerate()
+            .map(|(i, view)| {
+                index_in_light = if i > 0 && self.0[i - 1].light == view.light { index_in_light + 1 } else { 0 };
+                let name = lights.0.get(view.light).map_or_else(String::new, |light| light.view_name(index_in_light));
+                (name, view.kept)
+            })
+            .collect()
+    }
+}
+
 /// Per-frame counts and timings of each stage.
 #[derive(Resource, Default, Debug, Clone, Copy, PartialEq)]
 pub struct CullStats {

@@ -47,6 +47,7 @@ fn figures(i: u64) -> HudFrame {
         buffer: (256, 144),
         pyramid: vec![(256, 144), (128, 72), (64, 36), (32, 18)],
         viewport: (1920, 1080),
+        light_views: Vec::new(),
     }
 }
 

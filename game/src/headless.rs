@@ -1,7 +1,7 @@
 //! The headless run: the camera path flown frame by frame, with statistics, validation and screenshots.
 
 use crate::report::{
-    STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary, print_savings, print_summary,
+    LightViewTotals, STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary, print_savings, print_summary,
 };
 use crate::validation::Validation;
 use crate::{Args, Prepared};
@@ -37,6 +37,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     let mut savings = Vec::with_capacity(args.headless_frames() as usize);
     let slot_triangles = SlotTriangles::of_world(&flight.world, &scene.meshes);
     let mut validation = args.validate.then(|| Validation::new(width, height));
+    let mut light_views = LightViewTotals::default();
     let mut csv = String::from(STATS_HEADER);
     csv.push('\n');
     if let Some(dir) = &args.screenshots {
@@ -51,6 +52,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             bar.inc(1);
         }
         let stats = flight.run_frame(frame);
+        light_views.add(&flight.world);
         let mut frame_accuracy = None;
         if let Some(validation) = validation.as_mut() {
             let metrics = validation.judge(&flight.world, &scene.meshes);
@@ -168,6 +170,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         println!("per-frame statistics written to {}", file.display());
     }
     print_summary(&per_frame);
+    light_views.print();
     print_gpu_summary(&gpu_frames);
     print_savings(&savings, &gpu_frames);
     if let Some(validation) = validation {

@@ -2,7 +2,7 @@
 
 use cullet::draw_cost::{DrawSavings, draw_ns_per_triangle};
 use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
-use cullet::pipeline::CullStats;
+use cullet::pipeline::{CullStats, LightViews, LightViewsVisible};
 use std::time::Duration;
 
 /// The stats CSV's columns.
@@ -110,6 +110,43 @@ impl Spread {
         let percentile = |p: usize| values[(values.len() * p / 100).min(values.len() - 1)];
         let mean = values.iter().sum::<f64>() / values.len() as f64;
         Self { mean, median: percentile(50), p95: percentile(95), max: values[values.len() - 1] }
+    }
+}
+
+/// The casters each light view kept, added up over the frames of a run (see `--light-views`).
+#[derive(Default)]
+pub struct LightViewTotals {
+    /// Per light view: its name and the casters it kept, summed.
+    kept: Vec<(String, usize)>,
+    frames: usize,
+}
+
+impl LightViewTotals {
+    /// Adds the frame `world` has just culled.
+    pub fn add(&mut self, world: &bevy_ecs::world::World) {
+        let (Some(results), Some(lights)) =
+            (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>())
+        else {
+            return;
+        };
+        let kept = results.kept_by_view(lights);
+        if kept.len() != self.kept.len() {
+            (self.kept, self.frames) = (kept.iter().map(|(name, _)| (name.clone(), 0)).collect(), 0);
+        }
+        for ((_, total), (_, count)) in self.kept.iter_mut().zip(kept) {
+            *total += count;
+        }
+        self.frames += 1;
+    }
+
+    /// Prints each light view's mean casters a frame, where there were light views.
+    pub fn print(&self) {
+        if self.kept.is_empty() || self.frames == 0 {
+            return;
+        }
+        let views: Vec<String> =
+            self.kept.iter().map(|(name, total)| format!("{name} {:.0}", *total as f64 / self.frames as f64)).collect();
+        println!("casters per light view (mean a frame): {}", views.join(", "));
     }
 }
 

@@ -16,6 +16,7 @@ use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
+use cullet::pipeline::{LightViews, LightViewsVisible};
 use cullet::raster::RasterMode;
 use glam::Vec3;
 use std::collections::HashSet;
@@ -415,6 +416,10 @@ impl Game {
             buffer: (state.depth().width(), state.depth().height()),
             pyramid,
             viewport: self.size,
+            light_views: match (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>()) {
+                (Some(results), Some(lights)) => results.kept_by_view(lights),
+                _ => Vec::new(),
+            },
         };
         let refreshed = self.hud.record(hud_frame, delta);
         let controls_before =

@@ -215,6 +215,18 @@ pub struct LightView {
 }
 
 impl LightSource {
+    /// A short name of its view `index` (in [`LightSource::light_views`]' order), for tables and displays:
+    /// `sun cascade 1`, or `lamp -y`.
+    pub fn view_name(&self, index: usize) -> String {
+        match self {
+            Self::Sun { .. } => format!("sun cascade {}", index + 1),
+            Self::Lamp { .. } => {
+                let face = ["+x", "-x", "+y", "-y", "+z", "-z"].get(index).copied().unwrap_or("?");
+                format!("lamp {face}")
+            }
+        }
+    }
+
     /// Its light views for `camera` (the receivers): a sun's cascades in order, or a lamp's faces in
     /// [`cube_face_cameras`]' order.
     ///

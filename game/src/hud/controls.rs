@@ -163,6 +163,7 @@ mod tests {
             buffer: (256, 144),
             pyramid: vec![(128, 72), (64, 36), (32, 18)],
             viewport: (1280, 720),
+            light_views: Vec::new(),
         };
         let ctx = egui::Context::default();
         let mut hud = Hud::new(true);

@@ -97,6 +97,8 @@ pub struct HudFrame {
     pub pyramid: Vec<(u32, u32)>,
     /// The window's size in pixels (the "viewport" occlusion resolution).
     pub viewport: (u32, u32),
+    /// Each light view's name and the casters it kept (empty without light views).
+    pub light_views: Vec<(String, usize)>,
 }
 
 /// One frame in the plots' history.
@@ -326,6 +328,12 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         if stats.light_views > 0 {
             let casters = format!("{} casters in {} views", stats.light_view_casters, stats.light_views);
             stage_row(ui, FRUSTUM_COLOUR, "light views", casters, "in the frustum's".into());
+            for (name, kept) in &frame.light_views {
+                ui.label(format!("   {name}"));
+                ui.label(format!("{kept} casters"));
+                ui.label("");
+                ui.end_row();
+            }
         }
         let occluders = format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles);
         stage_row(ui, RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time));
