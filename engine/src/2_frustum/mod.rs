@@ -256,15 +256,7 @@ impl Frustum {
     #[inline(always)]
     fn classify_groups(&self, groups: &[GroupBounds]) -> (u8, u8) {
         let GroupLanes { center, extent, empty, valid } = GroupLanes::of(groups, self.origin);
-        let mut magnitude = [0f32; SIMD_LANES];
-        for lane in 0..SIMD_LANES {
-            magnitude[lane] = center[0][lane].abs()
-                + center[1][lane].abs()
-                + center[2][lane].abs()
-                + extent[0][lane]
-                + extent[1][lane]
-                + extent[2][lane];
-        }
+        let magnitude = lane_magnitudes(&center, &extent);
         let mut outside = [false; SIMD_LANES];
         let mut crossing = [false; SIMD_LANES];
         for (plane, slack_d) in self.planes.iter().zip(self.slack_d) {
@@ -354,6 +346,20 @@ impl GroupLanes {
         }
         lanes
     }
+}
+
+/// Per lane, the sum of a box's centre and extent magnitudes, `|cx| + |cy| + |cz| + ex + ey + ez` summed left to
+/// right: what the plane tests' rounding slack scales with.
+#[inline(always)]
+fn lane_magnitudes(center: &[[f32; SIMD_LANES]; 3], extent: &[[f32; SIMD_LANES]; 3]) -> [f32; SIMD_LANES] {
+    std::array::from_fn(|lane| {
+        center[0][lane].abs()
+            + center[1][lane].abs()
+            + center[2][lane].abs()
+            + extent[0][lane]
+            + extent[1][lane]
+            + extent[2][lane]
+    })
 }
 
 fn normalize_plane(plane: DVec4, index: usize) -> Result<Option<Plane>, FrustumError> {
@@ -571,7 +577,7 @@ impl Frustum {
     /// If `base + 64` exceeds the store's padded length.
     #[inline]
     fn cull_word_with(&self, store: &BoundsStore, base: usize, backend: SimdBackend, planes: Option<&mut [u8]>) -> u64 {
-        debug_assert!(base + 64 <= store.padded_len(), "word past the store padded arrays");
+        assert!(base + 64 <= store.padded_len(), "word past the store's padded arrays");
         match backend {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `resolve` picks Avx2 only where the processor reports AVX2 (the target feature), and

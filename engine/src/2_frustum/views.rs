@@ -24,7 +24,7 @@
 
 use super::{
     Frustum, FrustumError, GroupClass, GroupLanes, MAX_VIEWS_PER_PASS, PLANE_TEST_TOLERANCE, Plane, SimdBackend,
-    cull_pass,
+    cull_pass, lane_magnitudes,
 };
 use crate::bounds::{BoundsStore, GroupBounds, SIMD_LANES};
 use crate::camera::Camera;
@@ -443,15 +443,7 @@ impl CasterVolume {
     /// vectorizes.
     #[inline(always)]
     fn test_lanes(&self, center: &[[f32; SIMD_LANES]; 3], extent: &[[f32; SIMD_LANES]; 3]) -> (u8, u8) {
-        let mut magnitude = [0f32; SIMD_LANES];
-        for lane in 0..SIMD_LANES {
-            magnitude[lane] = center[0][lane].abs()
-                + center[1][lane].abs()
-                + center[2][lane].abs()
-                + extent[0][lane]
-                + extent[1][lane]
-                + extent[2][lane];
-        }
+        let magnitude = lane_magnitudes(center, extent);
         // Directional: how far the sweep can go before it leaves `V` for good, rounded up.
         let mut length = [0f32; SIMD_LANES];
         if let Sweep::Directional { direction, reach } = self.sweep {

@@ -20,6 +20,17 @@ pub const POSITION_LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBuffe
     attributes: &[wgpu::VertexAttribute { format: wgpu::VertexFormat::Float32x3, offset: 0, shader_location: 0 }],
 };
 
+/// The vertex stage `vs` of `module`, reading [`POSITION_LAYOUT`]: every pipeline that draws the scene's
+/// clusters starts here.
+pub(crate) fn position_vertex_state(module: &wgpu::ShaderModule) -> wgpu::VertexState<'_> {
+    wgpu::VertexState {
+        module,
+        entry_point: Some("vs"),
+        compilation_options: Default::default(),
+        buffers: &[Some(POSITION_LAYOUT)],
+    }
+}
+
 /// Colour of pixels nothing covers.
 const SKY: wgpu::Color = wgpu::Color { r: 0.55, g: 0.7, b: 0.9, a: 1.0 };
 /// Object ID of pixels nothing covers.
@@ -171,12 +182,7 @@ impl DrawPass {
             context.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("draw"),
                 layout: None,
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(POSITION_LAYOUT)],
-                },
+                vertex: position_vertex_state(&module),
                 primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
                 depth_stencil: Some(wgpu::DepthStencilState {
                     format: DEPTH_FORMAT,
@@ -277,6 +283,17 @@ impl DrawPass {
             }
         }
     }
+}
+
+/// An indirect buffer holding `args` (not empty), for a `multi_draw_indexed_indirect` of `args.len()` draws.
+pub(crate) fn indirect_buffer(context: &GpuContext, label: &str, args: &[DrawIndexedIndirectArgs]) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    let bytes: Vec<u8> = args.iter().flat_map(|a| a.as_bytes().to_vec()).collect();
+    context.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: &bytes,
+        usage: wgpu::BufferUsages::INDIRECT,
+    })
 }
 
 /// The draws of every cluster of the instances at `slots`, uncompacted (each over its cluster's own indices):

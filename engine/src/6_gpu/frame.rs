@@ -4,7 +4,7 @@
 
 use super::cluster_cull::{CandidateBuffers, ClusterCullBuffers, ClusterCullPass, write_all_candidates};
 use super::clusters::ClusterLibrary;
-use super::draw::{DrawBuffers, DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws};
+use super::draw::{DrawBuffers, DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws, indirect_buffer};
 use super::hzb::{Hzb, HzbLevel};
 use super::interface::{
     GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
@@ -27,7 +27,6 @@ use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
 use glam::Vec4;
 use std::time::Instant;
-use wgpu::util::DeviceExt;
 
 /// Which GPU tests run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -747,12 +746,7 @@ impl GpuCuller {
         }
         let mut encoder = context.device.create_command_encoder(&Default::default());
         if !args.is_empty() {
-            let bytes: Vec<u8> = args.iter().flat_map(|a| a.as_bytes().to_vec()).collect();
-            let buffer = context.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("unculled draws"),
-                contents: &bytes,
-                usage: wgpu::BufferUsages::INDIRECT,
-            });
+            let buffer = indirect_buffer(context, "unculled draws", &args);
             let source =
                 DrawSource::Unculled { indices: &self.scene.cluster_indices, args: &buffer, draws: args.len() as u32 };
             self.record_draw(context, &mut encoder, camera.depth, source, true, None);

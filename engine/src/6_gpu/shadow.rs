@@ -4,7 +4,7 @@
 //! shadow-caster culling feeds: only the casters that can shadow what the camera sees are drawn.
 
 use super::GpuContext;
-use super::draw::{POSITION_LAYOUT, cluster_draws};
+use super::draw::{cluster_draws, indirect_buffer, position_vertex_state};
 use super::interface::{GpuShadows, GpuView, MAX_CASCADES};
 use super::scene::GpuScene;
 use bytemuck::Zeroable;
@@ -113,24 +113,17 @@ impl ShadowMaps {
         };
         for (index, cascade) in cascades.iter().enumerate() {
             // The draw's points are relative to its camera: move the cascade's matrix there, in f64.
-            let shift = DMat4::from_translation((draw_origin.as_dvec3()) - cascade.origin.as_dvec3());
+            let shift = DMat4::from_translation(draw_origin.as_dvec3() - cascade.origin.as_dvec3());
             shadows.cascade_from_relative[index] = (cascade.clip_from_relative * shift).as_mat4().to_cols_array_2d();
             let light = GpuView {
                 clip_from_relative: cascade.clip_from_relative.as_mat4().to_cols_array_2d(),
+                camera: cascade.origin.extend(0.0).to_array(),
                 ..GpuView::zeroed()
             };
-            let light = GpuView { camera: cascade.origin.extend(0.0).to_array(), ..light };
             context.queue.write_buffer(&self.light_views[index], 0, bytemuck::bytes_of(&light));
             let args = cluster_draws(&scene.library, scene.instances(), cascade.casters.iter().copied());
-            let draws = (!args.is_empty()).then(|| {
-                let bytes: Vec<u8> = args.iter().flat_map(|a| a.as_bytes().to_vec()).collect();
-                let buffer = context.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("caster draws"),
-                    contents: &bytes,
-                    usage: wgpu::BufferUsages::INDIRECT,
-                });
-                (buffer, args.len() as u32)
-            });
+            let draws =
+                (!args.is_empty()).then(|| (indirect_buffer(context, "caster draws", &args), args.len() as u32));
             let bind_group = bind_group(&self.light_views[index]);
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("shadow map"),
@@ -182,12 +175,7 @@ fn shadow_pipeline(context: &GpuContext) -> wgpu::RenderPipeline {
     context.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
         label: Some("shadow map"),
         layout: None,
-        vertex: wgpu::VertexState {
-            module: &module,
-            entry_point: Some("vs"),
-            compilation_options: Default::default(),
-            buffers: &[Some(POSITION_LAYOUT)],
-        },
+        vertex: position_vertex_state(&module),
         primitive: Default::default(),
         depth_stencil: Some(wgpu::DepthStencilState {
             format: SHADOW_FORMAT,
