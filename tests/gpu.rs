@@ -11,7 +11,7 @@ use cullet::gpu::interface::GpuView;
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::{GpuContext, context_for_tests};
-use cullet::gpu::{GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating};
+use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating};
 use cullet::pipeline::{OcclusionSettings, OcclusionState};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
@@ -427,6 +427,54 @@ fn an_out_of_range_slot_is_an_error() {
     );
     let (output, _, _) = setup.run(&context, camera, &settings);
     assert!(output.counters.draws > 0);
+}
+
+/// Each sun cascade is a view of its own on the GPU, culled by the cluster and triangle passes in the camera's
+/// submission: every cascade's map equals, texel for texel, the map drawn from every cluster of the same
+/// casters, while its counters show clusters and triangles removed. With a storage binding too small for a
+/// cascade's candidates it is drawn whole, and its map is still the same.
+#[test]
+fn sun_cascades_culled_on_the_gpu_draw_the_same_shadow_maps() {
+    use cullet::frustum::LightSource;
+    use cullet::pipeline::{LightViews, LightViewsVisible};
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 5000);
+    let camera = cameras(setup.half)[0].1;
+    let sun = LightSource::Sun { direction: Vec3::new(0.35, -1.0, 0.25), splits: vec![0.1, 12.0, 40.0, 120.0, 400.0] };
+    let world = &mut setup.flight.world;
+    world.insert_resource(LightViews(vec![sun]));
+    world.insert_resource(camera);
+    setup.flight.schedule.run(world);
+    world.clear_trackers();
+    let casters: Vec<u32> = world.resource::<LightViewsVisible>().0.iter().map(|v| v.visible.count() as u32).collect();
+    let maps = |culler: &GpuCuller| -> Vec<Vec<f32>> {
+        (0..casters.len()).map(|i| culler.shadow_maps().read_layer(&context, i).unwrap()).collect()
+    };
+    let output = setup.culler.run_world(&context, world, &GpuCullSettings::default()).unwrap();
+    let culled = maps(&setup.culler);
+    setup.culler.draw_shadows_unculled(&context, world, camera.position);
+    let whole = maps(&setup.culler);
+    assert_eq!(output.light_views.len(), 4);
+    for (index, counters) in output.light_views.iter().enumerate() {
+        println!("cascade {index}: {counters:?}");
+        assert_eq!(counters.instances, casters[index]);
+        let drawn = culled[index].iter().filter(|&&depth| depth < 1.0).count();
+        let differing = culled[index].iter().zip(&whole[index]).filter(|(a, b)| a != b).count();
+        assert!(drawn > 1000, "cascade {index} drew {drawn} texels");
+        assert_eq!(differing, 0, "culling changed {differing} texels of cascade {index}");
+    }
+    let removed = |f: fn(&GpuCounters) -> (u32, u32)| output.light_views.iter().map(|c| f(c).0 - f(c).1).sum::<u32>();
+    assert!(removed(|c| (c.clusters_in, c.clusters_out)) > 0, "{:?}", output.light_views);
+    assert!(removed(|c| (c.triangles_in, c.triangles_out)) > 0, "{:?}", output.light_views);
+
+    // A binding too small for the larger cascades' candidates (about 1,300 triangles): those are drawn whole,
+    // the others still culled, with the same maps.
+    setup.culler.limit_batches(12 * 2_000);
+    let output = setup.culler.run_world(&context, world, &GpuCullSettings::default()).unwrap();
+    let drawn_whole = |c: &&GpuCounters| c.clusters_in == c.clusters_out && c.triangles_in == c.triangles_out;
+    let large = output.light_views.iter().filter(|c| c.triangles_in > 1_300);
+    assert!(large.clone().count() > 0 && large.clone().all(|c| drawn_whole(&c)), "{:?}", output.light_views);
+    assert_eq!(maps(&setup.culler), whole, "cascades drawn whole differ");
 }
 
 /// The sun cascades' culled casters feed real shadow maps: with `LightViews` the draw darkens some pixels and

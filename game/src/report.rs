@@ -47,6 +47,18 @@ pub fn print_gpu_summary(frames: &[GpuFrameOutput]) {
     if let Some(times) = GpuPassTimes::mean(frames) {
         println!("GPU time per pass (mean): {times}");
     }
+    let shadow_frames: Vec<&GpuCounters> = frames.iter().flat_map(|o| &o.light_views).collect();
+    if !shadow_frames.is_empty() {
+        let total = |f: fn(&GpuCounters) -> u32| shadow_frames.iter().map(|c| f64::from(f(c))).sum::<f64>() / n;
+        println!(
+            "shadow maps (GPU, per frame over every cascade): clusters {:.0} -> {:.0}, triangles {:.0} -> {:.0}, {:.0} draws",
+            total(|c| c.clusters_in),
+            total(|c| c.clusters_out),
+            total(|c| c.triangles_in),
+            total(|c| c.triangles_out),
+            total(|c| c.draws)
+        );
+    }
     let skipped = |f: fn(&GpuFrameOutput) -> bool| frames.iter().filter(|o| f(o)).count();
     println!(
         "GPU gating: cluster pass skipped in {} of {} frames (too few clusters to pay), triangle pass in {} (it had \

@@ -2,27 +2,24 @@
 //! culling, triangle culling, draw), each recorded by its own module, then the counters read back. Frames whose
 //! candidates exceed the device's largest storage binding run in batches.
 
-use super::cluster_cull::{CandidateBuffers, ClusterCullBuffers, ClusterCullPass, write_all_candidates};
 use super::clusters::ClusterLibrary;
 use super::draw::{DrawBuffers, DrawPass, DrawSource, RenderTargets, RenderedImage, cluster_draws, indirect_buffer};
 use super::hzb::{Hzb, HzbLevel};
 use super::interface::{
     GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
-    VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM, counter,
+    VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
 };
 use super::output::{COUNTER_BYTES, GpuCounters, GpuFrameOutput, PassTimer, TIMED_PASSES};
 use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
-use super::shadow::{Cascade, ShadowMaps};
-use super::triangle_cull::{TriangleCullBuffers, TriangleCullPass};
+use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
+use super::view_cull::{CullPasses, PassGate, ViewCull, candidates, fits_binding, view_buffer};
 use super::{GpuContext, GpuError};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::DepthBuffer;
 use crate::frustum::{DepthConvention, LightSource};
 use crate::mesh::Mesh;
-use crate::pipeline::{
-    BenefitGate, LightViewVisible, LightViews, LightViewsVisible, OcclusionSettings, OcclusionState,
-};
+use crate::pipeline::{LightViewVisible, LightViews, LightViewsVisible, OcclusionSettings, OcclusionState};
 use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
 use glam::Vec4;
@@ -95,6 +92,31 @@ impl GpuGating {
     }
 }
 
+/// One sun cascade of a world's [`LightViewsVisible`]: its light view's matrix and origin, and its casters' store
+/// slots.
+struct SunCasters(glam::DMat4, glam::Vec3, Vec<u32>);
+
+impl SunCasters {
+    fn cascade(&self) -> Cascade<'_> {
+        Cascade { clip_from_relative: self.0, origin: self.1, casters: &self.2 }
+    }
+}
+
+/// The sun cascades of `world`'s [`LightViewsVisible`] (of its [`LightViews`] suns, nearest first), each with
+/// the casters its light view kept; `None` without light views.
+fn sun_casters(world: &World) -> Option<Vec<SunCasters>> {
+    let results = world.get_resource::<LightViewsVisible>()?;
+    let lights = world.get_resource::<LightViews>()?;
+    let suns = results.0.iter().filter(|result| matches!(lights.0.get(result.light), Some(LightSource::Sun { .. })));
+    Some(
+        suns.map(|result: &LightViewVisible| {
+            let casters = result.visible.iter().map(|slot| slot as u32).collect();
+            SunCasters(result.view.clip_from_relative, result.view.origin, casters)
+        })
+        .collect(),
+    )
+}
+
 /// A frame's surviving `(instance, cluster)` pairs and the global vertex indices of the triangles it drew (see
 /// [`GpuCuller::read_survivors`]).
 pub type Survivors = (Vec<(u32, u32)>, Vec<u32>);
@@ -107,19 +129,16 @@ pub type Survivors = (Vec<(u32, u32)>, Vec<u32>);
 pub struct GpuCuller {
     scene: GpuScene,
     hzb: Hzb,
-    cluster_pass: ClusterCullPass,
-    triangle_pass: TriangleCullPass,
+    passes: CullPasses,
+    /// The camera's culling: its uniform, counters and per-frame buffers.
+    camera: ViewCull,
     draw: DrawPass,
     /// The sun cascades' shadow maps the draw shades with (none until a world with light views runs).
     shadows: ShadowMaps,
     targets: RenderTargets,
-    view: wgpu::Buffer,
     /// The view the draw pass renders from: the culling view, or another camera's (see [`GpuCuller::run_from`]).
     draw_view: wgpu::Buffer,
-    counters: wgpu::Buffer,
-    dispatch: wgpu::Buffer,
     last_view: GpuView,
-    frame: Option<FrameBuffers>,
     timer: Option<PassTimer>,
     last_counters: GpuCounters,
     /// Which passes the last frame skipped.
@@ -129,50 +148,9 @@ pub struct GpuCuller {
     batch_bytes: Option<u64>,
     /// Which GPU passes a frame may skip (see [`GpuCuller::set_gating`]).
     gating: GpuGating,
-    /// When the triangle pass is skipped for removing too little.
-    triangle_gate: BenefitGate,
     /// The instance buffer holds colours other than the objects' own ([`GpuCuller::draw_all_recolored`]):
     /// the next [`GpuCuller::run_world`] rewrites every instance.
     recolored: bool,
-}
-
-/// Which passes one frame skips.
-#[derive(Clone, Copy, Debug, Default)]
-struct PassGate {
-    /// No cluster pass: the CPU lists every candidate cluster.
-    skip_clusters: bool,
-    /// No triangle pass: surviving clusters are drawn whole.
-    skip_triangles: bool,
-}
-
-/// Buffers sized for a frame's candidates.
-struct FrameBuffers {
-    visible: wgpu::Buffer,
-    survivors: wgpu::Buffer,
-    draw_indices: wgpu::Buffer,
-    draw_args: wgpu::Buffer,
-    max_clusters: u32,
-    max_indices: u32,
-}
-
-/// A storage buffer of `size` bytes (at least 16).
-fn storage_buffer(context: &GpuContext, label: &str, size: u64, extra: wgpu::BufferUsages) -> wgpu::Buffer {
-    context.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size: size.max(16).next_multiple_of(4),
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC | extra,
-        mapped_at_creation: false,
-    })
-}
-
-/// A uniform buffer for one [`GpuView`].
-fn view_buffer(context: &GpuContext, label: &str) -> wgpu::Buffer {
-    context.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size: std::mem::size_of::<GpuView>() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    })
 }
 
 impl GpuCuller {
@@ -203,23 +181,18 @@ impl GpuCuller {
         Self {
             scene,
             hzb: Hzb::new(context, hzb_width, hzb_height),
-            cluster_pass: ClusterCullPass::new(context),
-            triangle_pass: TriangleCullPass::new(context),
+            passes: CullPasses::new(context),
+            camera: ViewCull::new(context, "view"),
             draw: DrawPass::new(context),
             shadows: ShadowMaps::new(context),
             targets: RenderTargets::new(context, width, height),
-            view: view_buffer(context, "view"),
             draw_view: view_buffer(context, "draw view"),
-            counters: storage_buffer(context, "counters", COUNTER_BYTES, wgpu::BufferUsages::INDIRECT),
-            dispatch: storage_buffer(context, "triangle dispatch", 12, wgpu::BufferUsages::INDIRECT),
             last_view: GpuView::zeroed(),
-            frame: None,
             timer: PassTimer::new(context),
             last_counters: GpuCounters::default(),
             last_gate: PassGate::default(),
             batch_bytes: None,
             gating: GpuGating::default(),
-            triangle_gate: BenefitGate::default(),
             recolored: false,
         }
     }
@@ -254,22 +227,7 @@ impl GpuCuller {
     /// The buffers of the last frame's draw, to draw the survivors from a render pass of your own; `None`
     /// before the first frame. Valid until the next frame (which may grow and so replace them).
     pub fn draw_buffers(&self) -> Option<DrawBuffers<'_>> {
-        Some(self.culled_draws(self.frame.as_ref()?, self.last_gate.skip_triangles))
-    }
-
-    /// The draws a culled frame with `frame`'s buffers wrote.
-    fn culled_draws<'a>(&'a self, frame: &'a FrameBuffers, skip_triangles: bool) -> DrawBuffers<'a> {
-        DrawBuffers {
-            positions: &self.scene.positions,
-            // Without the triangle pass, the draws index the clusters' own triangles.
-            indices: if skip_triangles { &self.scene.cluster_indices } else { &frame.draw_indices },
-            args: &frame.draw_args,
-            count: &self.counters,
-            count_offset: u64::from(counter::DRAWS) * 4,
-            max_draws: frame.max_clusters,
-            instances: &self.scene.instances,
-            view: &self.view,
-        }
+        self.camera.draws(&self.scene, self.last_gate.skip_triangles)
     }
 
     /// The view uniform for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
@@ -312,50 +270,6 @@ impl GpuCuller {
         }
     }
 
-    /// Grows the per-frame buffers to hold the candidates of `visible`.
-    fn frame_buffers(&mut self, context: &GpuContext, visible: &[u32]) -> &FrameBuffers {
-        let library = &self.scene.library;
-        let instances = self.scene.instances();
-        let (mut clusters, mut triangles) = (0u32, 0u32);
-        for &slot in visible {
-            for cluster in library.clusters_of(instances[slot as usize].mesh) {
-                clusters += 1;
-                triangles += cluster.triangle_count;
-            }
-        }
-        let fits = self.frame.as_ref().is_some_and(|f| {
-            f.max_clusters >= clusters && f.max_indices >= 3 * triangles && f.visible.size() >= 4 * visible.len() as u64
-        });
-        if !fits {
-            // Grow by half again, so a slowly growing view does not reallocate every frame.
-            let (clusters, indices) = (clusters + clusters / 2 + 64, 3 * (triangles + triangles / 2 + 64));
-            self.frame = Some(FrameBuffers {
-                visible: storage_buffer(
-                    context,
-                    "visible instances",
-                    4 * (visible.len() as u64 * 3 / 2 + 64),
-                    wgpu::BufferUsages::empty(),
-                ),
-                survivors: storage_buffer(
-                    context,
-                    "cluster survivors",
-                    8 * u64::from(clusters),
-                    wgpu::BufferUsages::empty(),
-                ),
-                draw_indices: storage_buffer(
-                    context,
-                    "draw indices",
-                    4 * u64::from(indices),
-                    wgpu::BufferUsages::INDEX,
-                ),
-                draw_args: storage_buffer(context, "draw args", 20 * u64::from(clusters), wgpu::BufferUsages::INDIRECT),
-                max_clusters: clusters,
-                max_indices: indices,
-            });
-        }
-        self.frame.as_ref().expect("just made")
-    }
-
     /// Culls and draws one frame: `visible` lists the instances (store slots) the CPU stages kept, `depth` is
     /// the CPU occluder buffer (empty for none). Returns the counters and timings; the survivors stay on the
     /// GPU ([`GpuCuller::read_survivors`], [`GpuCuller::draw_buffers`]).
@@ -388,42 +302,45 @@ impl GpuCuller {
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
+        self.run_views(context, camera, draw_camera, visible, depth, settings, None)
+    }
+
+    /// [`GpuCuller::run_from`], and with `cascades` the shadow maps culled and drawn first, in the same
+    /// submission; with `None` the shadow maps stay as they are.
+    #[allow(clippy::too_many_arguments)]
+    fn run_views(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+        mut cascades: Option<&[Cascade<'_>]>,
+    ) -> Result<GpuFrameOutput, GpuError> {
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
-        let library = &self.scene.library;
         let instances = self.scene.instances();
-        if let Some(&slot) = visible.iter().find(|&&slot| slot as usize >= instances.len()) {
+        let out_of_range = |slots: &[u32]| slots.iter().copied().find(|&slot| slot as usize >= instances.len());
+        let casters = cascades.into_iter().flatten().map(|cascade| cascade.casters);
+        if let Some(slot) = std::iter::once(visible).chain(casters).find_map(out_of_range) {
             return Err(GpuError::SlotOutOfRange { slot, instances: instances.len() });
         }
-        let candidate_clusters: usize =
-            visible.iter().map(|&slot| library.cluster_range(instances[slot as usize].mesh).len()).sum();
-        let gate = PassGate {
-            skip_clusters: candidate_clusters <= self.gating.tiny_scene_clusters as usize,
-            skip_triangles: self.triangle_gate.skip_this_frame(),
-        };
+        let (candidate_clusters, _) = candidates(&self.scene, visible);
+        let gate = self.camera.gate(&self.gating, candidate_clusters as usize);
         let mut total: Option<GpuFrameOutput> = None;
         for (i, batch) in self.batches(context, visible).into_iter().enumerate() {
+            let (first, cascades) = (i == 0, cascades.take());
             let output =
-                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, i == 0)?;
+                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, first, cascades)?;
             total = Some(match total {
                 None => output,
                 Some(sum) => sum.plus(&output),
             });
         }
         let total = total.unwrap_or_default();
-        if !gate.skip_triangles {
-            let c = total.counters;
-            let removed = c.triangles_in - c.triangles_out;
-            let g = self.gating;
-            self.triangle_gate.record(
-                removed as usize,
-                c.triangles_in as usize,
-                g.min_triangle_benefit,
-                g.low_benefit_frames,
-                g.reprobe_every,
-            );
-        }
+        self.camera.record_benefit(&self.gating, gate, &total.counters);
         Ok(total)
     }
 
@@ -432,7 +349,8 @@ impl GpuCuller {
     pub fn set_gating(&mut self, gating: GpuGating) {
         if gating != self.gating {
             self.gating = gating;
-            self.triangle_gate = BenefitGate::default();
+            self.camera.reset_gate();
+            self.shadows.reset_gates();
         }
     }
 
@@ -447,11 +365,7 @@ impl GpuCuller {
     /// compacted index buffer is sized for every candidate surviving): almost always one run; several when
     /// the CPU stages leave millions of triangles (a large scene with occlusion off), instead of failing.
     fn batches(&self, context: &GpuContext, visible: &[u32]) -> Vec<std::ops::Range<usize>> {
-        let device_limit = context.device.limits().max_storage_buffer_binding_size;
-        let limit = self.batch_bytes.map_or(device_limit, |bytes| bytes.min(device_limit));
-        // Buffers grow to 1.5x the candidates plus 64 (see `frame_buffers`): 12 bytes a triangle, 20 a cluster.
-        let max_triangles = (limit / 12).saturating_sub(64) * 2 / 3;
-        let max_clusters = (limit / 20).saturating_sub(64) * 2 / 3;
+        let limit = self.binding_limit(context);
         let library = &self.scene.library;
         let instances = self.scene.instances();
         let mut batches = Vec::new();
@@ -459,7 +373,7 @@ impl GpuCuller {
         for (i, &slot) in visible.iter().enumerate() {
             let own = library.clusters_of(instances[slot as usize].mesh);
             let own_triangles: u64 = own.iter().map(|c| u64::from(c.triangle_count)).sum();
-            if i > start && (triangles + own_triangles > max_triangles || clusters + own.len() as u64 > max_clusters) {
+            if i > start && !fits_binding(clusters + own.len() as u64, triangles + own_triangles, limit) {
                 batches.push(start..i);
                 (start, triangles, clusters) = (i, 0, 0);
             }
@@ -468,6 +382,13 @@ impl GpuCuller {
         }
         batches.push(start..visible.len());
         batches
+    }
+
+    /// The largest storage binding a frame's buffers may take: the device's, or less after
+    /// [`GpuCuller::limit_batches`].
+    fn binding_limit(&self, context: &GpuContext) -> u64 {
+        let device_limit = context.device.limits().max_storage_buffer_binding_size;
+        self.batch_bytes.map_or(device_limit, |bytes| bytes.min(device_limit))
     }
 
     /// One batch of [`GpuCuller::run_from`]: the first builds the HZB and clears the targets, later ones draw
@@ -483,98 +404,65 @@ impl GpuCuller {
         settings: &GpuCullSettings,
         gate: PassGate,
         first: bool,
+        cascades: Option<&[Cascade<'_>]>,
     ) -> Result<GpuFrameOutput, GpuError> {
         let mut view = self.view_for(camera, settings, visible.len() as u32);
         if gate.skip_triangles {
             view.flags |= VIEW_DRAW_CLUSTERS;
         }
         self.last_view = view;
-        context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
+        context.queue.write_buffer(&self.camera.view, 0, bytemuck::bytes_of(&view));
         let draw_view = if draw_camera == camera { view } else { self.view_for(draw_camera, settings, 0) };
         context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&draw_view));
-        self.frame_buffers(context, visible);
-        let frame = self.frame.as_ref().expect("sized above");
-        if !visible.is_empty() {
-            context.queue.write_buffer(&frame.visible, 0, bytemuck::cast_slice(visible));
-        }
+        self.camera.fit(context, &self.scene, visible);
         let mut encoder = context.device.create_command_encoder(&Default::default());
-        if gate.skip_clusters {
-            let buffers = CandidateBuffers {
-                survivors: &frame.survivors,
-                counters: &self.counters,
-                draws: &frame.draw_args,
-                draw_capacity: frame.draw_args.size(),
-            };
-            write_all_candidates(context, &self.scene, visible, &buffers, gate.skip_triangles);
-        } else {
-            encoder.clear_buffer(&self.counters, 0, None);
-            if !context.has_draw_count {
-                encoder.clear_buffer(&frame.draw_args, 0, None);
-            }
-        }
         let timer = self.timer.as_ref();
         if first {
             self.hzb.build(context, depth, &mut encoder, timer.map(|t| t.compute(0)));
         }
-        let scene = &self.scene;
-        let cluster_buffers = ClusterCullBuffers {
-            view: &self.view,
-            instances: &scene.instances,
-            meshes: &scene.meshes,
-            clusters: &scene.clusters,
-            visible: &frame.visible,
-            hzb: &self.hzb.buffer,
-            counters: &self.counters,
-            survivors: &frame.survivors,
-            draws: &frame.draw_args,
-        };
-        let instance_count = visible.len() as u32;
-        self.cluster_pass.record(
+        if let Some(cascades) = cascades {
+            let culling = CascadeCulling {
+                passes: &self.passes,
+                hzb: &self.hzb.buffer,
+                gating: &self.gating,
+                binding_limit: self.binding_limit(context),
+            };
+            let origin = draw_camera.position;
+            self.shadows.record(context, &mut encoder, &self.scene, Some(&culling), cascades, origin);
+        }
+        let (scene, hzb) = (&self.scene, &self.hzb.buffer);
+        self.camera.record(context, &mut encoder, scene, &self.passes, hzb, visible, gate, timer);
+        let draws = self.camera.draws(scene, gate.skip_triangles).expect("fit above");
+        self.record_draw(
             context,
             &mut encoder,
-            &cluster_buffers,
-            instance_count,
-            gate.skip_clusters,
-            timer.map(|t| t.compute(1)),
+            camera.depth,
+            DrawSource::Culled(draws),
+            first,
+            timer.map(|t| t.render(3)),
         );
-        let triangle_buffers = TriangleCullBuffers {
-            view: &self.view,
-            instances: &scene.instances,
-            clusters: &scene.clusters,
-            positions: &scene.positions,
-            cluster_indices: &scene.cluster_indices,
-            survivors: &frame.survivors,
-            counters: &self.counters,
-            dispatch: &self.dispatch,
-            draw_indices: &frame.draw_indices,
-            draws: &frame.draw_args,
-        };
-        self.triangle_pass.record(
-            context,
-            &mut encoder,
-            &triangle_buffers,
-            gate.skip_triangles,
-            timer.map(|t| t.compute(2)),
-        );
-        let source = DrawSource::Culled(self.culled_draws(frame, gate.skip_triangles));
-        self.record_draw(context, &mut encoder, camera.depth, source, first, timer.map(|t| t.render(3)));
         if let Some(timer) = timer {
             encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
         }
         let start = Instant::now();
         context.queue.submit([encoder.finish()]);
-        let counter_bytes = context.read_buffer(&self.counters, COUNTER_BYTES)?;
+        let counter_bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
         let wall_time = start.elapsed();
         let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
         self.last_counters = counters;
         self.last_gate = gate;
         let pass_times = timer.map(|t| t.read(context)).transpose()?;
+        let light_views = match cascades {
+            Some(_) => self.shadows.read_counters(context, &self.gating)?,
+            None => Vec::new(),
+        };
         Ok(GpuFrameOutput {
             counters,
             pass_times,
             wall_time,
             cluster_pass_skipped: gate.skip_clusters,
             triangle_pass_skipped: gate.skip_triangles,
+            light_views,
         })
     }
 
@@ -585,7 +473,9 @@ impl GpuCuller {
     /// # Errors
     /// [`GpuError::Lost`] when the device is lost.
     pub fn read_survivors(&self, context: &GpuContext) -> Result<Survivors, GpuError> {
-        let (Some(frame), counters) = (self.frame.as_ref(), self.last_counters) else { return Ok(Default::default()) };
+        let (Some(frame), counters) = (self.camera.frame.as_ref(), self.last_counters) else {
+            return Ok(Default::default());
+        };
         let clusters = if counters.clusters_out > 0 {
             let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out))?;
             bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()
@@ -651,40 +541,27 @@ impl GpuCuller {
         }
         self.sync_instances(context, world, |_, instance| instance);
         self.recolored = false;
-        self.draw_shadow_maps(context, world, draw_camera.position);
+        let suns = sun_casters(world).filter(|suns| !suns.is_empty() || self.shadows.cascades() > 0);
+        let cascades: Option<Vec<Cascade<'_>>> =
+            suns.as_ref().map(|suns| suns.iter().map(SunCasters::cascade).collect());
         let state = world.resource::<OcclusionState>();
         let visible: Vec<u32> = state.visible.iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
-        self.run_from(context, &camera, draw_camera, &visible, state.depth(), settings)
+        self.run_views(context, &camera, draw_camera, &visible, state.depth(), settings, cascades.as_deref())
     }
 
-    /// Draws the shadow maps of the world's sun cascades ([`LightViewsVisible`] of its [`LightViews`] suns,
-    /// nearest first), each from the casters its light view kept, for a draw from `draw_origin`; without sun
-    /// cascades the draw shades without shadows.
-    fn draw_shadow_maps(&mut self, context: &GpuContext, world: &World, draw_origin: glam::Vec3) {
-        let (Some(results), Some(lights)) =
-            (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>())
-        else {
-            return;
-        };
-        let suns: Vec<(&LightViewVisible, Vec<u32>)> = results
-            .0
-            .iter()
-            .filter(|result| matches!(lights.0.get(result.light), Some(LightSource::Sun { .. })))
-            .map(|result| (result, result.visible.iter().map(|slot| slot as u32).collect()))
-            .collect();
-        if suns.is_empty() && self.shadows.cascades() == 0 {
-            return;
-        }
-        let cascades: Vec<Cascade<'_>> = suns
-            .iter()
-            .map(|(result, casters)| Cascade {
-                clip_from_relative: result.view.clip_from_relative,
-                origin: result.view.origin,
-                casters,
-            })
-            .collect();
-        self.shadows.draw(context, &self.scene, &cascades, draw_origin);
+    /// Draws the shadow maps of `world`'s sun cascades with no culling on the GPU: every cluster of the
+    /// casters each light view kept, for a draw from `draw_origin`. For comparison with the culled maps
+    /// [`GpuCuller::run_world`] draws (the next frame draws culled maps again); `world` as for it.
+    pub fn draw_shadows_unculled(&mut self, context: &GpuContext, world: &World, draw_origin: glam::Vec3) {
+        let suns = sun_casters(world).unwrap_or_default();
+        let cascades: Vec<Cascade<'_>> = suns.iter().map(SunCasters::cascade).collect();
+        self.shadows.draw_unculled(context, &self.scene, &cascades, draw_origin);
+    }
+
+    /// The shadow maps the draw shades with.
+    pub fn shadow_maps(&self) -> &ShadowMaps {
+        &self.shadows
     }
 
     /// Copies to the GPU the instances of the store slots written since the last call (every slot after a

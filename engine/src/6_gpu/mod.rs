@@ -9,6 +9,9 @@
 //!    into an index buffer with one indirect draw per cluster;
 //! 6. [`draw`]: `multi_draw_indexed_indirect_count` into colour, object-ID and depth targets, read back.
 //!
+//! Every view of a frame is culled by the same passes into buffers of its own (`view_cull`): the camera, and
+//! each sun cascade whose [`shadow`] map the draw samples, all in one submission.
+//!
 //! Each pass's module owns its pipeline, bind groups, dispatch and CPU twin (which the tests compare the GPU
 //! against); [`frame`] only orchestrates them, and [`output`] is what a frame reads back. [`interface`] holds
 //! what Rust and WGSL share, once.
@@ -46,6 +49,7 @@ pub mod output;
 pub mod scene;
 pub mod shadow;
 pub mod triangle_cull;
+mod view_cull;
 
 pub use draw::DrawBuffers;
 pub use frame::{GpuCullSettings, GpuCuller, GpuGating, Survivors};
@@ -229,13 +233,32 @@ impl GpuContext {
         aspect: wgpu::TextureAspect,
         bytes_per_texel: u32,
     ) -> Result<Vec<u8>, GpuError> {
+        self.read_texture_layer(texture, 0, aspect, bytes_per_texel)
+    }
+
+    /// [`GpuContext::read_texture`] of array layer `layer`.
+    ///
+    /// # Errors
+    /// As [`GpuContext::read_texture`].
+    pub fn read_texture_layer(
+        &self,
+        texture: &wgpu::Texture,
+        layer: u32,
+        aspect: wgpu::TextureAspect,
+        bytes_per_texel: u32,
+    ) -> Result<Vec<u8>, GpuError> {
         let (width, height) = (texture.width(), texture.height());
         let packed_row = (width * bytes_per_texel) as usize;
         // Copies to buffers need rows aligned to 256 bytes; the padding is dropped below.
         let row_bytes = (width * bytes_per_texel).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let bytes = self.read_back(u64::from(row_bytes * height), |encoder, staging| {
             encoder.copy_texture_to_buffer(
-                wgpu::TexelCopyTextureInfo { texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect },
+                wgpu::TexelCopyTextureInfo {
+                    texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
+                    aspect,
+                },
                 wgpu::TexelCopyBufferInfo {
                     buffer: staging,
                     layout: wgpu::TexelCopyBufferLayout {

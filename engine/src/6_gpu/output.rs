@@ -233,6 +233,9 @@ pub struct GpuFrameOutput {
     /// The triangle pass was skipped for removing too little lately
     /// ([`super::GpuGating::min_triangle_benefit`]): the surviving clusters were drawn whole.
     pub triangle_pass_skipped: bool,
+    /// The counters of each sun cascade's culling, nearest first, where the frame drew shadow maps
+    /// ([`super::GpuCuller::run_world`] with [`crate::pipeline::LightViews`]); empty otherwise.
+    pub light_views: Vec<GpuCounters>,
 }
 
 impl GpuFrameOutput {
@@ -252,6 +255,8 @@ impl GpuFrameOutput {
             wall_time: self.wall_time + other.wall_time,
             cluster_pass_skipped: self.cluster_pass_skipped || other.cluster_pass_skipped,
             triangle_pass_skipped: self.triangle_pass_skipped || other.triangle_pass_skipped,
+            // Only a frame's first batch draws the shadow maps.
+            light_views: if self.light_views.is_empty() { &other.light_views } else { &self.light_views }.clone(),
         }
     }
 }

@@ -9,7 +9,7 @@ pub mod painter;
 use crate::validation::{Validation, frame_efficiency};
 use controls::{Controls, View};
 use cullet::draw_cost::DrawSavings;
-use cullet::gpu::{GpuFrameOutput, GpuPassTimes};
+use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::CullStats;
 use cullet::raster::RasterMode;
 use egui::{Color32, RichText};
@@ -349,6 +349,16 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
             let triangles = format!("{} of {}", counters.triangles_out, counters.triangles_in);
             stage_row(ui, TRIANGLES_COLOUR, "GPU triangles", triangles, pass(|t| t.triangles));
             stage_row(ui, DRAW_COLOUR, "draw", format!("{} draws", counters.draws), pass(|t| t.draw));
+            if !gpu.light_views.is_empty() {
+                let sum = |f: fn(&GpuCounters) -> u32| gpu.light_views.iter().map(f).sum::<u32>();
+                let shadows = format!(
+                    "{} cascades: {} of {} tris",
+                    gpu.light_views.len(),
+                    sum(|c| c.triangles_out),
+                    sum(|c| c.triangles_in)
+                );
+                stage_row(ui, DRAW_COLOUR, "shadow maps", shadows, "in the frame's".into());
+            }
             ui.label("GPU wall");
             ui.label(if times.is_some() { "submit to read-back" } else { "no timestamps on this GPU" });
             ui.label(format!("{:.2} ms", gpu.wall_time.as_secs_f64() * 1e3));
