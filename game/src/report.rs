@@ -125,6 +125,14 @@ impl Spread {
     }
 }
 
+/// Each light view of `world`'s last frame, named, with the casters it kept; empty without light views.
+pub fn kept_by_light_view(world: &bevy_ecs::world::World) -> Vec<(String, usize)> {
+    match (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>()) {
+        (Some(results), Some(lights)) => results.kept_by_view(lights),
+        _ => Vec::new(),
+    }
+}
+
 /// The casters each light view kept, added up over the frames of a run (see `--light-views`).
 #[derive(Default)]
 pub struct LightViewTotals {
@@ -136,12 +144,10 @@ pub struct LightViewTotals {
 impl LightViewTotals {
     /// Adds the frame `world` has just culled.
     pub fn add(&mut self, world: &bevy_ecs::world::World) {
-        let (Some(results), Some(lights)) =
-            (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>())
-        else {
+        let kept = kept_by_light_view(world);
+        if kept.is_empty() {
             return;
-        };
-        let kept = results.kept_by_view(lights);
+        }
         if kept.len() != self.kept.len() {
             (self.kept, self.frames) = (kept.iter().map(|(name, _)| (name.clone(), 0)).collect(), 0);
         }

@@ -9,14 +9,13 @@ use crate::hud::controls::{Controls, View};
 use crate::hud::painter::HudPainter;
 use crate::hud::{FRUSTUM_TINT, HELP, Hud, HudFrame, OCCLUSION_TINT};
 use crate::present::{PresentPass, Source};
-use crate::report::{print_gpu_summary, print_savings, print_summary};
+use crate::report::{kept_by_light_view, print_gpu_summary, print_savings, print_summary};
 use crate::validation::Validation;
 use crate::{Args, Prepared};
 use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
-use cullet::pipeline::{LightViews, LightViewsVisible};
 use cullet::raster::RasterMode;
 use glam::Vec3;
 use std::collections::HashSet;
@@ -416,10 +415,7 @@ impl Game {
             buffer: (state.depth().width(), state.depth().height()),
             pyramid,
             viewport: self.size,
-            light_views: match (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>()) {
-                (Some(results), Some(lights)) => results.kept_by_view(lights),
-                _ => Vec::new(),
-            },
+            light_views: kept_by_light_view(world),
         };
         let refreshed = self.hud.record(hud_frame, delta);
         let controls_before =

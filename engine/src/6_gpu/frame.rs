@@ -414,7 +414,7 @@ impl GpuCuller {
         context.queue.write_buffer(&self.camera.view, 0, bytemuck::bytes_of(&view));
         let draw_view = if draw_camera == camera { view } else { self.view_for(draw_camera, settings, 0) };
         context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&draw_view));
-        self.camera.fit(context, &self.scene, visible);
+        self.camera.fit(context, visible.len(), candidates(&self.scene, visible));
         let mut encoder = context.device.create_command_encoder(&Default::default());
         let timer = self.timer.as_ref();
         if first {

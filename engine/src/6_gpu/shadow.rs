@@ -171,15 +171,13 @@ impl ShadowMaps {
                 if gate.skip_triangles {
                     light.flags |= VIEW_DRAW_CLUSTERS;
                 }
-                context.queue.write_buffer(&view.view, 0, bytemuck::bytes_of(&light));
-                view.fit(context, scene, cascade.casters);
+                view.fit(context, cascade.casters.len(), (clusters, triangles));
                 view.record(context, encoder, scene, culling.passes, culling.hzb, cascade.casters, gate, None);
                 let offset = index as u64 * COUNTER_BYTES;
                 encoder.copy_buffer_to_buffer(&view.counters, 0, &self.counters, offset, COUNTER_BYTES);
                 self.runs.push(CascadeRun::Culled { instances, gate });
                 CasterDraws::Culled(self.views[index].draws(scene, gate.skip_triangles).expect("fit above"))
             } else {
-                context.queue.write_buffer(&self.views[index].view, 0, bytemuck::bytes_of(&light));
                 self.runs.push(CascadeRun::Whole(GpuCounters {
                     instances,
                     clusters_in: clusters,
@@ -195,6 +193,8 @@ impl ShadowMaps {
                     count => CasterDraws::Whole(indirect_buffer(context, "caster draws", &args), count),
                 }
             };
+            // Written before the submission runs, whichever way the layer is drawn.
+            context.queue.write_buffer(&self.views[index].view, 0, bytemuck::bytes_of(&light));
             self.draw_layer(context, encoder, scene, index, &draws);
         }
         context.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&shadows));

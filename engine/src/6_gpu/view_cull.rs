@@ -120,13 +120,12 @@ impl ViewCull {
     pub fn record_benefit(&mut self, gating: &GpuGating, gate: PassGate, counters: &GpuCounters) {
         if !gate.skip_triangles {
             let removed = counters.triangles_in - counters.triangles_out;
-            let g = gating;
             self.triangle_gate.record(
                 removed as usize,
                 counters.triangles_in as usize,
-                g.min_triangle_benefit,
-                g.low_benefit_frames,
-                g.reprobe_every,
+                gating.min_triangle_benefit,
+                gating.low_benefit_frames,
+                gating.reprobe_every,
             );
         }
     }
@@ -136,18 +135,17 @@ impl ViewCull {
         self.triangle_gate = BenefitGate::default();
     }
 
-    /// Grows the per-frame buffers to hold the candidates of `visible`, by half again so that a slowly
-    /// growing view does not reallocate every frame.
-    pub fn fit(&mut self, context: &GpuContext, scene: &GpuScene, visible: &[u32]) -> &FrameBuffers {
-        let (clusters, triangles) = candidates(scene, visible);
+    /// Grows the per-frame buffers to hold `visible` instances whose `(clusters, triangles)` are their
+    /// [`candidates`], by half again so that a slowly growing view does not reallocate every frame.
+    pub fn fit(&mut self, context: &GpuContext, visible: usize, (clusters, triangles): (u32, u32)) -> &FrameBuffers {
         let fits = self.frame.as_ref().is_some_and(|f| {
-            f.max_clusters >= clusters && f.max_indices >= 3 * triangles && f.visible.size() >= 4 * visible.len() as u64
+            f.max_clusters >= clusters && f.max_indices >= 3 * triangles && f.visible.size() >= 4 * visible as u64
         });
         if !fits {
             let (clusters, indices) = (clusters + clusters / 2 + 64, 3 * (triangles + triangles / 2 + 64));
             let none = wgpu::BufferUsages::empty();
             self.frame = Some(FrameBuffers {
-                visible: storage_buffer(context, "visible instances", 4 * (visible.len() as u64 * 3 / 2 + 64), none),
+                visible: storage_buffer(context, "visible instances", 4 * (visible as u64 * 3 / 2 + 64), none),
                 survivors: storage_buffer(context, "cluster survivors", 8 * u64::from(clusters), none),
                 draw_indices: storage_buffer(
                     context,
