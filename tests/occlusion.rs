@@ -40,6 +40,18 @@ fn cull(
     let mut frustum_visible = VisibleSet::default();
     cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
     let view = ScreenView::new(camera, size.0, size.1);
+    let visible = occlude(&store, &frustum_visible, &view, occluders, mode);
+    (frustum_visible, visible)
+}
+
+/// Raster and occlusion test of `tested` through `view`; returns the survivors.
+fn occlude(
+    store: &BoundsStore,
+    tested: &VisibleSet,
+    view: &ScreenView,
+    occluders: &[Occluder],
+    mode: RasterMode,
+) -> VisibleSet {
     let meshes: Vec<cullet::Occluder> =
         occluders.iter().map(|(triangles, _)| cullet::Occluder::new(triangles.clone())).collect();
     let instances: Vec<OccluderInstance<'_>> = meshes
@@ -48,13 +60,13 @@ fn cull(
         .map(|(occluder, (_, transform))| OccluderInstance { occluder, transform: *transform })
         .collect();
     let mut pyramid = DepthPyramid::default();
-    rasterize(&view, &instances, mode, &mut pyramid);
+    rasterize(view, &instances, mode, &mut pyramid);
     let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
-    test_occlusion(&store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded);
-    for slot in 0..boxes.len() {
-        assert_eq!(occluded.contains(slot), frustum_visible.contains(slot) && !visible.contains(slot));
+    test_occlusion(store, tested, view, &pyramid, &mut visible, &mut occluded);
+    for slot in 0..store.len() {
+        assert_eq!(occluded.contains(slot), tested.contains(slot) && !visible.contains(slot));
     }
-    (frustum_visible, visible)
+    visible
 }
 
 /// A quad facing +z (towards a camera on +z) spanning `min..max` in x and y at depth `z`.
@@ -73,6 +85,43 @@ fn camera_on_z(z: f32) -> Camera {
 }
 
 const BUFFER: (u32, u32) = (256, 144);
+
+/// A sun's cascade sees occluders from its light: a roof facing the light hides the box under it, not one
+/// above it or beside it; the same roof facing away hides nothing; a roof far nearer the light than the
+/// cascade's near plane (which a shadow map clamps, not clips) still hides; and the cascade's buffer holds
+/// depths towards the light, not a constant `1/w`.
+#[test]
+fn a_cascade_hides_what_lies_under_roofs_facing_the_sun() {
+    use cullet::frustum::LightSource;
+    let camera = camera_on_z(0.0);
+    let sun = LightSource::Sun { direction: Vec3::new(0.1, -1.0, 0.05), splits: vec![0.1, 30.0] };
+    let light_view = sun.light_views(&camera).unwrap().remove(0);
+    let view = ScreenView::of_light_view(&light_view, 128).unwrap();
+    assert!(view.is_orthographic());
+    let boxes = [
+        (Vec3::new(0.0, 0.0, -15.0), Vec3::splat(1.0)),   // under the roof
+        (Vec3::new(0.0, 14.0, -15.0), Vec3::splat(1.0)),  // above it
+        (Vec3::new(12.0, 0.0, -15.0), Vec3::splat(1.0)),  // beside it
+        (Vec3::new(-1.0, -3.0, -14.0), Vec3::splat(0.5)), // under it, lower
+    ];
+    let store = store_of(&boxes);
+    let all = VisibleSet::all(boxes.len());
+    // The +z quad turned to face +y (up, towards the sun) or -y, `2 * half` across.
+    let roof = |height: f32, half: f32, up: bool| {
+        let (triangles, _) = wall((-half, -half), (half, half), 0.0);
+        let turn = Quat::from_rotation_x(if up { -std::f32::consts::FRAC_PI_2 } else { std::f32::consts::FRAC_PI_2 });
+        (triangles, Affine3A::from_rotation_translation(turn, Vec3::new(0.0, height, -15.0)))
+    };
+    let kept = |occluders: &[Occluder]| {
+        let visible = occlude(&store, &all, &view, occluders, RasterMode::Conservative);
+        (0..boxes.len()).map(|slot| visible.contains(slot)).collect::<Vec<_>>()
+    };
+    assert_eq!(kept(&[roof(10.0, 5.0, true)]), [false, true, true, false]);
+    assert_eq!(kept(&[roof(10.0, 5.0, false)]), [true; 4]);
+    assert_eq!(kept(&[roof(500.0, 200.0, true)]), [false; 4]);
+    // A roof below the boxes hides none of them.
+    assert_eq!(kept(&[roof(-10.0, 50.0, true)]), [true; 4]);
+}
 
 #[test]
 fn box_behind_a_wall_is_culled_and_one_in_front_kept() {

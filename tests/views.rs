@@ -292,3 +292,41 @@ fn the_pipeline_culls_light_views_with_the_camera() {
     world.clear_trackers();
     assert!(world.resource::<LightViewsVisible>().0.iter().all(|view| view.kept == boxes.len()));
 }
+
+/// Each light view's own occlusion over the city's fly-through, moved 1e5 m from the origin too: casters hidden
+/// from their lights are dropped (some, not none), and none that the exact rendering from the light shows at
+/// its texel centres is. A sun's four cascades (the last one 10 km deep, orthographic with huge extents) and a
+/// lamp's six faces with a near plane of 1e-4.
+#[test]
+fn light_views_drop_only_casters_hidden_from_their_lights() {
+    use cullet::frustum::LightSource;
+    use cullet::pipeline::{CullStats, LightViews, OcclusionSettings};
+    use cullet::scene::city::{CityParams, CityScene};
+    use cullet::scene::flight::Flight;
+    use cullet_truth::shadows::light_view_false_negatives;
+    for offset in [Vec3::ZERO, Vec3::new(1.0e5, 0.0, -1.0e5)] {
+        let mut city = CityScene::generate(CityParams::with_objects(4_000));
+        city.scene.translate(offset);
+        let path = city.flythrough().translated(offset);
+        let frames = 5;
+        let mut flight = Flight::new(path, 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
+            city.scene.spawn(world);
+        });
+        let lamp = flight.path.keys[0].position + Vec3::new(0.0, 6.0, 0.0);
+        flight.world.insert_resource(LightViews(vec![
+            LightSource::Sun { direction: Vec3::new(0.35, -1.0, 0.25), splits: vec![0.1, 12.0, 40.0, 120.0, 1.0e4] },
+            LightSource::Lamp { position: lamp, near: 1e-4, range: Some(60.0) },
+        ]));
+        let (mut occluded, mut kept) = (0, 0);
+        for frame in 0..frames {
+            flight.run_frame(frame);
+            let stats = *flight.world.resource::<CullStats>();
+            assert_eq!(stats.light_views, 10);
+            (occluded, kept) = (occluded + stats.light_view_occluded, kept + stats.light_view_casters);
+            let missed = light_view_false_negatives(&flight.world, &city.scene.meshes, 512);
+            assert!(missed.iter().all(|&n| n == 0), "offset {offset}, frame {frame}: needed casters culled {missed:?}");
+        }
+        println!("offset {offset}: light views' occlusion hid {occluded} casters, kept {kept}");
+        assert!(occluded > 0, "the light views' occlusion hid nothing");
+    }
+}

@@ -7,11 +7,14 @@
 //!    surface hides nothing (a renderer culls the back faces the camera sees), even if the camera is outside
 //!    the occluder.
 //! 3. Rank: by the solid-angle estimate of Coorg and Teller (seed 002), `area / distance^2`, taken for the
-//!    object's bounding sphere as `radius^2 / distance^2` (distance to the box centre).
+//!    object's bounding sphere as `radius^2 / distance^2` (distance to the box centre). In an orthographic
+//!    view (a sun's cascade, [`select_occluders_for_view`]) every occluder is seen from one direction, so the
+//!    rank is `radius^2` and nothing contains the eye.
 //! 4. Budget: occluders are taken best-first while their triangles fit in the budget; one that does not fit
 //!    is skipped and smaller ones after it may still fill the budget (see [`select_occluders`]).
 
 use crate::bounds::BoundsStore;
+use crate::depth::ScreenView;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
@@ -94,22 +97,59 @@ pub fn select_occluders<'a>(
     triangle_budget: usize,
     occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
+    select_ranked(store, frustum_visible, Viewpoint::Position(camera_position), triangle_budget, occluder_of)
+}
+
+/// [`select_occluders`] for any view: for a perspective one, from its eye ([`ScreenView::origin`]); for an
+/// orthographic one (a sun's cascade), where every occluder is seen from the same direction, ranked by the
+/// size alone (`radius^2`) and none skipped as containing the eye.
+pub fn select_occluders_for_view<'a>(
+    store: &BoundsStore,
+    visible: &VisibleSet,
+    view: &ScreenView,
+    triangle_budget: usize,
+    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+) -> Vec<(u32, OccluderInstance<'a>)> {
+    let viewpoint = if view.is_orthographic() { Viewpoint::Direction } else { Viewpoint::Position(view.origin) };
+    select_ranked(store, visible, viewpoint, triangle_budget, occluder_of)
+}
+
+/// Where occluders are seen from, for ranking.
+#[derive(Clone, Copy)]
+enum Viewpoint {
+    /// An eye at this world position.
+    Position(Vec3),
+    /// A light at infinity.
+    Direction,
+}
+
+/// [`select_occluders`] with occluders ranked as seen from `viewpoint`.
+fn select_ranked<'a>(
+    store: &BoundsStore,
+    visible: &VisibleSet,
+    viewpoint: Viewpoint,
+    triangle_budget: usize,
+    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+) -> Vec<(u32, OccluderInstance<'a>)> {
     let mut ranked: Vec<(f32, u32)> = Vec::new();
     let soa = store.soa();
-    for (word_index, (&visible, &occluders)) in
-        frustum_visible.words().iter().zip(store.occluders().words()).enumerate()
-    {
+    for (word_index, (&visible, &occluders)) in visible.words().iter().zip(store.occluders().words()).enumerate() {
         let mut bits = visible & occluders;
         while bits != 0 {
             let slot = word_index * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
-            let offset = Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]) - camera_position;
+            let radius_squared = soa.radius[slot] * soa.radius[slot];
+            let Viewpoint::Position(eye) = viewpoint else {
+                ranked.push((radius_squared, slot as u32));
+                continue;
+            };
+            let offset = Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]) - eye;
             let extent = Vec3::new(soa.extent_x[slot], soa.extent_y[slot], soa.extent_z[slot]);
             let distance_squared = offset.length_squared();
             if offset.abs().cmple(extent).all() || distance_squared <= 0.0 {
                 continue; // The camera is inside the object.
             }
-            ranked.push((soa.radius[slot] * soa.radius[slot] / distance_squared, slot as u32));
+            ranked.push((radius_squared / distance_squared, slot as u32));
         }
     }
     let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0);

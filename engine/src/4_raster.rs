@@ -4,10 +4,10 @@
 //! Occlusion Culling.
 //!
 //! # Depth convention
-//! A texel holds `1/w`, the reciprocal of view-space distance along the view axis, of the *farthest* occluder
-//! surface known to cover it: larger is nearer, and `0` (infinitely far) means no occluder. This is reversed
-//! depth with an infinite far plane, independent of the camera's own depth convention; `1/w` is affine in
-//! screen space, so a triangle's depth over a texel is bounded exactly by its plane.
+//! A texel holds the depth (see [`crate::depth`]: `1/w` in a perspective view, the distance towards the light
+//! in an orthographic one) of the *farthest* occluder surface known to cover it: larger is nearer, and `0`
+//! means no occluder. The depth is affine in screen space, so a triangle's depth over a texel is bounded
+//! exactly by its plane.
 //!
 //! # Modes
 //! - [`RasterMode::Conservative`] (default): a texel is written only where an occluder covers the *whole*
@@ -27,14 +27,14 @@
 //!
 //! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64; only the
 //! per-texel loop runs in f32, with margins that cover its rounding. Nothing is clipped against the sides of
-//! the screen: f64 setup is precise far outside it, and texel loops are clamped to the buffer. Back faces are
-//! skipped: a closed occluder's front faces hide everything its back faces would, and from inside an occluder
-//! nothing is hidden by it.
+//! the screen: f64 setup is precise far outside it, and texel loops are clamped to the buffer. Back faces (seen
+//! from the eye, or from the light in an orthographic view) are skipped: a closed occluder's front faces hide
+//! everything its back faces would, and from inside an occluder nothing is hidden by it.
 
 use crate::depth::{DepthPyramid, ScreenView, farther, reduce_rows};
 use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
-use glam::{DAffine3, DVec3, Vec3};
+use glam::{DAffine3, DVec3, DVec4, Vec3};
 use rayon::prelude::*;
 
 /// Rows of the depth buffer rasterized by one rayon task; each band is a contiguous slice, so tasks never share
@@ -129,7 +129,7 @@ struct SetupOccluder {
     /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole.
     boundary: std::ops::Range<u32>,
     rect: TexelRect,
-    /// The largest `1/w` of any of its vertices: nothing of the occluder is nearer.
+    /// The largest depth of any of its vertices: nothing of the occluder is nearer.
     nearest: f32,
 }
 
@@ -541,10 +541,14 @@ fn setup_occluder(
     let (mut screen_min, mut screen_max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
     relative.clear();
     relative.extend(occluder.triangles.iter().map(|p| transform.transform_point3(p.as_dvec3())));
-    // Front-facing in 3D: the eye (the origin here) is on the outer side of the counter-clockwise face.
+    // Front-facing in 3D: the eye (the origin, or the light's direction in an orthographic view) is on the
+    // outer side of the counter-clockwise face.
+    let eye = view.eye();
     front.clear();
-    front.extend(relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(t[0]) < 0.0));
-    let m = view.clip_from_relative;
+    front.extend(
+        relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(eye.truncate() - t[0] * eye.w) > 0.0),
+    );
+    let (m, depth_row) = (view.clip_from_relative, view.depth_from_relative);
     let (first_triangle, first_segment) = (arena.triangles.len(), arena.boundary.len());
     let mut setup =
         SetupOccluder { arena: arena_index, triangles: 0..0, boundary: 0..0, rect: TexelRect::EMPTY, nearest: 0.0 };
@@ -552,12 +556,12 @@ fn setup_occluder(
         if !front[t] {
             continue;
         }
-        let mut polygon = [(DVec3::ZERO, false); 4];
+        let mut polygon = [(DVec4::ZERO, false); 4];
         for (e, corner) in corners.iter().enumerate() {
             let v = m * corner.extend(1.0);
             let neighbour = occluder.neighbours[3 * t + e];
             let boundary = neighbour == NO_NEIGHBOUR || !front[neighbour as usize];
-            polygon[e] = (DVec3::new(v.x, v.y, v.w), boundary);
+            polygon[e] = (DVec4::new(v.x, v.y, v.w, depth_row.dot(corner.extend(1.0))), boundary);
         }
         let (polygon, count) = clip_near(&polygon, view.near as f64);
         if count < 3 {
@@ -606,10 +610,11 @@ struct SetupScratch {
     front: Vec<bool>,
 }
 
-/// Clips a triangle of homogeneous `(x, y, w)` vertices, each flagged when the edge leaving it is a boundary,
-/// against `w >= near`. Edges along the clipping plane are boundaries. Returns the polygon and its size.
-fn clip_near(triangle: &[(DVec3, bool); 4], near: f64) -> ([(DVec3, bool); 4], usize) {
-    let mut out = [(DVec3::ZERO, false); 4];
+/// Clips a triangle of homogeneous `(x, y, w, d)` vertices, each flagged when the edge leaving it is a
+/// boundary, against `w >= near`. Edges along the clipping plane are boundaries. Returns the polygon and its
+/// size.
+fn clip_near(triangle: &[(DVec4, bool); 4], near: f64) -> ([(DVec4, bool); 4], usize) {
+    let mut out = [(DVec4::ZERO, false); 4];
     let mut count = 0;
     for i in 0..3 {
         let ((a, boundary), (b, _)) = (triangle[i], triangle[(i + 1) % 3]);
@@ -631,10 +636,11 @@ fn clip_near(triangle: &[(DVec3, bool); 4], near: f64) -> ([(DVec3, bool); 4], u
     (out, count)
 }
 
-/// Homogeneous `(x, y, w)` to screen texel coordinates and `1/w`, y down.
-fn to_screen(view: &ScreenView, v: DVec3) -> DVec3 {
+/// Homogeneous `(x, y, w, d)` to screen texel coordinates and depth `d/w`, y down.
+fn to_screen(view: &ScreenView, v: DVec4) -> DVec3 {
     let inv_w = 1.0 / v.z;
-    DVec3::new((v.x * inv_w * 0.5 + 0.5) * view.width as f64, (0.5 - v.y * inv_w * 0.5) * view.height as f64, inv_w)
+    let (x, y) = ((v.x * inv_w * 0.5 + 0.5) * view.width as f64, (0.5 - v.y * inv_w * 0.5) * view.height as f64);
+    DVec3::new(x, y, v.w * inv_w)
 }
 
 /// Edge and depth planes of a screen-space triangle, or `None` if it is degenerate or off screen.

@@ -1,8 +1,8 @@
 //! Stage 4, occlusion test: each frustum survivor's box against the [`DepthPyramid`] of the occluder raster.
 //!
 //! Per object (8 objects a step, SIMD-friendly lanes): bound the box's screen rectangle and nearest depth
-//! (`1/w` of its nearest point) from its centre and extents in clip space; a box reaching the near plane is
-//! visible.
+//! (`1/w` of its nearest point, or in an orthographic view its depth row's largest value, see
+//! [`crate::depth`]) from its centre and extents in clip space; a box reaching the near plane is visible.
 //! Pick the mip level of eq. 19.5 of seed 000, where the rectangle covers at most 2x2 texels; the object is
 //! occluded if its nearest depth is farther than the farthest occluder depth of those texels, refined one
 //! level finer (at most 3x3 texels; see [`test_occlusion`]).
@@ -36,7 +36,7 @@ pub struct OcclusionStats {
     pub visible: usize,
 }
 
-/// Where a box lands on the screen: texel rectangle `x0..x1`, `y0..y1` of level 0, and its nearest `1/w`.
+/// Where a box lands on the screen: texel rectangle `x0..x1`, `y0..y1` of level 0, and its nearest depth.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct ScreenRect {
     x0: u32,
@@ -231,11 +231,16 @@ fn project_boxes(store: &BoundsStore, view: &ScreenView, base: usize, lanes: &[u
 #[inline(always)]
 fn project<const N: usize>(view: &ScreenView, c: &[[f32; N]; 3], e: &[[f32; N]; 3]) -> [ScreenRect; N] {
     let m = view.clip_from_relative_f32;
-    let rows = [0, 1, 3].map(|r| [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]]);
-    // Per clip axis (x, y, w): centre value and reach, and the magnitude that bounds rounding.
-    let mut centre = [[0f32; N]; 3];
-    let mut reach = [[0f32; N]; 3];
-    for (axis, row) in rows.iter().enumerate() {
+    let depth = view.depth_from_relative_f32();
+    let orthographic = view.is_orthographic();
+    let [x, y, w] = [0, 1, 3].map(|r| [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]]);
+    // Per clip axis (x, y, w, and the depth row where it varies): centre value and reach, and the magnitude
+    // that bounds rounding.
+    let rows = [x, y, w, depth.to_array()];
+    let axes = if orthographic { 4 } else { 3 };
+    let mut centre = [[0f32; N]; 4];
+    let mut reach = [[0f32; N]; 4];
+    for (axis, row) in rows[..axes].iter().enumerate() {
         // Summed in the order of the AVX2 path, so both give the same rectangles.
         for i in 0..N {
             let value = row[3] + row[0] * c[0][i] + row[1] * c[1][i] + row[2] * c[2][i];
@@ -274,7 +279,11 @@ fn project<const N: usize>(view: &ScreenView, c: &[[f32; N]; 3], e: &[[f32; N]; 
         rect.x1 = ceil(to_texel_x(max_x));
         rect.y0 = floor(to_texel_y(max_y));
         rect.y1 = ceil(to_texel_y(min_y));
-        rect.nearest = inv_near;
+        // A perspective view's depth is 1/w; an orthographic one's at most the depth row's largest value (w is
+        // 1 within rounding, and w_min below it). Never 0 or less, which would read as hidden behind texels
+        // no occluder covers.
+        rect.nearest =
+            if orthographic { (centre[3][i] + reach[3][i]).max(f32::MIN_POSITIVE) * inv_near } else { inv_near };
         // Off screen after clamping: the frustum test kept it by its slack; keeping it is free.
         rect.always_visible = rect.x0 >= rect.x1 || rect.y0 >= rect.y1;
     }
@@ -366,10 +375,13 @@ mod avx2 {
         ];
         let e = [load(&gathered[3]), load(&gathered[4]), load(&gathered[5])];
         let m = view.clip_from_relative_f32;
-        let mut centre = [_mm256_setzero_ps(); 3];
-        let mut reach = [_mm256_setzero_ps(); 3];
-        for (axis, r) in [0, 1, 3].into_iter().enumerate() {
-            let row = [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]];
+        let orthographic = view.is_orthographic();
+        let [x, y, w] = [0, 1, 3].map(|r| [m.x_axis[r], m.y_axis[r], m.z_axis[r], m.w_axis[r]]);
+        let rows = [x, y, w, view.depth_from_relative_f32().to_array()];
+        let axes = if orthographic { 4 } else { 3 };
+        let mut centre = [_mm256_setzero_ps(); 4];
+        let mut reach = [_mm256_setzero_ps(); 4];
+        for (axis, row) in rows[..axes].iter().enumerate() {
             let mut value = splat(row[3]);
             let mut extent = _mm256_setzero_ps();
             let mut magnitude = splat(row[3].abs());
@@ -420,15 +432,22 @@ mod avx2 {
             out
         };
         let (x0, x1, y0, y1) = (store_i32(x0), store_i32(x1), store_i32(y0), store_i32(y1));
-        let mut nearest = [0f32; LANES];
-        // SAFETY: `nearest` is 8 f32s, the 32 bytes the unaligned store writes.
-        unsafe { _mm256_storeu_ps(nearest.as_mut_ptr(), inv_near) };
+        // As in the portable projection: 1/w, or the depth row's largest value over w.
+        let nearest = if orthographic {
+            let farthest_row = _mm256_max_ps(_mm256_add_ps(centre[3], reach[3]), splat(f32::MIN_POSITIVE));
+            _mm256_mul_ps(farthest_row, inv_near)
+        } else {
+            inv_near
+        };
+        let mut nearest_lanes = [0f32; LANES];
+        // SAFETY: `nearest_lanes` is 8 f32s, the 32 bytes the unaligned store writes.
+        unsafe { _mm256_storeu_ps(nearest_lanes.as_mut_ptr(), nearest) };
         std::array::from_fn(|i| ScreenRect {
             x0: x0[i] as u32,
             x1: x1[i] as u32,
             y0: y0[i] as u32,
             y1: y1[i] as u32,
-            nearest: nearest[i],
+            nearest: nearest_lanes[i],
             always_visible: visible_mask >> i & 1 != 0,
         })
     }
@@ -460,16 +479,20 @@ mod tests {
             store.insert(entity, &bounds).unwrap();
         }
         let camera = Camera::looking_at(Vec3::new(1.0, 2.0, 30.0), Vec3::new(0.0, 0.0, 0.0));
-        let view = ScreenView::new(&camera, 256, 144);
+        // The camera's perspective view and a sun's orthographic cascade.
+        let sun = crate::frustum::LightSource::Sun { direction: Vec3::new(0.3, -1.0, 0.2), splits: vec![0.1, 60.0] };
+        let cascade = ScreenView::of_light_view(&sun.light_views(&camera).unwrap()[0], 128).unwrap();
         let lanes: Vec<usize> = (0..LANES).collect();
-        for base in (0..512).step_by(LANES) {
-            let scalar = project_boxes(&store, &view, base, &lanes);
-            // SAFETY: AVX2 was detected above; the slots exist.
-            let simd = unsafe { avx2::project_boxes(&store, &view, base, &lanes) };
-            for (a, b) in scalar.iter().zip(&simd) {
-                assert_eq!(a.always_visible, b.always_visible);
-                if !a.always_visible {
-                    assert_eq!(a, b);
+        for view in [ScreenView::new(&camera, 256, 144), cascade] {
+            for base in (0..512).step_by(LANES) {
+                let scalar = project_boxes(&store, &view, base, &lanes);
+                // SAFETY: AVX2 was detected above; the slots exist.
+                let simd = unsafe { avx2::project_boxes(&store, &view, base, &lanes) };
+                for (a, b) in scalar.iter().zip(&simd) {
+                    assert_eq!(a.always_visible, b.always_visible);
+                    if !a.always_visible {
+                        assert_eq!(a, b);
+                    }
                 }
             }
         }

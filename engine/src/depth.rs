@@ -1,12 +1,26 @@
 //! The occlusion stages' screen: the [`ScreenView`] a depth buffer is seen through, the [`DepthBuffer`] the
-//! raster stage writes (`1/w` of the farthest occluder covering each texel, 0 for none) and the farthest-depth
-//! [`DepthPyramid`] the occlusion test and the GPU's HZB read.
+//! raster stage writes (the depth of the farthest occluder covering each texel, larger is nearer, 0 for none)
+//! and the farthest-depth [`DepthPyramid`] the occlusion test and the GPU's HZB read.
+//!
+//! # Depth
+//! A buffer's depth is `d / w`, with `w` the clip `w` of the view's matrix and `d` an affine function of the
+//! position ([`ScreenView::depth_from_relative`]); both are affine in homogeneous coordinates, so `d / w` is
+//! affine in screen space and a triangle's depth over a texel is bounded exactly by its plane.
+//! - Perspective views (the camera, a lamp's cube faces): `d = 1`, so the depth is `1/w`, reversed depth with
+//!   an infinite far plane whatever the camera's own convention.
+//! - Orthographic views (a sun's cascades), where `w = 1` everywhere: `d = 2 - z`, with `z` the matrix's depth
+//!   from 0 at its near plane to 1 at its far plane. Larger is still nearer (nearer the light); what lies
+//!   between the light and the near plane is not clipped (a cascade's shadow map clamps its depth there) and
+//!   gets depths above 2.
 
+use crate::DepthConvention;
 use crate::camera::Camera;
-use glam::{DMat4, Mat4, Vec3};
+use crate::frustum::LightView;
+use glam::{DMat4, DVec4, Mat4, Vec3, Vec4};
 use rayon::prelude::*;
 
-/// The camera as the depth buffer sees it: camera-relative clip matrices and the buffer size.
+/// A view as a depth buffer sees it: camera-relative clip matrices, the depth the buffer stores and the
+/// buffer size.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ScreenView {
     /// World position everything is made relative to.
@@ -15,7 +29,11 @@ pub struct ScreenView {
     pub clip_from_relative: DMat4,
     /// The same in f32 (for the SIMD occludee projection).
     pub clip_from_relative_f32: Mat4,
-    /// Near-plane distance: geometry at `w < near` is clipped (occluders) or kept (occludees).
+    /// The row giving `d` of the stored depth `d / w` from an `origin`-relative point `p`: `d = row · (p, 1)`
+    /// (see the module documentation). `(0, 0, 0, 1)` for a perspective view.
+    pub depth_from_relative: DVec4,
+    /// Near-plane distance: geometry at `w < near` is clipped (occluders) or kept (occludees). Below 1 in an
+    /// orthographic view, where nothing is clipped.
     pub near: f32,
     /// Buffer width in texels.
     pub width: u32,
@@ -31,14 +49,83 @@ impl ScreenView {
             origin: camera.position,
             clip_from_relative,
             clip_from_relative_f32: clip_from_relative.as_mat4(),
+            depth_from_relative: DVec4::W,
             near: camera.near,
             width,
             height,
         }
     }
+
+    /// An orthographic view on a `width` x `height` buffer: `clip_from_relative` (relative to `origin`) has
+    /// `w = 1` everywhere and depth convention `depth`. Returns `None` for a matrix that is not orthographic
+    /// (its `w` row is not `(0, 0, 0, 1)`), whose depth does not vary, or that is not finite.
+    pub fn orthographic(
+        origin: Vec3,
+        clip_from_relative: DMat4,
+        depth: DepthConvention,
+        width: u32,
+        height: u32,
+    ) -> Option<Self> {
+        let rows = clip_from_relative.transpose();
+        if rows.w_axis != DVec4::W || !clip_from_relative.is_finite() || rows.z_axis.truncate() == glam::DVec3::ZERO {
+            return None;
+        }
+        // Depth from 0 at the near plane to 1 at the far plane, as a row.
+        let z01 = match depth {
+            DepthConvention::Standard => rows.z_axis,
+            DepthConvention::Reversed => DVec4::W - rows.z_axis,
+            DepthConvention::NegativeOneToOne => (rows.z_axis + DVec4::W) * 0.5,
+        };
+        Some(Self {
+            origin,
+            clip_from_relative,
+            clip_from_relative_f32: clip_from_relative.as_mat4(),
+            depth_from_relative: DVec4::W * 2.0 - z01,
+            near: 0.5,
+            width,
+            height,
+        })
+    }
+
+    /// The view of a light view on a `size` x `size` buffer: perspective with the face's near plane for a
+    /// lamp's cube face (`near` set), orthographic for a sun's cascade. `None` for a light view without a near
+    /// plane whose matrix is not orthographic ([`ScreenView::orthographic`]), which
+    /// [`crate::frustum::LightSource::light_views`] never makes.
+    pub fn of_light_view(light_view: &LightView, size: u32) -> Option<Self> {
+        let (origin, matrix) = (light_view.origin, light_view.clip_from_relative);
+        match light_view.near {
+            Some(near) => Some(Self {
+                origin,
+                clip_from_relative: matrix,
+                clip_from_relative_f32: matrix.as_mat4(),
+                depth_from_relative: DVec4::W,
+                near,
+                width: size,
+                height: size,
+            }),
+            None => Self::orthographic(origin, matrix, light_view.depth, size, size),
+        }
+    }
+
+    /// Whether the view is orthographic (its depth varies with position rather than with `1/w`).
+    pub fn is_orthographic(&self) -> bool {
+        self.depth_from_relative.truncate() != glam::DVec3::ZERO
+    }
+
+    /// The depth row in f32, for the occludee projection.
+    pub(crate) fn depth_from_relative_f32(&self) -> Vec4 {
+        self.depth_from_relative.as_vec4()
+    }
+
+    /// The direction, `origin`-relative and homogeneous, the view looks from: `(0, 0, 0, 1)` (the origin) for
+    /// a perspective view, `(t, 0)` with `t` towards the light for an orthographic one. A face is front-facing
+    /// when its outward normal `n` has `n · (e.xyz - p e.w) > 0` for a point `p` of it.
+    pub(crate) fn eye(&self) -> DVec4 {
+        if self.is_orthographic() { self.depth_from_relative.truncate().extend(0.0) } else { DVec4::W }
+    }
 }
 
-/// A `width` x `height` buffer of `1/w` depths, row-major, row 0 at the top of the screen.
+/// A `width` x `height` buffer of depths (see the module documentation), row-major, row 0 at the top of the screen.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DepthBuffer {
     width: u32,
@@ -62,7 +149,7 @@ impl DepthBuffer {
         self.height
     }
 
-    /// Depth (`1/w` of the farthest covering occluder, 0 for none) at texel `(x, y)`.
+    /// Depth (of the farthest covering occluder, 0 for none) at texel `(x, y)`.
     pub fn get(&self, x: u32, y: u32) -> f32 {
         self.texels[y as usize * self.width as usize + x as usize]
     }
@@ -95,7 +182,7 @@ impl DepthBuffer {
 }
 
 /// A farthest-depth mip pyramid of a [`DepthBuffer`]: level `k + 1` has `ceil(size / 2)` texels per axis and
-/// each texel holds the minimum `1/w` (farthest depth) of the up to 2x2 texels of level `k` it covers, so a
+/// each texel holds the minimum depth (farthest) of the up to 2x2 texels of level `k` it covers, so a
 /// coarse texel never claims more occlusion than every fine texel under it. Odd sizes keep their last row and
 /// column (a coarse texel over the edge takes the texels that exist; off-screen parts are never tested).
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -11,7 +11,8 @@
 //! 3. [`occluder`]: the artist occluders, and which of them to rasterize this frame;
 //! 4. [`raster`]: those occluders rasterized into a small conservative [`depth::DepthBuffer`], reduced to its
 //!    farthest-depth [`depth::DepthPyramid`];
-//! 5. [`occlusion`]: each frustum survivor's box tested against that pyramid;
+//! 5. [`occlusion`]: each frustum survivor's box tested against that pyramid; each light view (a sun's
+//!    cascade, a lamp's face) has a buffer of its own, seen from its light, and drops its hidden casters;
 //! 6. `gpu` (feature `gpu`): on the GPU, the survivors' clusters and triangles culled against the frustum,
 //!    normal cones and an HZB primed from the occluder buffer, compacted, and drawn with one
 //!    multi-draw-indirect.
@@ -94,8 +95,8 @@ pub mod prelude {
     pub use crate::mesh::{Mesh, MeshRef, ObjectColor};
     pub use crate::occluder::Occluder;
     pub use crate::pipeline::{
-        AdaptiveSettings, CullStage, CullStats, FrustumSettings, FrustumVisible, LightViews, LightViewsVisible,
-        OcclusionSettings, OcclusionState, PipelineSettings, install,
+        AdaptiveSettings, CullStage, CullStats, FrustumSettings, FrustumVisible, LightOcclusionSettings, LightViews,
+        LightViewsVisible, OcclusionSettings, OcclusionState, PipelineSettings, install,
     };
     pub use crate::raster::RasterMode;
     pub use crate::visible::VisibleSet;

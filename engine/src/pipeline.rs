@@ -11,11 +11,12 @@ use crate::frustum::{
     FrustumError, LightSource, LightView, PlaneCoherence, SimdBackend, View, ViewError, cull_frustum,
     cull_frustum_coherent, cull_views,
 };
-use crate::occluder::{Occluder, OccluderInstance, select_occluders};
+use crate::occluder::{Occluder, OccluderInstance, select_occluders, select_occluders_for_view};
 use crate::occlusion::{retest_occlusion, test_occlusion};
 use crate::raster::{RasterMode, rasterize};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
+use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
 /// The stages, in the order they run.
@@ -25,7 +26,8 @@ pub enum CullStage {
     Bounds,
     /// Cull against the view frustum.
     Frustum,
-    /// Rasterize artist occluders and test the frustum survivors against them.
+    /// Rasterize artist occluders and test the frustum survivors against them; then the same for each light
+    /// view, as its light sees them.
     Occlusion,
 }
 
@@ -51,6 +53,9 @@ pub struct LightViewVisible {
     pub visible: VisibleSet,
     /// How many.
     pub kept: usize,
+    /// How many of the casters its frustum kept its occlusion then hid from the light
+    /// ([`LightOcclusionSettings`]); already left out of `visible` and `kept`.
+    pub occluded: usize,
 }
 
 /// Output of the frustum stage for the [`LightViews`]: every light view of the frame, lights in order.
@@ -96,6 +101,14 @@ pub struct CullStats {
     pub light_view_casters: usize,
     /// Set when a light of [`LightViews`] gave no views this frame (it is left out, and reported here).
     pub light_view_error: Option<ViewError>,
+    /// Casters the light views' occlusion hid from their lights this frame, summed over the views (already
+    /// left out of `light_view_casters`).
+    pub light_view_occluded: usize,
+    /// Light views whose occlusion was skipped this frame for removing too little lately.
+    pub light_occlusion_gated: usize,
+    /// Time spent on the light views' occlusion: selecting and rasterizing their occluders and testing their
+    /// casters.
+    pub light_occlusion_time: Duration,
     /// Occluders rasterized this frame.
     pub occluders: usize,
     /// Occluder triangles rasterized this frame (after clipping, front faces only).
@@ -142,6 +155,12 @@ pub struct AdaptiveSettings {
     /// [`AdaptiveSettings::low_benefit_frames`] frames in a row (an open field), then run again to re-probe
     /// every [`AdaptiveSettings::reprobe_every`] frames. 0 never skips.
     pub min_occlusion_benefit: f32,
+    /// The same for each light view's occlusion ([`LightOcclusionSettings`]), as a fraction of the view's
+    /// casters: a higher bar than the camera's, since a hidden caster saves a shadow map less than a hidden
+    /// object saves the frame. Measured on the city (`cargo bench -p cullet-benches --bench light_occlusion`):
+    /// under the game's high sun the light views hide 4% of their casters (1% of their triangles) for 0.5 ms
+    /// a frame, under a low sun 27% (6% of the triangles) for 0.7 ms. 0 never skips.
+    pub min_light_occlusion_benefit: f32,
     /// See `min_occlusion_benefit`.
     pub low_benefit_frames: u32,
     /// See `min_occlusion_benefit`.
@@ -157,12 +176,14 @@ pub struct AdaptiveSettings {
 }
 
 impl Default for AdaptiveSettings {
-    /// Reuse of unchanged frames; occlusion skipped after 8 frames under 1% removed, re-probed every 30 frames;
+    /// Reuse of unchanged frames; occlusion skipped after 8 frames under 1% removed (a light view's under
+    /// 10%), re-probed every 30 frames;
     /// plane coherence on; hidden occluders are still selected.
     fn default() -> Self {
         Self {
             reuse_unchanged: true,
             min_occlusion_benefit: 0.01,
+            min_light_occlusion_benefit: 0.1,
             low_benefit_frames: 8,
             reprobe_every: 30,
             skip_hidden_occluders: false,
@@ -177,6 +198,7 @@ impl AdaptiveSettings {
         Self {
             reuse_unchanged: false,
             min_occlusion_benefit: 0.0,
+            min_light_occlusion_benefit: 0.0,
             low_benefit_frames: u32::MAX,
             reprobe_every: 0,
             skip_hidden_occluders: false,
@@ -242,6 +264,8 @@ pub struct AdaptiveState {
     retest: Option<Vec<u32>>,
     /// When the occlusion stage is skipped for removing too little.
     occlusion: BenefitGate,
+    /// The same for each light view's occlusion, in [`LightViewsVisible`]'s order.
+    light_occlusion: Vec<BenefitGate>,
 }
 
 /// Settings of the frustum stage.
@@ -310,6 +334,46 @@ impl OcclusionState {
     }
 }
 
+/// Settings of the light views' occlusion: each light view of [`LightViews`] (a sun's cascade, a lamp's face)
+/// gets a conservative depth buffer of its own, seen from its light, of the occluders among its casters that
+/// face the light, and its casters hidden behind them are dropped.
+///
+/// A caster hidden from the light at every point of its box changes no texel of the shadow map: wherever it
+/// would be drawn, a nearer occluder, inside geometry that is drawn (or whose own shadow cannot reach the
+/// camera's view), already is. Each view has its own benefit gate ([`AdaptiveSettings::min_occlusion_benefit`]),
+/// so a view whose occlusion hides too little soon costs only its occluder selection.
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LightOcclusionSettings {
+    /// Whether light views are occlusion culled; when off, each keeps every caster its frustum kept.
+    pub enabled: bool,
+    /// Width and height of each light view's depth buffer, in texels (the buffer is always
+    /// [`RasterMode::Conservative`]: it never hides what a shadow map of any resolution shows).
+    pub size: u32,
+    /// Most occluder triangles rasterized per light view and frame.
+    pub triangle_budget: usize,
+    /// A light view with fewer casters than this is not occlusion culled: too little to gain for a raster.
+    pub min_casters: usize,
+}
+
+impl Default for LightOcclusionSettings {
+    /// On, 128x128 texels, 2048 triangles a view, views of 64 casters or more.
+    fn default() -> Self {
+        Self { enabled: true, size: 128, triangle_budget: 2048, min_casters: 64 }
+    }
+}
+
+/// Output and working memory of the light views' occlusion, in [`LightViewsVisible`]'s order.
+#[derive(Resource, Default, Debug, Clone)]
+pub struct LightOcclusionState {
+    /// Each light view's farthest-depth pyramid this frame; empty where it rasterized nothing.
+    pub pyramids: Vec<DepthPyramid>,
+    /// Each light view's casters that its frustum kept and its occlusion hid this frame (empty where its
+    /// occlusion did not run).
+    pub occluded: Vec<VisibleSet>,
+    /// Reused for each view's survivors.
+    survivors: Vec<VisibleSet>,
+}
+
 /// The settings of every CPU stage, installed together by [`install`]; each is a resource of the world
 /// afterwards, to change between frames.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -318,6 +382,8 @@ pub struct PipelineSettings {
     pub frustum: FrustumSettings,
     /// The occlusion stage (buffer resolution, mode, triangle budget).
     pub occlusion: OcclusionSettings,
+    /// The light views' occlusion.
+    pub light_occlusion: LightOcclusionSettings,
     /// What the pipeline may skip or reuse when it cannot pay off.
     pub adaptive: AdaptiveSettings,
 }
@@ -357,6 +423,7 @@ pub fn install(world: &mut World, schedule: &mut Schedule, settings: PipelineSet
     init_world(world);
     world.insert_resource(settings.frustum);
     world.insert_resource(settings.occlusion);
+    world.insert_resource(settings.light_occlusion);
     world.insert_resource(settings.adaptive);
     add_systems(schedule);
 }
@@ -372,6 +439,7 @@ fn init_world(world: &mut World) {
     world.init_resource::<AdaptiveState>();
     world.init_resource::<PlaneCoherence>();
     world.init_resource::<OcclusionState>();
+    world.init_resource::<LightOcclusionState>();
     world.add_observer(on_bounds_inserted);
     world.add_observer(on_bounds_removed);
     world.add_observer(on_occluder_inserted);
@@ -384,7 +452,7 @@ fn add_systems(schedule: &mut Schedule) {
     schedule.add_systems((
         sync_bounds.in_set(CullStage::Bounds),
         frustum_stage.in_set(CullStage::Frustum),
-        occlusion_stage.in_set(CullStage::Occlusion),
+        (occlusion_stage, light_occlusion_stage).chain().in_set(CullStage::Occlusion),
     ));
 }
 
@@ -470,7 +538,7 @@ pub fn frustum_stage(
             light_views.0 = lit
                 .into_iter()
                 .zip(sets.zip(&counts[1..]))
-                .map(|((light, view), (visible, &kept))| LightViewVisible { light, view, visible, kept })
+                .map(|((light, view), (visible, &kept))| LightViewVisible { light, view, visible, kept, occluded: 0 })
                 .collect();
             stats.frustum_error = None;
         }
@@ -491,8 +559,13 @@ pub fn frustum_stage(
     }
     if let Some(lit) = unculled {
         // Not culled this frame (the stage is off): every light view keeps everything.
-        let all =
-            |(light, view)| LightViewVisible { light, view, visible: VisibleSet::all(store.len()), kept: store.len() };
+        let all = |(light, view)| LightViewVisible {
+            light,
+            view,
+            visible: VisibleSet::all(store.len()),
+            kept: store.len(),
+            occluded: 0,
+        };
         light_views.0 = lit.into_iter().map(all).collect();
     }
     stats.light_views = light_views.0.len();
@@ -604,4 +677,93 @@ pub fn occlusion_stage(
         adaptive.low_benefit_frames,
         adaptive.reprobe_every,
     );
+}
+
+/// Occlusion culls each light view of [`LightViewsVisible`] (see [`LightOcclusionSettings`]): selects the
+/// occluders among its casters, best first within the budget, rasterizes them as its light sees them
+/// ([`ScreenView::of_light_view`]) and drops its casters hidden behind them, updating the view's `visible`,
+/// `kept` and `occluded`, [`LightOcclusionState`] and [`CullStats`]. Runs only on frames whose frustum stage
+/// culled the light views afresh. A view with fewer casters than [`LightOcclusionSettings::min_casters`] or no
+/// occluder among them rasterizes nothing, and one whose occlusion keeps hiding too little is skipped for a
+/// while, each view with its own gate. The views are rasterized and tested in parallel.
+#[allow(clippy::too_many_arguments)]
+pub fn light_occlusion_stage(
+    store: Res<BoundsStore>,
+    settings: Res<LightOcclusionSettings>,
+    adaptive: Res<AdaptiveSettings>,
+    mut light_views: ResMut<LightViewsVisible>,
+    mut state: ResMut<LightOcclusionState>,
+    mut gate: ResMut<AdaptiveState>,
+    mut stats: ResMut<CullStats>,
+    occluders: Query<(&Occluder, &ObjectTransform)>,
+) {
+    if stats.reused {
+        return; // Last frame's light views, occlusion included, stand.
+    }
+    let start = Instant::now();
+    let views = light_views.0.len();
+    let state = &mut *state;
+    state.pyramids.resize_with(views, DepthPyramid::default);
+    state.occluded.resize_with(views, VisibleSet::default);
+    state.survivors.resize_with(views, VisibleSet::default);
+    if gate.light_occlusion.len() != views {
+        gate.light_occlusion = vec![BenefitGate::default(); views];
+    }
+    // Each view's occluders: those among its casters, where its occlusion runs this frame.
+    let mut gated = 0;
+    let chosen: Vec<Vec<OccluderInstance>> = light_views
+        .0
+        .iter()
+        .zip(&mut gate.light_occlusion)
+        .map(|(view, gate)| {
+            if !settings.enabled || view.kept < settings.min_casters {
+                return Vec::new();
+            }
+            if gate.skip_this_frame() {
+                gated += 1;
+                return Vec::new();
+            }
+            // A light view not made by `light_views` may have no screen; it keeps its casters.
+            let Some(screen) = ScreenView::of_light_view(&view.view, settings.size) else { return Vec::new() };
+            select_occluders_for_view(&store, &view.visible, &screen, settings.triangle_budget, |slot| {
+                let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
+                Some(OccluderInstance { occluder, transform: transform.0 })
+            })
+            .into_iter()
+            .map(|(_, instance)| instance)
+            .collect()
+        })
+        .collect();
+    stats.light_occlusion_gated = gated;
+    light_views
+        .0
+        .par_iter_mut()
+        .zip(&mut state.pyramids)
+        .zip(&mut state.occluded)
+        .zip(&mut state.survivors)
+        .zip(&chosen)
+        .for_each(|((((view, pyramid), occluded), survivors), chosen)| {
+            view.occluded = 0;
+            if chosen.is_empty() {
+                *pyramid = DepthPyramid::default();
+                occluded.reset(0);
+                return;
+            }
+            let Some(screen) = ScreenView::of_light_view(&view.view, settings.size) else { return };
+            rasterize(&screen, chosen, RasterMode::Conservative, pyramid);
+            let tested = view.kept;
+            view.kept = test_occlusion(&store, &view.visible, &screen, pyramid, survivors, occluded).visible;
+            std::mem::swap(&mut view.visible, survivors);
+            view.occluded = tested - view.kept;
+        });
+    for ((view, gate), chosen) in light_views.0.iter().zip(&mut gate.light_occlusion).zip(&chosen) {
+        if !chosen.is_empty() {
+            let (min_benefit, low_frames, reprobe) =
+                (adaptive.min_light_occlusion_benefit, adaptive.low_benefit_frames, adaptive.reprobe_every);
+            gate.record(view.occluded, view.kept + view.occluded, min_benefit, low_frames, reprobe);
+        }
+    }
+    stats.light_view_occluded = light_views.0.iter().map(|view| view.occluded).sum();
+    stats.light_view_casters = light_views.0.iter().map(|view| view.kept).sum();
+    stats.light_occlusion_time = start.elapsed();
 }

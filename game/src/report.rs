@@ -191,9 +191,10 @@ pub fn print_summary(frames: &[CullStats]) {
         "frustum",
         100.0 * (1.0 - kept / objects.max(1.0))
     );
+    // The light views' casters after their frustum pass, before their occlusion.
+    let light_casters = frames.iter().map(|f| (f.light_view_casters + f.light_view_occluded) as f64).sum::<f64>() / n;
     if frames[0].light_views > 0 {
-        let views = frames[0].light_views;
-        let casters = frames.iter().map(|f| f.light_view_casters as f64).sum::<f64>() / n;
+        let (views, casters) = (frames[0].light_views, light_casters);
         println!(
             "{:<10} {:>38} {casters:>12.0} {:>9.1}%   ({views} light views, culled in the frustum's pass)",
             "lights",
@@ -219,6 +220,17 @@ pub fn print_summary(frames: &[CullStats]) {
         "occlusion",
         100.0 * (1.0 - after / kept.max(1.0))
     );
+    if frames[0].light_views > 0 {
+        let after = frames.iter().map(|f| f.light_view_casters as f64).sum::<f64>() / n;
+        let gated = frames.iter().map(|f| f.light_occlusion_gated).sum::<usize>();
+        let (mean, median, max) = summarize(frames.iter().map(|f| micros(f.light_occlusion_time)).collect());
+        println!(
+            "{:<10} {mean:>12.1} {median:>12.1} {max:>12.1} {after:>12.0} {:>9.1}%   (casters hidden from their \
+             lights; {gated} view-frames gated)",
+            "light occ",
+            100.0 * (1.0 - after / light_casters.max(1.0))
+        );
+    }
     println!(
         "gating: {reused} of {} frames reused the last result (nothing changed), {retested} re-tested only the \
          objects that moved (same view); occlusion skipped in {gated} (it had removed under the threshold)",

@@ -10,6 +10,7 @@
 
 use crate::triangle::{Faces, ReferenceView, ScreenTriangle, world_triangle};
 use cullet::VisibleSet;
+use cullet::frustum::LightView;
 use cullet::mesh::Mesh;
 use cullet::{Camera, LocalBounds};
 use glam::{Affine3A, Vec3};
@@ -164,6 +165,20 @@ impl ExactVisibility {
 pub fn render_ids(camera: &Camera, objects: &[ReferenceObject<'_>], settings: &ReferenceSettings) -> IdBuffer {
     let view = ReferenceView::new(camera, settings.width, settings.height);
     let faces = if settings.cull_back_faces { Faces::Front } else { Faces::Both };
+    render_view(&view, faces, objects)
+}
+
+/// Renders `objects` as a light view's shadow map of `size` x `size` texels sees them (object `i` of the slice
+/// is ID `i`): both faces of every triangle, as a shadow map draws them; a lamp's face clipped to its near
+/// and far planes; a sun's cascade orthographic, clipped to its far plane only (its map clamps the depth of
+/// what lies nearer the light), nearest to the light winning. An object owning no texel changes no texel of
+/// the map: every texel's nearest depth is some other object's.
+pub fn render_light_view(light_view: &LightView, objects: &[ReferenceObject<'_>], size: u32) -> IdBuffer {
+    render_view(&ReferenceView::of_light_view(light_view, size), Faces::Both, objects)
+}
+
+/// Renders `objects` through `view`, drawing `faces`.
+fn render_view(view: &ReferenceView, faces: Faces, objects: &[ReferenceObject<'_>]) -> IdBuffer {
     let triangles: Vec<(u32, u32, ScreenTriangle)> = objects
         .par_iter()
         .enumerate()
@@ -184,7 +199,7 @@ pub fn render_ids(camera: &Camera, objects: &[ReferenceObject<'_>], settings: &R
         })
         .collect();
 
-    let (width, height) = (settings.width, settings.height);
+    let (width, height) = (view.width, view.height);
     let pixels = (width * height) as usize;
     let mut buffer = IdBuffer {
         width,

@@ -8,9 +8,16 @@
 //! Both are linear feasibility problems in four unknowns (`p` and `t`; or `s p` and `s`), decided here exactly
 //! in f64: by one plane that the whole sweep lies outside of, by a point of the box inside `V ∩ C`, and
 //! otherwise by enumerating the vertices of the feasible region. Nothing is sampled.
+//!
+//! A light view's occlusion (`cullet::pipeline::LightOcclusionSettings`) also drops casters hidden from the
+//! light: [`light_view_false_negatives`] counts an object as needed only when, besides the above, it owns a
+//! texel of the exact rendering from the light, at the shadow map's texel centres.
 
+use crate::judge::reference_objects;
+use crate::render::render_light_view;
 use bevy_ecs::world::World;
 use cullet::frustum::LightSource;
+use cullet::mesh::Mesh;
 use cullet::pipeline::{LightViews, LightViewsVisible};
 use cullet::{BoundsStore, Camera, DepthConvention};
 use glam::{DMat4, DVec3, DVec4};
@@ -102,7 +109,13 @@ pub fn caster_needed(view: &[DVec4], receivers: &[DVec4], light: ExactLight, min
 /// For each light view the frame culled ([`LightViewsVisible`] of `world`, which has just run the culling
 /// schedule with [`LightViews`]): how many stored objects it culled that it needs as casters, decided exactly.
 /// Every count is 0 for a conservative engine.
-pub fn light_view_false_negatives(world: &World) -> Vec<usize> {
+///
+/// An object is needed by a light view when [`caster_needed`] says its box's shadow can reach the camera's view
+/// and it owns at least one texel of the exact rendering of every object (`meshes`, as
+/// [`crate::judge::reference_objects`]) from that light ([`render_light_view`] at `size` x `size` texels, the
+/// shadow map's resolution): an object owning no texel changes no texel of the map. The rendering is made only
+/// for a view that culled some object whose box passes [`caster_needed`] (which only occlusion can cull).
+pub fn light_view_false_negatives(world: &World, meshes: &[Mesh], size: u32) -> Vec<usize> {
     let (Some(results), Some(lights)) = (world.get_resource::<LightViewsVisible>(), world.get_resource::<LightViews>())
     else {
         return Vec::new();
@@ -110,6 +123,7 @@ pub fn light_view_false_negatives(world: &World) -> Vec<usize> {
     let (store, camera) = (world.resource::<BoundsStore>(), world.resource::<Camera>());
     let origin = camera.position.as_dvec3();
     let receivers = crate::stress::exact_half_spaces(camera);
+    let mut objects = None;
     results
         .0
         .iter()
@@ -120,7 +134,7 @@ pub fn light_view_false_negatives(world: &World) -> Vec<usize> {
                 LightSource::Sun { direction, .. } => ExactLight::Directional(direction.as_dvec3()),
                 LightSource::Lamp { position, .. } => ExactLight::Point(position.as_dvec3() - origin),
             };
-            (0..store.len())
+            let needed_boxes: Vec<usize> = (0..store.len())
                 .into_par_iter()
                 .filter(|&slot| !result.visible.contains(slot))
                 .filter(|&slot| {
@@ -129,7 +143,13 @@ pub fn light_view_false_negatives(world: &World) -> Vec<usize> {
                     let extent = bounds.half_extent.as_dvec3();
                     caster_needed(&view, &receivers, light, center - extent, center + extent)
                 })
-                .count()
+                .collect();
+            if needed_boxes.is_empty() {
+                return 0;
+            }
+            let objects = objects.get_or_insert_with(|| reference_objects(world, meshes));
+            let seen = render_light_view(&result.view, objects, size).visibility().visible;
+            needed_boxes.into_iter().filter(|&slot| seen.contains(slot)).count()
         })
         .collect()
 }

@@ -1,23 +1,34 @@
 //! The exact triangle rasterizer both reference buffers share: f64 projection, homogeneous clipping against the
 //! near (and finite far) plane, and pixel-centre coverage by exact edge functions with the top-left fill rule.
+//!
+//! Depth is `d / w`, `d` an affine function of the position: `d = 1` (depth `1/w`) for a perspective view, the
+//! distance towards the light for an orthographic light view (as in `cullet::depth`); either is affine in
+//! screen space.
 
-use cullet::Camera;
+use cullet::frustum::LightView;
+use cullet::{Camera, DepthConvention};
 use glam::{Affine3A, DAffine3, DMat4, DVec3, DVec4, Vec3};
+use std::ops::{Add, Mul, Sub};
 
-/// The camera as a reference buffer sees it, in f64.
-#[derive(Clone, Copy, Debug)]
+/// The camera (or a light view) as a reference buffer sees it, in f64.
+#[derive(Clone, Debug)]
 pub(crate) struct ReferenceView {
     /// World position everything is made relative to.
     origin: DVec3,
     clip_from_relative: DMat4,
+    /// `d` of the depth `d / w`, from an `origin`-relative point: `d = depth_row · (p, 1)`.
+    depth_row: DVec4,
     near: f64,
     far: Option<f64>,
+    /// Half-spaces `n · p + c >= 0` of `origin`-relative points that geometry is clipped to before projection
+    /// (a light view's near and far planes).
+    clip_planes: Vec<DVec4>,
     pub width: u32,
     pub height: u32,
 }
 
-/// A triangle on the screen: `(x, y)` in pixels (y down, pixel centres at `+0.5`) and `z = 1/w`, wound so
-/// that its interior is on the positive side of each edge.
+/// A triangle on the screen: `(x, y)` in pixels (y down, pixel centres at `+0.5`) and `z` its depth (larger is
+/// nearer), wound so that its interior is on the positive side of each edge.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ScreenTriangle {
     v: [DVec3; 3],
@@ -39,10 +50,46 @@ impl ReferenceView {
         Self {
             origin: camera.position.as_dvec3(),
             clip_from_relative: camera.clip_from_relative_f64(),
+            depth_row: DVec4::W,
             near: camera.near as f64,
             far: camera.far.map(f64::from),
+            clip_planes: Vec::new(),
             width,
             height,
+        }
+    }
+
+    /// A light view on a `size` x `size` buffer. A lamp's face is a perspective view clipped to its near and
+    /// far planes. A sun's cascade is orthographic: depth `2 - z` (`z` from 0 at its near plane to 1 at its
+    /// far plane), clipped to its far plane only, since its shadow map clamps the depth of what lies nearer
+    /// the light instead of clipping it.
+    pub fn of_light_view(light_view: &LightView, size: u32) -> Self {
+        let matrix = light_view.clip_from_relative;
+        let rows = matrix.transpose();
+        let (r2, r3) = (rows.z_axis, rows.w_axis);
+        // Depth 0 at the near plane to 1 at the far plane (w = 1 in an orthographic view), as a row.
+        let (near_plane, far_plane, z01) = match light_view.depth {
+            DepthConvention::Standard => (r2, r3 - r2, r2),
+            DepthConvention::Reversed => (r3 - r2, r2, r3 - r2),
+            DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2, (r2 + r3) * 0.5),
+        };
+        let mut clip_planes: Vec<DVec4> = Vec::new();
+        if light_view.near.is_some() {
+            clip_planes.push(near_plane);
+        }
+        if far_plane.truncate() != DVec3::ZERO {
+            clip_planes.push(far_plane);
+        }
+        Self {
+            origin: light_view.origin.as_dvec3(),
+            clip_from_relative: matrix,
+            depth_row: if light_view.near.is_some() { DVec4::W } else { DVec4::W * 2.0 - z01 },
+            // The near plane (if any) is among the clip planes; this only keeps `w` positive.
+            near: 0.0,
+            far: None,
+            clip_planes,
+            width: size,
+            height: size,
         }
     }
 
@@ -56,6 +103,7 @@ impl ReferenceView {
     pub fn may_see_box(&self, transform: &Affine3A, local_center: Vec3, local_extent: Vec3) -> bool {
         let transform = transform.as_daffine3();
         let mut outside = [true; 6];
+        let mut outside_planes = vec![true; self.clip_planes.len()];
         for corner in 0..8 {
             let sign = DVec3::new(
                 if corner & 1 == 0 { -1.0 } else { 1.0 },
@@ -63,24 +111,34 @@ impl ReferenceView {
                 if corner & 4 == 0 { -1.0 } else { 1.0 },
             );
             let local = local_center.as_dvec3() + local_extent.as_dvec3() * sign;
-            let c = self.clip(transform.transform_point3(local));
+            let world = transform.transform_point3(local);
+            let c = self.clip(world);
             let tests =
                 [c.x < -c.w, c.x > c.w, c.y < -c.w, c.y > c.w, c.w < self.near, self.far.is_some_and(|far| c.w > far)];
             for (out, test) in outside.iter_mut().zip(tests) {
                 *out &= test;
             }
+            let relative = world - self.origin;
+            for (out, plane) in outside_planes.iter_mut().zip(&self.clip_planes) {
+                *out &= plane.truncate().dot(relative) + plane.w < 0.0;
+            }
         }
-        !outside.iter().any(|&out| out)
+        !outside.iter().chain(&outside_planes).any(|&out| out)
     }
 
     /// Projects the world-space triangle `world`, clips it to `near <= w <= far` and calls `emit` with each
     /// piece drawn with `faces`. Degenerate and non-finite triangles emit nothing.
     pub fn project(&self, world: [DVec3; 3], faces: Faces, mut emit: impl FnMut(ScreenTriangle)) {
-        let mut polygon: Vec<DVec3> = world
+        let mut relative: Vec<DVec3> = world.iter().map(|&p| p - self.origin).collect();
+        for plane in &self.clip_planes {
+            relative = clip_polygon(&relative, |p| plane.truncate().dot(p) + plane.w);
+        }
+        // Homogeneous (x, y, w, d).
+        let mut polygon: Vec<DVec4> = relative
             .iter()
             .map(|&p| {
-                let c = self.clip(p);
-                DVec3::new(c.x, c.y, c.w)
+                let c = self.clip_from_relative * p.extend(1.0);
+                DVec4::new(c.x, c.y, c.w, self.depth_row.dot(p.extend(1.0)))
             })
             .collect();
         if !polygon.iter().all(|v| v.is_finite()) {
@@ -96,7 +154,7 @@ impl ReferenceView {
                 DVec3::new(
                     (v.x / v.z * 0.5 + 0.5) * self.width as f64,
                     (0.5 - v.y / v.z * 0.5) * self.height as f64,
-                    1.0 / v.z,
+                    v.w / v.z,
                 )
             })
             .collect();
@@ -118,7 +176,10 @@ impl ReferenceView {
 }
 
 /// Sutherland-Hodgman clipping of a convex polygon to `distance(v) >= 0`.
-fn clip_polygon(polygon: &[DVec3], distance: impl Fn(DVec3) -> f64) -> Vec<DVec3> {
+fn clip_polygon<V>(polygon: &[V], distance: impl Fn(V) -> f64) -> Vec<V>
+where
+    V: Copy + Add<Output = V> + Sub<Output = V> + Mul<f64, Output = V>,
+{
     let mut out = Vec::with_capacity(polygon.len() + 1);
     for (i, &a) in polygon.iter().enumerate() {
         let b = polygon[(i + 1) % polygon.len()];

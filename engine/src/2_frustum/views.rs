@@ -212,6 +212,10 @@ pub struct LightView {
     pub origin: Vec3,
     /// The clip-space depth convention of `clip_from_relative`.
     pub depth: DepthConvention,
+    /// The near distance of a perspective view (a lamp's face, whose `clip_from_relative` gives `w` as the
+    /// distance along its axis); `None` for a sun's orthographic cascade, whose shadow map clamps the depth
+    /// of what lies nearer the light than its near plane rather than clipping it.
+    pub near: Option<f32>,
 }
 
 impl LightSource {
@@ -248,6 +252,7 @@ impl LightSource {
                         clip_from_relative: matrix,
                         origin: camera.position,
                         depth: DepthConvention::Standard,
+                        near: None,
                     })
                 })
                 .collect(),
@@ -260,6 +265,7 @@ impl LightSource {
                         clip_from_relative: face.clip_from_relative_f64(),
                         origin: face.position,
                         depth: face.depth,
+                        near: Some(face.near),
                     })
                 })
                 .collect(),

@@ -326,7 +326,9 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         let kept = format!("{} of {}", stats.after_frustum, stats.objects);
         stage_row(ui, FRUSTUM_COLOUR, "frustum", kept, us(stats.frustum_time));
         if stats.light_views > 0 {
-            let casters = format!("{} casters in {} views", stats.light_view_casters, stats.light_views);
+            // Before their occlusion, which has its own row.
+            let casters = stats.light_view_casters + stats.light_view_occluded;
+            let casters = format!("{casters} casters in {} views", stats.light_views);
             stage_row(ui, FRUSTUM_COLOUR, "light views", casters, "in the frustum's".into());
             for (name, kept) in &frame.light_views {
                 ui.label(format!("   {name}"));
@@ -339,6 +341,11 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         stage_row(ui, RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time));
         let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
         stage_row(ui, OCCLUSION_COLOUR, "occlusion test", kept, us(stats.occlusion_time));
+        if stats.light_views > 0 {
+            let hidden =
+                format!("{} casters hidden, {} views gated", stats.light_view_occluded, stats.light_occlusion_gated);
+            stage_row(ui, OCCLUSION_COLOUR, "light views' occlusion", hidden, us(stats.light_occlusion_time));
+        }
         if let Some(gpu) = &frame.gpu {
             let counters = gpu.counters;
             let times = gpu.pass_times;
