@@ -330,3 +330,61 @@ fn light_views_drop_only_casters_hidden_from_their_lights() {
         assert!(occluded > 0, "the light views' occlusion hid nothing");
     }
 }
+
+/// The pipeline's light views' occlusion: a roof facing the sun hides the boxes under it from a cascade (the
+/// camera, below the roof, still sees them); turning it off takes effect on the next frame though nothing
+/// else changed; and a view whose occlusion hides too little is skipped after a few frames, then re-probed.
+#[test]
+fn the_pipeline_occludes_light_views_and_gates_them() {
+    use bevy_ecs::prelude::*;
+    use cullet::frustum::LightSource;
+    use cullet::prelude::*;
+    let (mut world, mut schedule) = (World::new(), Schedule::default());
+    cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+    world.insert_resource(Camera::looking_at(Vec3::new(0.0, 2.0, 20.0), Vec3::new(0.0, 0.0, -15.0)));
+    // A 20 m roof facing up at 10 m, and 25 boxes under it.
+    let corners = [Vec3::new(-10.0, 0.0, 10.0), Vec3::new(10.0, 0.0, 10.0), Vec3::new(10.0, 0.0, -10.0)];
+    let far_corner = Vec3::new(-10.0, 0.0, -10.0);
+    let roof = Occluder::new(vec![corners[0], corners[1], corners[2], corners[0], corners[2], far_corner]);
+    let roof_bounds = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::new(10.0, 0.1, 10.0) };
+    let at = |p: Vec3| ObjectTransform(glam::Affine3A::from_translation(p));
+    world.spawn((roof_bounds, at(Vec3::new(0.0, 10.0, -15.0)), roof));
+    let boxes: Vec<Entity> = (0..25)
+        .map(|i| {
+            let center = Vec3::new((i % 5) as f32 * 2.0 - 4.0, 0.0, -(i / 5) as f32 * 2.0 - 11.0);
+            world.spawn((LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(0.5) }, at(center))).id()
+        })
+        .collect();
+    let sun = LightSource::Sun { direction: Vec3::new(0.1, -1.0, 0.05), splits: vec![0.1, 60.0] };
+    world.insert_resource(LightViews(vec![sun]));
+    world.insert_resource(LightOcclusionSettings { min_casters: 1, ..LightOcclusionSettings::default() });
+    let mut frame = |world: &mut World| {
+        schedule.run(world);
+        world.clear_trackers();
+        *world.resource::<CullStats>()
+    };
+    let stats = frame(&mut world);
+    assert_eq!((stats.light_view_occluded, stats.after_occlusion), (25, 26));
+    let store = world.resource::<BoundsStore>();
+    let cascade = &world.resource::<LightViewsVisible>().0[0];
+    assert!(boxes.iter().all(|&entity| !cascade.visible.contains(store.slot_of(entity).unwrap())));
+    assert_eq!((cascade.kept, cascade.occluded), (1, 25));
+
+    world.insert_resource(LightOcclusionSettings { enabled: false, min_casters: 1, ..Default::default() });
+    let stats = frame(&mut world);
+    assert!(!stats.reused);
+    assert_eq!((stats.light_view_occluded, stats.light_view_casters), (0, 26));
+
+    // A bar no view can clear: after 2 frames under it, skipped for 3, then probed again.
+    let adaptive = AdaptiveSettings {
+        reuse_unchanged: false,
+        min_light_occlusion_benefit: 1.0,
+        low_benefit_frames: 2,
+        reprobe_every: 3,
+        ..AdaptiveSettings::default()
+    };
+    world.insert_resource(adaptive);
+    world.insert_resource(LightOcclusionSettings { min_casters: 1, ..LightOcclusionSettings::default() });
+    let gated: Vec<usize> = (0..7).map(|_| frame(&mut world).light_occlusion_gated).collect();
+    assert_eq!(gated, [0, 0, 1, 1, 1, 0, 0]);
+}

@@ -255,7 +255,7 @@ impl BenefitGate {
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct AdaptiveState {
     /// The view of the last frame: camera, store layout generation and settings.
-    last_view: Option<(Camera, u64, FrustumSettings, OcclusionSettings)>,
+    last_view: Option<(Camera, u64, FrustumSettings, OcclusionSettings, LightOcclusionSettings)>,
     /// The light views of the last frame.
     last_lights: LightViews,
     /// The store generation of the last frame.
@@ -470,6 +470,7 @@ pub fn frustum_stage(
     mut light_views: ResMut<LightViewsVisible>,
     settings: Res<FrustumSettings>,
     occlusion: Res<OcclusionSettings>,
+    light_occlusion: Res<LightOcclusionSettings>,
     adaptive: Res<AdaptiveSettings>,
     mut gate: ResMut<AdaptiveState>,
     mut visible: ResMut<FrustumVisible>,
@@ -481,7 +482,7 @@ pub fn frustum_stage(
     stats.bounds_recomputed = store.recomputed_last_sync();
     stats.bounds_time = store.last_sync_time();
     let moved = store.take_moved_slots();
-    let view = (*camera, store.layout_generation(), *settings, *occlusion);
+    let view = (*camera, store.layout_generation(), *settings, *occlusion, *light_occlusion);
     let same_view = adaptive.reuse_unchanged
         && gate.last_view == Some(view)
         && gate.last_lights == *lights
