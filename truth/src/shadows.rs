@@ -11,7 +11,9 @@
 //!
 //! A light view's occlusion (`cullet::pipeline::LightOcclusionSettings`) also drops casters hidden from the
 //! light: [`light_view_false_negatives`] counts an object as needed only when, besides the above, it owns a
-//! texel of the exact rendering from the light, at the shadow map's texel centres.
+//! texel of the exact rendering from the light, at the shadow map's texel centres. The needed object, visible
+//! from the light at a texel whose ray goes on into `V ∩ C`, meets both conditions, so the two together judge
+//! at least as strictly as it.
 
 use crate::judge::reference_objects;
 use crate::render::render_light_view;
