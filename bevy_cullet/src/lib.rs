@@ -78,7 +78,7 @@ mod scene;
 
 pub use cull::{CulletView, ViewStats};
 pub use mirror::CulletStore;
-pub use occluders::{OCCLUDER_SUFFIX, OccluderMesh};
+pub use occluders::{GLTF_EXTRAS, OCCLUDER_SUFFIX, OccluderMesh};
 pub use scene::spawn_scene;
 
 use bevy_app::{App, Plugin, PostUpdate};
@@ -174,7 +174,11 @@ impl Plugin for CulletPlugin {
             .add_systems(
                 PostUpdate,
                 (
-                    (occluders::mark_named_occluders, occluders::build_occluder_meshes)
+                    (
+                        occluders::mark_named_occluders,
+                        occluders::mark_extras_occluders,
+                        occluders::build_occluder_meshes,
+                    )
                         .chain()
                         .in_set(CulletSystems::Occluders),
                     mirror::mirror_bounds.in_set(CulletSystems::Mirror),

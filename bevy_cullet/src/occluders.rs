@@ -1,8 +1,8 @@
 //! Stage 3's input in a Bevy app: occluders from meshes.
 //!
-//! - An entity whose `Mesh3d` is an occluder, not something to draw ([`OccluderMesh`], or named `*_occluder`
-//!   as a glTF node through Bevy's loader), gets a [`cullet::Occluder`] of that mesh's triangles and is drawn
-//!   no more.
+//! - An entity whose `Mesh3d` is an occluder, not something to draw ([`OccluderMesh`]; a glTF node named
+//!   `*_occluder`, or whose `extras` say `"occluder": true`, through Bevy's loader), gets a
+//!   [`cullet::Occluder`] of that mesh's triangles and is drawn no more.
 //! - With [`crate::CulletSettings::auto_occluders`], large drawn meshes without an occluder get one from their
 //!   own largest triangles, as the sample game's `--auto-occluders` gives them
 //!   ([`cullet::scene::auto_occluders`]).
@@ -11,10 +11,12 @@ use crate::{CulletSettings, CulletStore};
 use bevy_asset::{AssetId, Assets};
 use bevy_camera::primitives::Aabb;
 use bevy_camera::visibility::VisibilityClass;
-use bevy_ecs::hierarchy::Children;
+use bevy_ecs::hierarchy::{ChildOf, Children};
 use bevy_ecs::name::Name;
 use bevy_ecs::prelude::*;
+use bevy_ecs::reflect::{AppTypeRegistry, ReflectComponent};
 use bevy_mesh::{Mesh, Mesh3d, PrimitiveTopology, VertexAttributeValues};
+use bevy_reflect::{Reflect, ReflectRef};
 use cullet::scene::auto_occluders::occluder_from_mesh;
 use cullet::{LocalBounds, Occluder};
 use std::collections::HashMap;
@@ -23,12 +25,18 @@ use std::collections::HashMap;
 /// node's entity after the node.
 pub const OCCLUDER_SUFFIX: &str = "_occluder";
 
+/// The short type path of the component Bevy's glTF loader puts a node's or a primitive's `extras` in
+/// (`bevy_gltf::GltfExtras`, a JSON string in its `value` field). The plugin finds it in the app's type
+/// registry rather than depending on `bevy_gltf` (and through it on Bevy's renderer).
+pub const GLTF_EXTRAS: &str = "GltfExtras";
+
 /// Marks an entity whose `Mesh3d` is an occluder and is not drawn.
 ///
 /// Once the mesh asset is loaded, the plugin gives the entity a [`cullet::Occluder`] of the mesh's triangles
 /// (in the entity's local space) and an `Aabb` around them, and removes its `Mesh3d` and `VisibilityClass`, so
 /// Bevy's renderer no longer draws it; the marker is then removed. The plugin adds it to every `Mesh3d` entity
-/// named `*_occluder`, and to the `Mesh3d` children of such an entity (a glTF node's primitives).
+/// named `*_occluder`, and to the `Mesh3d` children of such an entity (a glTF node's primitives), and to every
+/// new `Mesh3d` entity whose glTF extras, or its node's, say `"occluder": true` ([`GLTF_EXTRAS`]).
 ///
 /// The mesh must be a triangle list with its data kept in the main world (`RenderAssetUsages::MAIN_WORLD`, the
 /// default of Bevy's glTF loader); otherwise it is drawn as usual and a warning says why.
@@ -51,6 +59,42 @@ pub(crate) fn mark_named_occluders(
             }
         }
     }
+}
+
+/// New `Mesh3d` entities not yet marked, with the node they belong to, if any.
+type NewMeshes<'w, 's> = Query<'w, 's, (Entity, Option<&'static ChildOf>), (Added<Mesh3d>, Without<OccluderMesh>)>;
+
+/// Marks new `Mesh3d` entities with [`OccluderMesh`] where their glTF extras ([`GLTF_EXTRAS`]), or those of
+/// the node they are a primitive of (their parent), are a JSON object with `"occluder": true`. Does nothing in
+/// an app without that component type registered.
+pub(crate) fn mark_extras_occluders(
+    mut commands: Commands,
+    registry: Option<Res<AppTypeRegistry>>,
+    added: NewMeshes,
+    entities: Query<EntityRef>,
+) {
+    let Some(registry) = registry.filter(|_| !added.is_empty()) else { return };
+    let registry = registry.read();
+    let Some(extras) = registry.get_with_short_type_path(GLTF_EXTRAS).and_then(|r| r.data::<ReflectComponent>()) else {
+        return;
+    };
+    let marked = |entity: Entity| {
+        let reflected = entities.get(entity).ok().and_then(|entity| extras.reflect(entity));
+        reflected.is_some_and(extras_mark_occluder)
+    };
+    for (entity, node) in &added {
+        if marked(entity) || node.is_some_and(|node| marked(node.parent())) {
+            commands.entity(entity).insert(OccluderMesh);
+        }
+    }
+}
+
+/// Whether reflected glTF extras (a struct whose `value` is a JSON string) hold `"occluder": true`.
+fn extras_mark_occluder(extras: &dyn Reflect) -> bool {
+    let ReflectRef::Struct(extras) = extras.reflect_ref() else { return false };
+    let json = extras.field("value").and_then(|value| value.try_downcast_ref::<String>());
+    let parsed = json.and_then(|json| serde_json::from_str::<serde_json::Value>(json).ok());
+    parsed.is_some_and(|value| value.get("occluder") == Some(&serde_json::Value::Bool(true)))
 }
 
 /// Turns [`OccluderMesh`] entities whose mesh is loaded into occluders that are not drawn.

@@ -247,6 +247,47 @@ fn meshes_named_or_marked_as_occluders_occlude_and_are_no_longer_drawn() {
     assert!(app.world().get::<Occluder>(waiting).is_some() && app.world().get::<OccluderMesh>(waiting).is_none());
 }
 
+/// Stands in for `bevy_gltf::GltfExtras`, which Bevy's glTF loader puts on the nodes and primitives that have
+/// extras: the plugin finds it by its short type path in the app's type registry.
+#[derive(Component, bevy_reflect::Reflect, Default)]
+#[reflect(Component)]
+struct GltfExtras {
+    value: String,
+}
+
+#[test]
+fn meshes_whose_gltf_extras_say_occluder_occlude_and_are_no_longer_drawn() {
+    use bevy_asset::Assets;
+    use bevy_ecs::hierarchy::ChildOf;
+    use bevy_mesh::{Mesh, Mesh3d};
+
+    let mut app = app(Some(CulletSettings::default()));
+    app.register_type::<GltfExtras>();
+    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let wall = app.world_mut().resource_mut::<Assets<Mesh>>().add(Mesh::from(bevy_shape::Cuboid::new(40.0, 40.0, 1.0)));
+    let extras = |json: &str| GltfExtras { value: json.to_string() };
+    // A node whose extras mark it, its primitive a child with the mesh; a primitive marked by its own extras;
+    // and one whose extras say otherwise.
+    let world = app.world_mut();
+    let node = world.spawn((extras(r#"{"occluder": true}"#), Transform::from_xyz(0.0, 0.0, -4.0))).id();
+    let primitive = world.spawn((Mesh3d(wall.clone()), ChildOf(node))).id();
+    let marked = world
+        .spawn((Mesh3d(wall.clone()), extras(r#"{"occluder": true, "lod": 2}"#), Transform::from_xyz(0.0, 0.0, 50.0)))
+        .id();
+    let unmarked =
+        world.spawn((Mesh3d(wall.clone()), extras(r#"{"occluder": false}"#), Transform::from_xyz(0.0, 0.0, 60.0))).id();
+    let hidden_box = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    app.update();
+
+    let world = app.world();
+    for occluder in [primitive, marked] {
+        assert!(world.get::<Occluder>(occluder).is_some() && world.get::<Mesh3d>(occluder).is_none());
+    }
+    assert!(world.get::<Occluder>(unmarked).is_none() && world.get::<Mesh3d>(unmarked).is_some());
+    assert!(!visible(&app, hidden_box));
+    assert!(app.world().get::<CulletView>(camera).unwrap().stats().occluders >= 1);
+}
+
 #[test]
 fn switched_off_bevy_checks_visibility_again_and_back_on_the_plugin_does() {
     let (mut app, camera, _, hidden_box) = walled();
