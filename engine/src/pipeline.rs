@@ -58,9 +58,10 @@ pub struct LightViewVisible {
     pub occluded: usize,
 }
 
-/// Output of the frustum stage for the [`LightViews`]: every light view of the frame, lights in order.
-/// Where the frustum stage does not cull (turned off, or the camera has no valid frustum), each view keeps
-/// every object; a light whose views cannot be built has none, and [`CullStats::light_view_error`] says why.
+/// Output of the frustum stage for the [`LightViews`], narrowed by each view's occlusion
+/// ([`light_occlusion_stage`]): every light view of the frame, lights in order. Where the frustum stage does
+/// not cull (turned off), each view keeps every object its occlusion does not hide; a light whose views cannot
+/// be built (or a camera without a valid frustum) has none, and [`CullStats::light_view_error`] says why.
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct LightViewsVisible(pub Vec<LightViewVisible>);
 
