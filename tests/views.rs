@@ -425,4 +425,10 @@ fn the_pipeline_occludes_light_views_and_gates_them() {
     world.insert_resource(LightOcclusionSettings { min_casters: 1, ..LightOcclusionSettings::default() });
     let gated: Vec<usize> = (0..7).map(|_| frame(&mut world).light_occlusion_gated).collect();
     assert_eq!(gated, [0, 0, 1, 1, 1, 0, 0]);
+
+    // A buffer without texels hides nothing, and breaks nothing.
+    world.insert_resource(AdaptiveSettings::default());
+    world.insert_resource(LightOcclusionSettings { size: 0, min_casters: 1, ..LightOcclusionSettings::default() });
+    let stats = frame(&mut world);
+    assert_eq!((stats.light_view_occluded, stats.light_view_casters), (0, 26));
 }
