@@ -12,7 +12,9 @@
 //! - [`metrics`]: false negatives (with the stage that culled them), false positives, culling efficiency per
 //!   stage, occlusion efficiency against the ideal, and image error; per frame and over a camera path.
 //! - [`judge`]: all of the above for a `bevy_ecs` world that has just run the culling schedule.
-//! - [`shadows`]: which shadow casters a light view needs, decided exactly.
+//! - [`shadows`]: which shadow casters a light view needs, decided exactly: their shadows can reach the
+//!   camera's view, and the light sees them ([`render::render_light_view`], the exact rendering from the light
+//!   at the shadow map's texel centres).
 //! - [`stress`]: scenes and cameras at the edges of the numeric range, judged on the CPU and GPU paths.
 
 #![warn(missing_docs)]

@@ -126,8 +126,8 @@ impl ReferenceView {
         !outside.iter().chain(&outside_planes).any(|&out| out)
     }
 
-    /// Projects the world-space triangle `world`, clips it to `near <= w <= far` and calls `emit` with each
-    /// piece drawn with `faces`. Degenerate and non-finite triangles emit nothing.
+    /// Projects the world-space triangle `world`, clips it to the view's clip planes and to `near <= w <= far`
+    /// and calls `emit` with each piece drawn with `faces`. Degenerate and non-finite triangles emit nothing.
     pub fn project(&self, world: [DVec3; 3], faces: Faces, mut emit: impl FnMut(ScreenTriangle)) {
         let mut relative: Vec<DVec3> = world.iter().map(|&p| p - self.origin).collect();
         for plane in &self.clip_planes {
