@@ -342,8 +342,8 @@ fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
         let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
         stage_row(ui, OCCLUSION_COLOUR, "occlusion test", kept, us(stats.occlusion_time));
         if stats.light_views > 0 {
-            let hidden =
-                format!("{} casters hidden, {} views gated", stats.light_view_occluded, stats.light_occlusion_gated);
+            let (hidden, gated) = (stats.light_view_occluded, stats.light_occlusion_gated);
+            let hidden = format!("{hidden} casters hidden, {gated} of {} views gated", stats.light_views);
             stage_row(ui, OCCLUSION_COLOUR, "light views' occlusion", hidden, us(stats.light_occlusion_time));
         }
         if let Some(gpu) = &frame.gpu {
