@@ -331,8 +331,11 @@ pub(crate) fn cull_views(
             }
         }
         for list in visible_entities.entities.values_mut() {
-            // Bevy's renderer diffs these lists in O(n), which needs them sorted.
-            list.sort_unstable();
+            // Bevy's renderer diffs these lists in O(n), which needs them sorted. They arrive as long sorted runs
+            // (each thread's share of the entities, in table or store order), which the stable sort merges
+            // instead of sorting from scratch: at 1e6 objects, 391k entities took 10.0 ms to write with
+            // `sort_unstable`, 6.9 ms with this (`cargo bench -p bevy_cullet --bench visibility`).
+            list.sort();
         }
         view.stats.visible = visible;
         view.stats.write_time = start.elapsed();
