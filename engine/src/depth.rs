@@ -44,13 +44,18 @@ pub struct ScreenView {
 impl ScreenView {
     /// The view of `camera` on a `width` x `height` buffer.
     pub fn new(camera: &Camera, width: u32, height: u32) -> Self {
-        let clip_from_relative = camera.clip_from_relative_f64();
+        Self::perspective(camera.position, camera.clip_from_relative_f64(), camera.near, width, height)
+    }
+
+    /// A perspective view: `clip_from_relative` (relative to `origin`) gives `w` as the distance along the view
+    /// axis, and geometry nearer than `near` is clipped.
+    fn perspective(origin: Vec3, clip_from_relative: DMat4, near: f32, width: u32, height: u32) -> Self {
         Self {
-            origin: camera.position,
+            origin,
             clip_from_relative,
             clip_from_relative_f32: clip_from_relative.as_mat4(),
             depth_from_relative: DVec4::W,
-            near: camera.near,
+            near,
             width,
             height,
         }
@@ -76,15 +81,9 @@ impl ScreenView {
             DepthConvention::Reversed => DVec4::W - rows.z_axis,
             DepthConvention::NegativeOneToOne => (rows.z_axis + DVec4::W) * 0.5,
         };
-        Some(Self {
-            origin,
-            clip_from_relative,
-            clip_from_relative_f32: clip_from_relative.as_mat4(),
-            depth_from_relative: DVec4::W * 2.0 - z01,
-            near: 0.5,
-            width,
-            height,
-        })
+        // `w` is 1 everywhere: a near distance below it clips nothing.
+        let view = Self::perspective(origin, clip_from_relative, 0.5, width, height);
+        Some(Self { depth_from_relative: DVec4::W * 2.0 - z01, ..view })
     }
 
     /// The view of a light view on a `size` x `size` buffer: perspective with the face's near plane for a
@@ -94,15 +93,7 @@ impl ScreenView {
     pub fn of_light_view(light_view: &LightView, size: u32) -> Option<Self> {
         let (origin, matrix) = (light_view.origin, light_view.clip_from_relative);
         match light_view.near {
-            Some(near) => Some(Self {
-                origin,
-                clip_from_relative: matrix,
-                clip_from_relative_f32: matrix.as_mat4(),
-                depth_from_relative: DVec4::W,
-                near,
-                width: size,
-                height: size,
-            }),
+            Some(near) => Some(Self::perspective(origin, matrix, near, size, size)),
             None => Self::orthographic(origin, matrix, light_view.depth, size, size),
         }
     }

@@ -341,7 +341,8 @@ impl OcclusionState {
 ///
 /// A caster hidden from the light at every point of its box changes no texel of the shadow map: wherever it
 /// would be drawn, a nearer occluder, inside geometry that is drawn (or whose own shadow cannot reach the
-/// camera's view), already is. Each view has its own benefit gate ([`AdaptiveSettings::min_occlusion_benefit`]),
+/// camera's view), already is. Each view has its own benefit gate
+/// ([`AdaptiveSettings::min_light_occlusion_benefit`]),
 /// so a view whose occlusion hides too little soon costs only its occluder selection.
 #[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LightOcclusionSettings {
@@ -711,29 +712,31 @@ pub fn light_occlusion_stage(
     if gate.light_occlusion.len() != views {
         gate.light_occlusion = vec![BenefitGate::default(); views];
     }
-    // Each view's occluders: those among its casters, where its occlusion runs this frame.
+    // Each view's screen and occluders (those among its casters), where its occlusion runs this frame.
     let mut gated = 0;
-    let chosen: Vec<Vec<OccluderInstance>> = light_views
+    let chosen: Vec<Option<(ScreenView, Vec<OccluderInstance>)>> = light_views
         .0
         .iter()
         .zip(&mut gate.light_occlusion)
         .map(|(view, gate)| {
             if !settings.enabled || view.kept < settings.min_casters {
-                return Vec::new();
+                return None;
             }
             if gate.skip_this_frame() {
                 gated += 1;
-                return Vec::new();
+                return None;
             }
             // A light view not made by `light_views` may have no screen; it keeps its casters.
-            let Some(screen) = ScreenView::of_light_view(&view.view, settings.size) else { return Vec::new() };
-            select_occluders_for_view(&store, &view.visible, &screen, settings.triangle_budget, |slot| {
-                let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
-                Some(OccluderInstance { occluder, transform: transform.0 })
-            })
-            .into_iter()
-            .map(|(_, instance)| instance)
-            .collect()
+            let screen = ScreenView::of_light_view(&view.view, settings.size)?;
+            let instances: Vec<OccluderInstance> =
+                select_occluders_for_view(&store, &view.visible, &screen, settings.triangle_budget, |slot| {
+                    let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
+                    Some(OccluderInstance { occluder, transform: transform.0 })
+                })
+                .into_iter()
+                .map(|(_, instance)| instance)
+                .collect();
+            (!instances.is_empty()).then_some((screen, instances))
         })
         .collect();
     stats.light_occlusion_gated = gated;
@@ -746,20 +749,19 @@ pub fn light_occlusion_stage(
         .zip(&chosen)
         .for_each(|((((view, pyramid), occluded), survivors), chosen)| {
             view.occluded = 0;
-            if chosen.is_empty() {
+            let Some((screen, chosen)) = chosen else {
                 *pyramid = DepthPyramid::default();
                 occluded.reset(0);
                 return;
-            }
-            let Some(screen) = ScreenView::of_light_view(&view.view, settings.size) else { return };
-            rasterize(&screen, chosen, RasterMode::Conservative, pyramid);
+            };
+            rasterize(screen, chosen, RasterMode::Conservative, pyramid);
             let tested = view.kept;
-            view.kept = test_occlusion(&store, &view.visible, &screen, pyramid, survivors, occluded).visible;
+            view.kept = test_occlusion(&store, &view.visible, screen, pyramid, survivors, occluded).visible;
             std::mem::swap(&mut view.visible, survivors);
             view.occluded = tested - view.kept;
         });
     for ((view, gate), chosen) in light_views.0.iter().zip(&mut gate.light_occlusion).zip(&chosen) {
-        if !chosen.is_empty() {
+        if chosen.is_some() {
             let (min_benefit, low_frames, reprobe) =
                 (adaptive.min_light_occlusion_benefit, adaptive.low_benefit_frames, adaptive.reprobe_every);
             gate.record(view.occluded, view.kept + view.occluded, min_benefit, low_frames, reprobe);

@@ -38,13 +38,21 @@ pub enum ExactLight {
 /// matrix's input frame; planes at infinity left out; not normalized.
 pub fn half_spaces(clip_from_relative: DMat4, depth: DepthConvention) -> Vec<DVec4> {
     let m = clip_from_relative.transpose();
-    let (r0, r1, r2, r3) = (m.x_axis, m.y_axis, m.z_axis, m.w_axis);
-    let (near, far) = match depth {
+    let (r0, r1, r3) = (m.x_axis, m.y_axis, m.w_axis);
+    let (near, far) = depth_half_spaces(clip_from_relative, depth);
+    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far].into_iter().filter(|p| p.truncate().length() > 0.0).collect()
+}
+
+/// The near and far half-spaces `(n, d)` of a clip-from-relative matrix with depth convention `depth`, as in
+/// [`half_spaces`] (a far plane at infinity has `n = 0`).
+pub(crate) fn depth_half_spaces(clip_from_relative: DMat4, depth: DepthConvention) -> (DVec4, DVec4) {
+    let m = clip_from_relative.transpose();
+    let (r2, r3) = (m.z_axis, m.w_axis);
+    match depth {
         DepthConvention::Standard => (r2, r3 - r2),
         DepthConvention::Reversed => (r3 - r2, r2),
         DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2),
-    };
-    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far].into_iter().filter(|p| p.truncate().length() > 0.0).collect()
+    }
 }
 
 /// `half_spaces` given relative to the point `from`, re-expressed relative to the point `to`.

@@ -5,6 +5,7 @@
 //! distance towards the light for an orthographic light view (as in `cullet::depth`); either is affine in
 //! screen space.
 
+use crate::shadows::depth_half_spaces;
 use cullet::frustum::LightView;
 use cullet::{Camera, DepthConvention};
 use glam::{Affine3A, DAffine3, DMat4, DVec3, DVec4, Vec3};
@@ -65,14 +66,10 @@ impl ReferenceView {
     /// the light instead of clipping it.
     pub fn of_light_view(light_view: &LightView, size: u32) -> Self {
         let matrix = light_view.clip_from_relative;
-        let rows = matrix.transpose();
-        let (r2, r3) = (rows.z_axis, rows.w_axis);
-        // Depth 0 at the near plane to 1 at the far plane (w = 1 in an orthographic view), as a row.
-        let (near_plane, far_plane, z01) = match light_view.depth {
-            DepthConvention::Standard => (r2, r3 - r2, r2),
-            DepthConvention::Reversed => (r3 - r2, r2, r3 - r2),
-            DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2, (r2 + r3) * 0.5),
-        };
+        let (near_plane, far_plane) = depth_half_spaces(matrix, light_view.depth);
+        // Depth 0 at the near plane to 1 at the far plane (w = 1 in an orthographic view), as a row: the near
+        // half-space's distance, which spans 2 in clip space from -1 to 1.
+        let z01 = if light_view.depth == DepthConvention::NegativeOneToOne { near_plane * 0.5 } else { near_plane };
         let mut clip_planes: Vec<DVec4> = Vec::new();
         if light_view.near.is_some() {
             clip_planes.push(near_plane);
