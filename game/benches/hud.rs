@@ -52,7 +52,7 @@ fn figures(i: u64) -> HudFrame {
 }
 
 fn hud(c: &mut Criterion) {
-    let ctx = egui::Context::default();
+    let ctx = cullet_game::hud::context();
     let mut hud = Hud::new(true);
     let mut controls = Controls {
         frustum: FrustumSettings::default(),

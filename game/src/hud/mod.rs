@@ -4,6 +4,7 @@
 //! [`painter`] draws it into the window's frame.
 
 pub mod controls;
+mod labels;
 pub mod painter;
 
 use crate::validation::{Validation, frame_efficiency};
@@ -13,7 +14,7 @@ use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::CullStats;
 use cullet::raster::RasterMode;
 use egui::{Color32, RichText};
-use egui_plot::{FilledArea, Plot};
+use labels::{Labels, TableRow};
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -75,6 +76,17 @@ const PLOT_POINTS_PER_SECOND: f64 = 30.0;
 /// Seconds between refreshes of the figures and plots shown: readable, and the UI is built again only then
 /// (or on input), which keeps its cost per frame low at any frame rate.
 pub const REFRESH_SECONDS: f64 = 0.1;
+
+/// The egui context the HUD is built in, with its style.
+pub fn context() -> egui::Context {
+    let context = egui::Context::default();
+    context.global_style_mut(|style| {
+        // No shadows: the HUD covers exactly its windows' rectangles.
+        style.visuals.window_shadow = egui::Shadow::NONE;
+        style.visuals.popup_shadow = egui::Shadow::NONE;
+    });
+    context
+}
 
 /// One frame's figures, as the HUD shows them.
 #[derive(Clone, Debug)]
@@ -209,24 +221,25 @@ impl Hud {
             return Vec::new();
         };
         let mut covered = Vec::new();
-        let figures = egui::Window::new("cullet").default_pos([8.0, 8.0]).resizable(false).show(ctx, |ui| {
-            stage_table(ui, frame);
-            adaptive_flags(ui, frame, controls);
+        let labels = Labels::new(ctx);
+        let table = egui::Window::new("cullet").default_pos([8.0, 8.0]).resizable(false).show(ctx, |ui| {
+            stage_table(ui, &labels, frame);
+            adaptive_flags(ui, &labels, frame, controls);
             if let Some(validation) = validation {
-                validation_lines(ui, validation);
+                validation_lines(ui, &labels, validation);
             }
-            view_help(ui, frame, controls);
+            view_help(ui, &labels, frame, controls);
             egui::CollapsingHeader::new("settings").default_open(false).show(ui, |ui| settings(ui, frame, controls));
             ui.label(RichText::new("H hides the HUD, F1 shows the keys").weak());
         });
-        covered.extend(figures.map(|shown| shown.response.rect));
+        covered.extend(table.map(|shown| shown.response.rect));
         let plots = egui::Window::new("last 5 seconds")
             .anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0])
             .default_width(260.0)
             // In a small window the plots would cover the figures: they start folded there.
             .default_open(frame.viewport.0 >= 900)
             .resizable(false)
-            .show(ctx, |ui| self.plots(ui));
+            .show(ctx, |ui| self.plots(ui, &labels));
         covered.extend(plots.map(|shown| shown.response.rect));
         if self.help {
             let help = egui::Window::new("keys")
@@ -241,7 +254,7 @@ impl Hud {
 
     /// The plots, each stacked by stage: CPU time, GPU time (where timestamps exist), and the share of objects
     /// and of triangles each stage removed.
-    fn plots(&self, ui: &mut egui::Ui) {
+    fn plots(&self, ui: &mut egui::Ui, labels: &Labels) {
         let xs: Vec<f64> = self.history.iter().map(|s| s.seconds - self.seconds).collect();
         // The titles' figures are those of the frame shown, so they change (and are laid out) only when the
         // figures are refreshed.
@@ -255,36 +268,14 @@ impl Hud {
                        series: &[(&str, Color32)],
                        value: &dyn Fn(&Sample, usize) -> f64| {
             let total: f64 = shown.map_or(0.0, |s| (0..series.len()).map(|i| value(s, i)).sum());
-            ui.label(format!("{name}: {total:.decimals$}{unit}"));
+            labels.text(ui, &format!("{name}: {total:.decimals$}{unit}"));
             ui.horizontal_wrapped(|ui| {
                 for &(name, colour) in series {
-                    swatch(ui, colour, name);
+                    labels.swatch(ui, colour, name);
                 }
             });
-            let mut lower = vec![0.0; xs.len()];
-            Plot::new(name)
-                .height(56.0)
-                .allow_drag(false)
-                .allow_zoom(false)
-                .allow_scroll(false)
-                .allow_boxed_zoom(false)
-                .allow_double_click_reset(false)
-                .show_x(false)
-                .show_y(false)
-                // No tick labels: their text would change, and be laid out again, every frame. The title has
-                // the scale.
-                .show_axes(false)
-                .include_x(-HISTORY_SECONDS)
-                .include_x(0.0)
-                .include_y(0.0)
-                .show(ui, |plot| {
-                    for (index, &(name, colour)) in series.iter().enumerate() {
-                        let upper: Vec<f64> =
-                            self.history.iter().zip(&lower).map(|(s, below)| below + value(s, index)).collect();
-                        plot.add(FilledArea::new(name, &xs, &lower, &upper).fill_color(colour));
-                        lower = upper;
-                    }
-                });
+            let values: Vec<[f64; 4]> = self.history.iter().map(|s| std::array::from_fn(|i| value(s, i))).collect();
+            stacked_bands(ui, &xs, &values, series);
         };
         stacked(ui, "CPU time per stage", " ms", 2, &CPU_SERIES, &|s, i| s.cpu_ms[i]);
         if self.history.iter().any(|s| s.gpu_ms.is_some()) {
@@ -295,88 +286,117 @@ impl Hud {
     }
 }
 
-/// A small square of `colour`, then `text`: a legend entry.
-fn swatch(ui: &mut egui::Ui, colour: Color32, text: &str) {
-    ui.horizontal(|ui| {
-        let (rect, _) = ui.allocate_exact_size(egui::vec2(10.0, 10.0), egui::Sense::hover());
-        ui.painter().rect_filled(rect, 1.0, colour);
-        ui.label(text);
-    });
+/// Height of each plot, in points.
+const PLOT_HEIGHT: f32 = 56.0;
+
+/// Paints one plot of the last [`HISTORY_SECONDS`]: at each time in `xs` (seconds before now, negative), the
+/// values of `series` stacked from 0 as filled bands, scaled so that the highest stack fills the plot.
+///
+/// One mesh of two triangles per band and sample, which egui passes to the GPU as it is: a plot widget's
+/// polygons, axes and interaction cost more CPU than the rest of the HUD together (`benches/hud.rs`).
+fn stacked_bands(ui: &mut egui::Ui, xs: &[f64], values: &[[f64; 4]], series: &[(&str, Color32)]) {
+    let size = egui::vec2(ui.available_width(), PLOT_HEIGHT);
+    let (rect, _) = ui.allocate_exact_size(size, egui::Sense::hover());
+    let visuals = ui.visuals();
+    let painter = ui.painter();
+    painter.rect_filled(rect, 2.0, visuals.extreme_bg_color);
+    let stacks = values.iter().map(|v| v.iter().take(series.len()).sum::<f64>());
+    let top = stacks.fold(0.0, f64::max);
+    if top > 0.0 && top.is_finite() {
+        let inner = rect.shrink(2.0);
+        let x = |seconds: f64| inner.left() + inner.width() * (1.0 + seconds / HISTORY_SECONDS).clamp(0.0, 1.0) as f32;
+        let y = |value: f64| inner.bottom() - inner.height() * (value / top).clamp(0.0, 1.0) as f32;
+        let mut mesh = egui::Mesh::default();
+        mesh.reserve_vertices(2 * xs.len() * series.len());
+        mesh.reserve_triangles(2 * xs.len() * series.len());
+        let mut lower = vec![0.0; xs.len()];
+        for (index, &(_, colour)) in series.iter().enumerate() {
+            let first = mesh.vertices.len() as u32;
+            for ((&seconds, below), value) in xs.iter().zip(&mut lower).zip(values) {
+                let above = *below + value[index];
+                mesh.colored_vertex(egui::pos2(x(seconds), y(*below)), colour);
+                mesh.colored_vertex(egui::pos2(x(seconds), y(above)), colour);
+                *below = above;
+            }
+            // Vertices 2j and 2j + 1 are sample j's bottom and top: one quad between each sample and the next.
+            for j in 1..xs.len() as u32 {
+                let (bottom, top) = (first + 2 * j, first + 2 * j + 1);
+                mesh.add_triangle(bottom - 2, top - 2, top);
+                mesh.add_triangle(bottom - 2, top, bottom);
+            }
+        }
+        painter.add(mesh);
+    }
+    painter.rect_stroke(rect, 2.0, visuals.widgets.noninteractive.bg_stroke, egui::StrokeKind::Inside);
 }
 
 /// One row of the stage table: the stage's colour and name, what it kept, its time.
-fn stage_row(ui: &mut egui::Ui, colour: Color32, stage: &str, kept: String, time: String) {
-    swatch(ui, colour, stage);
-    ui.label(kept);
-    ui.label(time);
-    ui.end_row();
+fn stage_row(colour: Color32, stage: &str, kept: String, time: String) -> TableRow<3> {
+    TableRow { swatch: Some(colour), cells: [stage.into(), kept, time] }
+}
+
+/// A row of the stage table without a stage's colour.
+fn plain_row(cells: [String; 3]) -> TableRow<3> {
+    TableRow { swatch: None, cells }
 }
 
 /// Objects (or clusters and triangles) after each stage and each stage's time.
-fn stage_table(ui: &mut egui::Ui, frame: &HudFrame) {
+fn stage_table(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame) {
     let stats = &frame.stats;
     let us = |duration: Duration| format!("{:.0} µs", duration.as_secs_f64() * 1e6);
-    egui::Grid::new("stages").num_columns(3).striped(true).show(ui, |ui| {
-        ui.label("stage");
-        ui.label("kept");
-        ui.label("time");
-        ui.end_row();
-        let updated = format!("{} of {} updated", stats.bounds_recomputed, stats.objects);
-        stage_row(ui, BOUNDS_COLOUR, "bounds", updated, us(stats.bounds_time));
-        let kept = format!("{} of {}", stats.after_frustum, stats.objects);
-        stage_row(ui, FRUSTUM_COLOUR, "frustum", kept, us(stats.frustum_time));
-        if stats.light_views > 0 {
-            // Before their occlusion, which has its own row.
-            let casters = stats.light_view_casters + stats.light_view_occluded;
-            let casters = format!("{casters} casters in {} views", stats.light_views);
-            stage_row(ui, FRUSTUM_COLOUR, "light views", casters, "in the frustum's".into());
-            for (name, kept) in &frame.light_views {
-                ui.label(format!("   {name}"));
-                ui.label(format!("{kept} casters"));
-                ui.label("");
-                ui.end_row();
-            }
+    let mut rows = vec![plain_row(["stage".into(), "kept".into(), "time".into()])];
+    let updated = format!("{} of {} updated", stats.bounds_recomputed, stats.objects);
+    rows.push(stage_row(BOUNDS_COLOUR, "bounds", updated, us(stats.bounds_time)));
+    let kept = format!("{} of {}", stats.after_frustum, stats.objects);
+    rows.push(stage_row(FRUSTUM_COLOUR, "frustum", kept, us(stats.frustum_time)));
+    if stats.light_views > 0 {
+        // Before their occlusion, which has its own row.
+        let casters = stats.light_view_casters + stats.light_view_occluded;
+        let casters = format!("{casters} casters in {} views", stats.light_views);
+        rows.push(stage_row(FRUSTUM_COLOUR, "light views", casters, "in the frustum's".into()));
+        for (name, kept) in &frame.light_views {
+            rows.push(plain_row([format!("   {name}"), format!("{kept} casters"), String::new()]));
         }
-        let occluders = format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles);
-        stage_row(ui, RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time));
-        let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
-        stage_row(ui, OCCLUSION_COLOUR, "occlusion test", kept, us(stats.occlusion_time));
-        if stats.light_views > 0 {
-            let (hidden, gated) = (stats.light_view_occluded, stats.light_occlusion_gated);
-            let hidden = format!("{hidden} casters hidden, {gated} of {} views gated", stats.light_views);
-            stage_row(ui, OCCLUSION_COLOUR, "light views' occlusion", hidden, us(stats.light_occlusion_time));
+    }
+    let occluders = format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles);
+    rows.push(stage_row(RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time)));
+    let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
+    rows.push(stage_row(OCCLUSION_COLOUR, "occlusion test", kept, us(stats.occlusion_time)));
+    if stats.light_views > 0 {
+        let (hidden, gated) = (stats.light_view_occluded, stats.light_occlusion_gated);
+        let hidden = format!("{hidden} casters hidden, {gated} of {} views gated", stats.light_views);
+        rows.push(stage_row(OCCLUSION_COLOUR, "light views' occlusion", hidden, us(stats.light_occlusion_time)));
+    }
+    if let Some(gpu) = &frame.gpu {
+        let counters = gpu.counters;
+        let times = gpu.pass_times;
+        let pass = |time: fn(&GpuPassTimes) -> Duration| times.as_ref().map_or(String::from("-"), |t| us(time(t)));
+        rows.push(stage_row(HZB_COLOUR, "GPU HZB", "from the occlusion buffer".into(), pass(|t| t.hzb)));
+        let clusters = format!("{} of {}", counters.clusters_out, counters.clusters_in);
+        rows.push(stage_row(CLUSTERS_COLOUR, "GPU clusters", clusters, pass(|t| t.clusters)));
+        let triangles = format!("{} of {}", counters.triangles_out, counters.triangles_in);
+        rows.push(stage_row(TRIANGLES_COLOUR, "GPU triangles", triangles, pass(|t| t.triangles)));
+        rows.push(stage_row(DRAW_COLOUR, "draw", format!("{} draws", counters.draws), pass(|t| t.draw)));
+        if !gpu.light_views.is_empty() {
+            let sum = |f: fn(&GpuCounters) -> u32| gpu.light_views.iter().map(f).sum::<u32>();
+            let shadows = format!(
+                "{} cascades: {} of {} tris",
+                gpu.light_views.len(),
+                sum(|c| c.triangles_out),
+                sum(|c| c.triangles_in)
+            );
+            rows.push(stage_row(DRAW_COLOUR, "shadow maps", shadows, "in the frame's".into()));
         }
-        if let Some(gpu) = &frame.gpu {
-            let counters = gpu.counters;
-            let times = gpu.pass_times;
-            let pass = |time: fn(&GpuPassTimes) -> Duration| times.as_ref().map_or(String::from("-"), |t| us(time(t)));
-            stage_row(ui, HZB_COLOUR, "GPU HZB", "from the occlusion buffer".into(), pass(|t| t.hzb));
-            let clusters = format!("{} of {}", counters.clusters_out, counters.clusters_in);
-            stage_row(ui, CLUSTERS_COLOUR, "GPU clusters", clusters, pass(|t| t.clusters));
-            let triangles = format!("{} of {}", counters.triangles_out, counters.triangles_in);
-            stage_row(ui, TRIANGLES_COLOUR, "GPU triangles", triangles, pass(|t| t.triangles));
-            stage_row(ui, DRAW_COLOUR, "draw", format!("{} draws", counters.draws), pass(|t| t.draw));
-            if !gpu.light_views.is_empty() {
-                let sum = |f: fn(&GpuCounters) -> u32| gpu.light_views.iter().map(f).sum::<u32>();
-                let shadows = format!(
-                    "{} cascades: {} of {} tris",
-                    gpu.light_views.len(),
-                    sum(|c| c.triangles_out),
-                    sum(|c| c.triangles_in)
-                );
-                stage_row(ui, DRAW_COLOUR, "shadow maps", shadows, "in the frame's".into());
-            }
-            ui.label("GPU wall");
-            ui.label(if times.is_some() { "submit to read-back" } else { "no timestamps on this GPU" });
-            ui.label(format!("{:.2} ms", gpu.wall_time.as_secs_f64() * 1e3));
-            ui.end_row();
-        }
-    });
-    ui.label(format!("{:.0} fps    HUD {:.2} ms CPU", frame.fps, frame.hud_time.as_secs_f64() * 1e3));
+        let source = if times.is_some() { "submit to read-back" } else { "no timestamps on this GPU" };
+        let wall = format!("{:.2} ms", gpu.wall_time.as_secs_f64() * 1e3);
+        rows.push(plain_row(["GPU wall".into(), source.into(), wall]));
+    }
+    labels.table(ui, &rows);
+    labels.text(ui, &format!("{:.0} fps    HUD {:.2} ms CPU", frame.fps, frame.hud_time.as_secs_f64() * 1e3));
 }
 
 /// What the adaptive pipeline skipped or reused this frame, and what is off or frozen.
-fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
+fn adaptive_flags(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls: &Controls) {
     let stats = &frame.stats;
     let gpu = frame.gpu.as_ref();
     let mut notes: Vec<String> = Vec::new();
@@ -399,7 +419,7 @@ fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
         notes.push(format!("no frustum ({error}): everything kept"));
     }
     for note in notes {
-        ui.colored_label(NOTE_COLOUR, note);
+        labels.coloured(ui, NOTE_COLOUR, &note);
     }
     let mut off: Vec<&str> = Vec::new();
     for (is_off, name) in [
@@ -430,7 +450,7 @@ fn adaptive_flags(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
 }
 
 /// The live judge's figures: this frame's false negatives and culling efficiency, and the run's.
-fn validation_lines(ui: &mut egui::Ui, validation: &Validation) {
+fn validation_lines(ui: &mut egui::Ui, labels: &Labels, validation: &Validation) {
     let Some(last) = &validation.last else { return };
     let missed = last.false_negatives.len();
     let text = format!(
@@ -439,26 +459,29 @@ fn validation_lines(ui: &mut egui::Ui, validation: &Validation) {
         100.0 * frame_efficiency(last, 1),
         last.image_error_pixels
     );
-    ui.colored_label(if missed > 0 { WARNING_COLOUR } else { TRIANGLES_COLOUR }, text);
+    labels.coloured(ui, if missed > 0 { WARNING_COLOUR } else { TRIANGLES_COLOUR }, &text);
     let total = &validation.total;
-    ui.label(format!(
-        "over {} frames: {} false negatives, efficiency {:.1}%",
-        total.frames,
-        total.false_negatives,
-        100.0 * total.efficiency(1)
-    ));
+    labels.text(
+        ui,
+        &format!(
+            "over {} frames: {} false negatives, efficiency {:.1}%",
+            total.frames,
+            total.false_negatives,
+            100.0 * total.efficiency(1)
+        ),
+    );
 }
 
 /// The legend of the tinted view, or the buffer and level the depth views show.
-fn view_help(ui: &mut egui::Ui, frame: &HudFrame, controls: &Controls) {
+fn view_help(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls: &Controls) {
     ui.separator();
     ui.label(format!("view (V): {}", controls.view.label()));
     match controls.view {
         View::Shaded => {}
         View::Tinted => {
-            swatch(ui, FRUSTUM_COLOUR, "culled by the frustum stage");
-            swatch(ui, OCCLUSION_COLOUR, "culled by the occlusion stage");
-            swatch(ui, Color32::from_gray(200), "own colour: kept (drawn)");
+            labels.swatch(ui, FRUSTUM_COLOUR, "culled by the frustum stage");
+            labels.swatch(ui, OCCLUSION_COLOUR, "culled by the occlusion stage");
+            labels.swatch(ui, Color32::from_gray(200), "own colour: kept (drawn)");
         }
         View::OcclusionBuffer => {
             let (width, height) = frame.buffer;

@@ -43,12 +43,7 @@ pub struct Painted {
 impl HudPainter {
     /// A painter for `window`, drawing into targets of `format`.
     pub fn new(window: &Window, gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
-        let context = egui::Context::default();
-        // No shadows: the HUD covers exactly its windows' rectangles.
-        context.global_style_mut(|style| {
-            style.visuals.window_shadow = egui::Shadow::NONE;
-            style.visuals.popup_shadow = egui::Shadow::NONE;
-        });
+        let context = super::context();
         let max_texture_side = gpu.device.limits().max_texture_dimension_2d as usize;
         let input = egui_winit::State::new(
             context.clone(),
