@@ -89,7 +89,8 @@ const ROUND: usize = 1024;
 /// their occluders, best first.
 ///
 /// Candidates are found with a bitwise AND and ranked from the store's arrays; only the best are ordered, a
-/// round of `ROUND` (1024) at a time, until the budget is full or a whole round fits nothing more.
+/// round of `ROUND` (1024) at a time, until the budget is full, a whole round fits nothing more, or a round
+/// leaves less room than the smallest occluder it met (so at most that many triangles of the budget go unused).
 pub fn select_occluders<'a>(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,
@@ -164,9 +165,11 @@ fn select_ranked<'a>(
         let (head, tail) = rest.split_at_mut(round);
         head.sort_unstable_by(best_first);
         let before = chosen.len();
+        let mut smallest = usize::MAX;
         for &(_, slot) in head.iter() {
             let Some(instance) = occluder_of(slot as usize) else { continue };
             let triangles = instance.occluder.triangle_count();
+            smallest = smallest.min(triangles);
             if triangles <= remaining {
                 remaining -= triangles;
                 chosen.push((slot, instance));
@@ -175,8 +178,10 @@ fn select_ranked<'a>(
                 }
             }
         }
-        if chosen.len() == before {
-            break; // A whole round fitted nothing: the budget is as full as it gets.
+        // A round that fitted nothing, or left less room than the smallest occluder it met, ends the selection:
+        // another round would rank every remaining candidate again to fill at most that little room.
+        if chosen.len() == before || remaining < smallest {
+            break;
         }
         rest = tail;
     }
