@@ -113,12 +113,15 @@ impl Labels {
             &[digit @ b'0'..=b'9'] => self.digits[usize::from(digit - b'0')].clone(),
             _ => ui.painter().layout_no_wrap(piece.to_owned(), self.font.clone(), Color32::PLACEHOLDER),
         };
-        let mut pieces = pieces(text);
-        let Some(first) = pieces.next().map(layout) else { return layout("") };
+        let mut pieces = pieces(text).map(layout).peekable();
+        let Some(first) = pieces.next() else { return layout("") };
+        if pieces.peek().is_none() {
+            return first; // Text without digits, or one digit: egui's layout as it is.
+        }
         let mut line = Galley::clone(&first);
         line.job = Arc::new(LayoutJob::simple_singleline(text.to_owned(), self.font.clone(), Color32::PLACEHOLDER));
         let mut right = first.size().x;
-        for piece in pieces.map(layout) {
+        for piece in pieces {
             let offset = egui::vec2(right, 0.0);
             right += piece.size().x;
             for placed in &piece.rows {
