@@ -45,8 +45,8 @@ fn test_scene_round_trips_with_its_artist_occluders() {
         let (read_mesh, written_mesh) = (&scene.meshes[read.mesh as usize], &city.scene.meshes[written.mesh as usize]);
         assert_eq!(read_mesh, written_mesh);
         assert_eq!(
-            read.occluder.as_ref().map(|o| o.triangles.to_vec()),
-            written.occluder.as_ref().map(|o| o.triangles.to_vec())
+            read.occluder.as_ref().map(|o| o.triangles().to_vec()),
+            written.occluder.as_ref().map(|o| o.triangles().to_vec())
         );
     }
 }

@@ -442,7 +442,7 @@ fn city_street_view_is_occluded_conservatively() {
         .scene
         .objects
         .iter()
-        .filter_map(|o| o.occluder.as_ref().map(|occ| (occ.triangles.to_vec(), o.transform)))
+        .filter_map(|o| o.occluder.as_ref().map(|occ| (occ.triangles().to_vec(), o.transform)))
         .collect();
     let reference = exact_depth(&camera, &occluders, (1920, 1080));
     let store = world.resource::<cullet::BoundsStore>();

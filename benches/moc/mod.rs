@@ -231,7 +231,7 @@ pub fn draws<'a>(camera: &Camera, occluders: &[OccluderInstance<'a>]) -> Vec<Dra
                 Vec3::from(instance.transform.translation).as_dvec3() - camera.position.as_dvec3(),
             );
             let clip_from_object = (clip_from_relative * DMat4::from(relative)).as_mat4();
-            let triangles: &'a [Vec3] = &instance.occluder.triangles;
+            let triangles: &'a [Vec3] = instance.occluder.triangles();
             Draw {
                 vertices: triangles.as_ptr().cast(),
                 triangles: (triangles.len() / 3) as u32,

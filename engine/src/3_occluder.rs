@@ -18,6 +18,7 @@ use crate::depth::ScreenView;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
+use std::collections::HashMap;
 use std::sync::Arc;
 
 /// Marks an edge of an [`Occluder`] triangle without a neighbouring triangle.
@@ -30,10 +31,14 @@ pub const NO_NEIGHBOUR: u32 = u32::MAX;
 pub struct Occluder {
     /// Triangle list: every three vertices form one triangle, in the entity's local space. Shared, since many
     /// objects of one shape carry the same occluder.
-    pub triangles: Arc<[Vec3]>,
+    triangles: Arc<[Vec3]>,
     /// For edge `e` of triangle `t` (from vertex `e` to vertex `e + 1`), at `3 * t + e`: the triangle sharing
-    /// that edge in the opposite direction, or [`NO_NEIGHBOUR`]. Built once by [`Occluder::new`].
-    pub neighbours: Arc<[u32]>,
+    /// that edge in the opposite direction, or [`NO_NEIGHBOUR`].
+    neighbours: Arc<[u32]>,
+    /// The distinct positions of `triangles`, which the raster transforms and projects once each.
+    vertices: Arc<[Vec3]>,
+    /// For each entry of `triangles`, the index of its position in `vertices`.
+    corners: Arc<[u32]>,
 }
 
 impl Occluder {
@@ -41,9 +46,11 @@ impl Occluder {
     /// vertex positions; an edge shared by more than two triangles counts as having no neighbour.
     pub fn new(triangles: impl Into<Arc<[Vec3]>>) -> Self {
         let triangles: Arc<[Vec3]> = triangles.into();
-        let key = |p: Vec3| p.to_array().map(f32::to_bits);
-        let mut edges: std::collections::HashMap<([u32; 3], [u32; 3]), Vec<u32>> = std::collections::HashMap::new();
         let count = triangles.len() / 3;
+        let triangles: Arc<[Vec3]> =
+            if triangles.len() == 3 * count { triangles } else { Arc::from(&triangles[..3 * count]) };
+        let key = |p: Vec3| p.to_array().map(f32::to_bits);
+        let mut edges: HashMap<([u32; 3], [u32; 3]), Vec<u32>> = HashMap::new();
         for t in 0..count {
             for e in 0..3 {
                 let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
@@ -62,12 +69,39 @@ impl Occluder {
                 }
             }
         }
-        Self { triangles: Arc::from(&triangles[..3 * count]), neighbours: neighbours.into() }
+        let (mut vertices, mut index_of) = (Vec::new(), HashMap::new());
+        let corners: Vec<u32> = triangles
+            .iter()
+            .map(|&p| {
+                *index_of.entry(key(p)).or_insert_with(|| {
+                    vertices.push(p);
+                    vertices.len() as u32 - 1
+                })
+            })
+            .collect();
+        Self { triangles, neighbours: neighbours.into(), vertices: vertices.into(), corners: corners.into() }
+    }
+
+    /// The triangle list: every three vertices form one triangle, in the entity's local space, counter-clockwise
+    /// seen from outside. Occluders cloned from one another share it.
+    pub fn triangles(&self) -> &[Vec3] {
+        &self.triangles
+    }
+
+    /// For edge `e` of triangle `t` (from vertex `e` to vertex `e + 1`), at `3 * t + e`: the triangle sharing
+    /// that edge in the opposite direction, or [`NO_NEIGHBOUR`].
+    pub fn neighbours(&self) -> &[u32] {
+        &self.neighbours
     }
 
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len() / 3
+    }
+
+    /// The distinct vertex positions, and for each corner of [`Occluder::triangles`] its index among them.
+    pub(crate) fn indexed(&self) -> (&[Vec3], &[u32]) {
+        (&self.vertices, &self.corners)
     }
 }
 
@@ -186,4 +220,30 @@ fn select_ranked<'a>(
         rest = tail;
     }
     chosen
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::Mesh;
+
+    #[test]
+    fn a_cube_has_eight_distinct_vertices_and_every_edge_a_neighbour() {
+        let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+        let (vertices, corners) = occluder.indexed();
+        assert_eq!((occluder.triangle_count(), vertices.len()), (12, 8));
+        let rebuilt: Vec<Vec3> = corners.iter().map(|&c| vertices[c as usize]).collect();
+        assert_eq!(rebuilt, occluder.triangles());
+        assert!(occluder.neighbours().iter().all(|&n| n != NO_NEIGHBOUR));
+    }
+
+    #[test]
+    fn a_trailing_partial_triangle_is_dropped_everywhere() {
+        let soup = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z, Vec3::ONE];
+        let occluder = Occluder::new(soup);
+        let (vertices, corners) = occluder.indexed();
+        assert_eq!(occluder.triangles(), &[Vec3::ZERO, Vec3::X, Vec3::Y]);
+        assert_eq!((occluder.neighbours().len(), corners.len(), vertices.len()), (3, 3, 3));
+        assert!(occluder.neighbours().iter().all(|&n| n == NO_NEIGHBOUR));
+    }
 }

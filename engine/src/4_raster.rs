@@ -25,8 +25,9 @@
 //! - [`RasterMode::Fast`]: sampled at texel centres like Collin's 256x144 buffer, with no margins; lossy
 //!   below the viewport's resolution.
 //!
-//! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64; only the
-//! per-texel loop runs in f32, with margins that cover its rounding. Nothing is clipped against the sides of
+//! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64, each distinct
+//! vertex of an occluder transformed and projected once; only the per-texel loop runs in f32, with margins that
+//! cover its rounding. Nothing is clipped against the sides of
 //! the screen: f64 setup is precise far outside it, and texel loops are clamped to the buffer. Back faces (seen
 //! from the eye, or from the light in an orthographic view) are skipped: a closed occluder's front faces hide
 //! everything its back faces would, and from inside an occluder nothing is hidden by it.
@@ -537,39 +538,64 @@ fn setup_occluder(
         DVec3::from(Vec3::from(instance.transform.translation)) - view.origin.as_dvec3(),
     );
     let occluder = instance.occluder;
-    let SetupScratch { relative, front } = scratch;
+    let (vertices, corners) = occluder.indexed();
+    let neighbours = occluder.neighbours();
+    let SetupScratch { relative, front, projected } = scratch;
     let (mut screen_min, mut screen_max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    // Each distinct vertex is transformed and projected once; the triangles read them through `corners`.
     relative.clear();
-    relative.extend(occluder.triangles.iter().map(|p| transform.transform_point3(p.as_dvec3())));
+    relative.extend(vertices.iter().map(|p| transform.transform_point3(p.as_dvec3())));
     // Front-facing in 3D: the eye (the origin, or the light's direction in an orthographic view) is on the
     // outer side of the counter-clockwise face.
     let eye = view.eye();
     front.clear();
-    front.extend(
-        relative.chunks_exact(3).map(|t| (t[1] - t[0]).cross(t[2] - t[0]).dot(eye.truncate() - t[0] * eye.w) > 0.0),
-    );
+    front.extend(corners.chunks_exact(3).map(|t| {
+        let (a, b, c) = (relative[t[0] as usize], relative[t[1] as usize], relative[t[2] as usize]);
+        (b - a).cross(c - a).dot(eye.truncate() - a * eye.w) > 0.0
+    }));
     let (m, depth_row) = (view.clip_from_relative, view.depth_from_relative);
+    let near = view.near as f64;
+    // Homogeneous `(x, y, w, d)` and screen position of each vertex; the latter is used only where the
+    // vertex is on the near plane's visible side.
+    projected.clear();
+    projected.extend(relative.iter().map(|corner| {
+        let v = m * corner.extend(1.0);
+        let clip = DVec4::new(v.x, v.y, v.w, depth_row.dot(corner.extend(1.0)));
+        (clip, to_screen(view, clip))
+    }));
     let (first_triangle, first_segment) = (arena.triangles.len(), arena.boundary.len());
     let mut setup =
         SetupOccluder { arena: arena_index, triangles: 0..0, boundary: 0..0, rect: TexelRect::EMPTY, nearest: 0.0 };
-    for (t, corners) in relative.chunks_exact(3).enumerate() {
+    for (t, triangle) in corners.chunks_exact(3).enumerate() {
         if !front[t] {
             continue;
         }
         let mut polygon = [(DVec4::ZERO, false); 4];
-        for (e, corner) in corners.iter().enumerate() {
-            let v = m * corner.extend(1.0);
-            let neighbour = occluder.neighbours[3 * t + e];
+        for (e, &corner) in triangle.iter().enumerate() {
+            let neighbour = neighbours[3 * t + e];
             let boundary = neighbour == NO_NEIGHBOUR || !front[neighbour as usize];
-            polygon[e] = (DVec4::new(v.x, v.y, v.w, depth_row.dot(corner.extend(1.0))), boundary);
-        }
-        let (polygon, count) = clip_near(&polygon, view.near as f64);
-        if count < 3 {
-            continue;
+            polygon[e] = (projected[corner as usize].0, boundary);
         }
         let mut screen = [DVec3::ZERO; 4];
-        for (screen, &(v, _)) in screen.iter_mut().zip(&polygon[..count]) {
-            *screen = to_screen(view, v);
+        let [a, b, c] =
+            [&projected[triangle[0] as usize], &projected[triangle[1] as usize], &projected[triangle[2] as usize]];
+        let count = match (a.0.z - near >= 0.0) & (b.0.z - near >= 0.0) & (c.0.z - near >= 0.0) {
+            // Wholly on the visible side: the clip below would return the triangle as it is.
+            true => {
+                screen[..3].copy_from_slice(&[a.1, b.1, c.1]);
+                3
+            }
+            false => {
+                let count;
+                (polygon, count) = clip_near(&polygon, near);
+                for (screen, &(v, _)) in screen.iter_mut().zip(&polygon[..count]) {
+                    *screen = to_screen(view, v);
+                }
+                count
+            }
+        };
+        if count < 3 {
+            continue;
         }
         let screen = &screen[..count];
         for v in screen {
@@ -608,6 +634,7 @@ fn setup_occluder(
 struct SetupScratch {
     relative: Vec<DVec3>,
     front: Vec<bool>,
+    projected: Vec<(DVec4, DVec3)>,
 }
 
 /// Clips a triangle of homogeneous `(x, y, w, d)` vertices, each flagged when the edge leaving it is a

@@ -95,7 +95,7 @@ pub fn occlusion_ideal(world: &World, reference: &ReferenceSettings) -> Occlusio
         .iter()
         .filter_map(|&slot| {
             let entity = store.entities()[slot as usize];
-            Some((&world.get::<Occluder>(entity)?.triangles[..], world.get::<ObjectTransform>(entity)?.0))
+            Some((world.get::<Occluder>(entity)?.triangles(), world.get::<ObjectTransform>(entity)?.0))
         })
         .collect();
     let exact = ExactOccluderDepth::rasterize(camera, &occluders, reference.width, reference.height);

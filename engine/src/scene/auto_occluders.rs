@@ -84,7 +84,7 @@ mod tests {
         let occluder = occluder_from_mesh(&mesh, &settings).unwrap();
         assert_eq!(occluder.triangle_count(), 4);
         // The top and bottom faces (10 x 10) are the largest: every chosen vertex has |y| = 0.5.
-        assert!(occluder.triangles.iter().all(|p| p.y.abs() == 0.5));
+        assert!(occluder.triangles().iter().all(|p| p.y.abs() == 0.5));
         assert!(occluder_from_mesh(&Mesh::default(), &settings).is_none());
     }
 }

@@ -307,7 +307,7 @@ mod tests {
         let city = CityScene::generate(CityParams::with_objects(200));
         let building = &city.scene.mesh_bounds[meshes::BUILDING as usize];
         let object = city.scene.objects.iter().find(|o| o.mesh == meshes::BUILDING).unwrap();
-        for &p in object.occluder.as_ref().unwrap().triangles.iter() {
+        for &p in object.occluder.as_ref().unwrap().triangles().iter() {
             assert!(((p - building.center).abs() - building.half_extent).max_element() < 0.0);
         }
     }

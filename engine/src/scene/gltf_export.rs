@@ -9,7 +9,6 @@ use crate::occluder::Occluder;
 use base64::Engine as _;
 use serde_json::{Value, json};
 use std::collections::HashMap;
-use std::sync::Arc;
 
 /// Accumulates the binary buffer and its views and accessors.
 #[derive(Default)]
@@ -115,8 +114,8 @@ fn occluder_mesh(
     buffers: &mut Buffers,
     meshes: &mut Vec<Value>,
 ) -> usize {
-    *written.entry(Arc::as_ptr(&occluder.triangles).cast()).or_insert_with(|| {
-        let positions = buffers.positions(&occluder.triangles);
+    *written.entry(occluder.triangles().as_ptr()).or_insert_with(|| {
+        let positions = buffers.positions(occluder.triangles());
         meshes.push(json!({"primitives": [{"attributes": {"POSITION": positions}}]}));
         meshes.len() - 1
     })

@@ -398,7 +398,7 @@ fn is_occluder(node: &gltf::Node) -> bool {
 /// An occluder of `soup`'s triangles added to `existing`'s.
 fn merge_occluder(existing: Option<Occluder>, soup: Vec<Vec3>) -> Occluder {
     match existing {
-        Some(occluder) => Occluder::new([&occluder.triangles[..], &soup[..]].concat()),
+        Some(occluder) => Occluder::new([occluder.triangles(), &soup[..]].concat()),
         None => Occluder::new(soup),
     }
 }
