@@ -49,36 +49,37 @@ impl Occluder {
         let count = triangles.len() / 3;
         let triangles: Arc<[Vec3]> =
             if triangles.len() == 3 * count { triangles } else { Arc::from(&triangles[..3 * count]) };
-        let key = |p: Vec3| p.to_array().map(f32::to_bits);
-        let mut edges: HashMap<([u32; 3], [u32; 3]), Vec<u32>> = HashMap::new();
+        // Positions are matched by their exact bits: each distinct one becomes a vertex, and edges are matched
+        // by the vertices at their ends.
+        let (mut vertices, mut index_of) = (Vec::new(), HashMap::new());
+        let corners: Vec<u32> = triangles
+            .iter()
+            .map(|&p| {
+                *index_of.entry(p.to_array().map(f32::to_bits)).or_insert_with(|| {
+                    vertices.push(p);
+                    vertices.len() as u32 - 1
+                })
+            })
+            .collect();
+        let edge = |t: usize, e: usize| (corners[3 * t + e], corners[3 * t + (e + 1) % 3]);
+        let mut edges: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
         for t in 0..count {
             for e in 0..3 {
-                let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
-                edges.entry((key(a), key(b))).or_default().push(t as u32);
+                edges.entry(edge(t, e)).or_default().push(t as u32);
             }
         }
         let mut neighbours = vec![NO_NEIGHBOUR; 3 * count];
         for t in 0..count {
             for e in 0..3 {
-                let (a, b) = (triangles[3 * t + e], triangles[3 * t + (e + 1) % 3]);
-                let forward = edges.get(&(key(a), key(b))).map_or(0, Vec::len);
-                if let Some([other]) = edges.get(&(key(b), key(a))).map(Vec::as_slice)
+                let (a, b) = edge(t, e);
+                let forward = edges.get(&(a, b)).map_or(0, Vec::len);
+                if let Some([other]) = edges.get(&(b, a)).map(Vec::as_slice)
                     && forward == 1
                 {
                     neighbours[3 * t + e] = *other;
                 }
             }
         }
-        let (mut vertices, mut index_of) = (Vec::new(), HashMap::new());
-        let corners: Vec<u32> = triangles
-            .iter()
-            .map(|&p| {
-                *index_of.entry(key(p)).or_insert_with(|| {
-                    vertices.push(p);
-                    vertices.len() as u32 - 1
-                })
-            })
-            .collect();
         Self { triangles, neighbours: neighbours.into(), vertices: vertices.into(), corners: corners.into() }
     }
 

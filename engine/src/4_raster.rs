@@ -27,10 +27,10 @@
 //!
 //! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64, each distinct
 //! vertex of an occluder transformed and projected once; only the per-texel loop runs in f32, with margins that
-//! cover its rounding. Nothing is clipped against the sides of
-//! the screen: f64 setup is precise far outside it, and texel loops are clamped to the buffer. Back faces (seen
-//! from the eye, or from the light in an orthographic view) are skipped: a closed occluder's front faces hide
-//! everything its back faces would, and from inside an occluder nothing is hidden by it.
+//! cover its rounding. Nothing is clipped against the sides of the screen: f64 setup is precise far outside it,
+//! and texel loops are clamped to the buffer. Back faces (seen from the eye, or from the light in an
+//! orthographic view) are skipped: a closed occluder's front faces hide everything its back faces would, and
+//! from inside an occluder nothing is hidden by it.
 
 use crate::depth::{DepthPyramid, ScreenView, farther, reduce_rows};
 use crate::frustum::SimdBackend;
@@ -579,20 +579,17 @@ fn setup_occluder(
         let mut screen = [DVec3::ZERO; 4];
         let [a, b, c] =
             [&projected[triangle[0] as usize], &projected[triangle[1] as usize], &projected[triangle[2] as usize]];
-        let count = match (a.0.z - near >= 0.0) & (b.0.z - near >= 0.0) & (c.0.z - near >= 0.0) {
-            // Wholly on the visible side: the clip below would return the triangle as it is.
-            true => {
-                screen[..3].copy_from_slice(&[a.1, b.1, c.1]);
-                3
+        // Wholly on the near plane's visible side, the clip would return the triangle as it is.
+        let count = if (a.0.z - near >= 0.0) & (b.0.z - near >= 0.0) & (c.0.z - near >= 0.0) {
+            screen[..3].copy_from_slice(&[a.1, b.1, c.1]);
+            3
+        } else {
+            let count;
+            (polygon, count) = clip_near(&polygon, near);
+            for (screen, &(v, _)) in screen.iter_mut().zip(&polygon[..count]) {
+                *screen = to_screen(view, v);
             }
-            false => {
-                let count;
-                (polygon, count) = clip_near(&polygon, near);
-                for (screen, &(v, _)) in screen.iter_mut().zip(&polygon[..count]) {
-                    *screen = to_screen(view, v);
-                }
-                count
-            }
+            count
         };
         if count < 3 {
             continue;
