@@ -39,13 +39,15 @@ use std::time::{Duration, Instant};
 use street::StreetView;
 
 /// Cullet's configurations compared, each against MOC at the same size: the default conservative buffer at
-/// 256x144, two steps up and the viewport's resolution, and the pixel-centre buffer at the viewport's.
-const CONFIGS: [(u32, u32, RasterMode); 5] = [
+/// 256x144, two steps up and the viewport's resolution, and the pixel-centre and masked buffers at the
+/// viewport's.
+const CONFIGS: [(u32, u32, RasterMode); 6] = [
     (256, 144, RasterMode::Conservative),
     (512, 288, RasterMode::Conservative),
     (1024, 576, RasterMode::Conservative),
     (1920, 1080, RasterMode::Conservative),
     (1920, 1080, RasterMode::PixelCentres),
+    (1920, 1080, RasterMode::Masked),
 ];
 
 fn env_or(name: &str, default: usize) -> usize {

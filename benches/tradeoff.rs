@@ -111,10 +111,13 @@ fn main() {
             }
         }
     }
-    // Pixel centres are conservative at the resolution of the rendering judged, the viewport's.
-    for triangle_budget in BUDGETS {
-        let (width, height, mode) = (reference.width, reference.height, RasterMode::PixelCentres);
-        configs.push(OcclusionSettings { enabled: true, width, height, mode, triangle_budget });
+    // Pixel centres, per pixel or masked per block, are conservative at the resolution of the rendering
+    // judged, the viewport's.
+    for mode in [RasterMode::PixelCentres, RasterMode::Masked] {
+        for triangle_budget in BUDGETS {
+            let (width, height) = (reference.width, reference.height);
+            configs.push(OcclusionSettings { enabled: true, width, height, mode, triangle_budget });
+        }
     }
     // Frustum survivors an exact 1920x1080 buffer of the same occluders culls, per budget and frame.
     let mut ideal: HashMap<usize, Vec<usize>> = HashMap::new();
@@ -323,6 +326,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
     let mode_color = |mode| match mode {
         RasterMode::Conservative => BLUE,
         RasterMode::PixelCentres => CYAN,
+        RasterMode::Masked => RGBColor(230, 120, 0),
         RasterMode::Fast => RED,
     };
     let color = |r: &Row| if r.settings.enabled { mode_color(r.settings.mode) } else { BLACK };
@@ -356,6 +360,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
         let modes = [
             ("conservative", RasterMode::Conservative),
             ("pixel centres at 1920x1080", RasterMode::PixelCentres),
+            ("masked at 1920x1080", RasterMode::Masked),
             ("fast", RasterMode::Fast),
         ];
         for (name, mode) in modes {

@@ -356,17 +356,22 @@ fn tiny_box_scene_strategy() -> impl Strategy<Value = (Camera, Vec<Occluder>, Ve
 /// viewport's, a smaller one and one with odd sides.
 const PIXEL_CENTRE_SIZES: [(u32, u32); 3] = [(1920, 1080), (640, 360), (333, 187)];
 
+/// The modes that sample pixel centres: per pixel, and per 4x4 block with coverage masks.
+const CENTRE_MODES: [RasterMode; 2] = [RasterMode::PixelCentres, RasterMode::Masked];
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
-    /// The pixel-centre mode never culls a box that an f64 depth buffer of the same occluders at the same
+    /// The pixel-centre and masked modes never cull a box that an f64 depth buffer of the same occluders at the same
     /// resolution shows at some pixel centre; the occluders include ones crossing the near plane.
     #[test]
     fn pixel_centre_mode_never_culls_what_the_same_resolution_shows(
         (camera, occluders, boxes) in scene_strategy(),
         size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
     ) {
-        check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, size, size);
+        for mode in CENTRE_MODES {
+            check_against_reference(&camera, &occluders, &boxes, mode, size, size);
+        }
     }
 
     /// The same for sub-pixel boxes, which the buffer sees at one pixel centre or none.
@@ -375,7 +380,9 @@ proptest! {
         (camera, occluders, boxes) in tiny_box_scene_strategy(),
         size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
     ) {
-        check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, size, size);
+        for mode in CENTRE_MODES {
+            check_against_reference(&camera, &occluders, &boxes, mode, size, size);
+        }
     }
 
     /// And for boxes in one group, whose group box is tested first.
@@ -384,7 +391,9 @@ proptest! {
         (camera, occluders, boxes) in clustered_scene_strategy(),
         size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
     ) {
-        check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, size, size);
+        for mode in CENTRE_MODES {
+            check_against_reference(&camera, &occluders, &boxes, mode, size, size);
+        }
     }
 }
 
@@ -395,15 +404,57 @@ fn the_pixel_centre_mode_occludes_more_than_the_default() {
     use proptest::strategy::ValueTree;
     let mut runner = proptest::test_runner::TestRunner::deterministic();
     let strategy = scene_strategy();
-    let (mut centres, mut conservative, mut total) = (0, 0, 0);
+    let (mut centres, mut masked, mut conservative, mut total) = (0, 0, 0, 0);
     for _ in 0..48 {
         let (camera, occluders, boxes) = strategy.new_tree(&mut runner).unwrap().current();
         let full = (1920, 1080);
         centres += check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, full, full);
+        masked += check_against_reference(&camera, &occluders, &boxes, RasterMode::Masked, full, full);
         conservative += check_against_full_resolution(&camera, &occluders, &boxes, BUFFER);
         total += boxes.len();
     }
     assert!(centres > conservative && centres * 10 > total, "{centres} and {conservative} of {total} boxes occluded");
+    assert!(masked > conservative, "masked: {masked} and {conservative} of {total} boxes occluded");
+}
+
+/// Occluders in an instance list, and the pyramid `mode` rasterizes them into through `view`.
+fn pyramid_of(view: &ScreenView, occluders: &[Occluder], mode: RasterMode) -> DepthPyramid {
+    let meshes: Vec<cullet::Occluder> =
+        occluders.iter().map(|(triangles, _)| cullet::Occluder::new(triangles.clone())).collect();
+    let instances: Vec<OccluderInstance<'_>> = meshes
+        .iter()
+        .zip(occluders)
+        .map(|(occluder, (_, transform))| OccluderInstance { occluder, transform: *transform })
+        .collect();
+    let mut pyramid = DepthPyramid::default();
+    rasterize(view, &instances, mode, &mut pyramid);
+    pyramid
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    /// Each level of the masked pyramid (texels of 4x4 pixels at level 0) is nowhere nearer than the
+    /// pixel-centre pyramid two levels up, whose texels cover the same pixels: a block never claims more than
+    /// the per-pixel buffer under it, whatever the sizes (odd ones leave partial blocks on the edges).
+    #[test]
+    fn masked_blocks_are_never_nearer_than_the_pixel_centres_under_them(
+        (camera, occluders, _) in scene_strategy(),
+        size in prop::sample::select(PIXEL_CENTRE_SIZES.to_vec()),
+    ) {
+        let view = ScreenView::new(&camera, size.0, size.1);
+        let centres = pyramid_of(&view, &occluders, RasterMode::PixelCentres);
+        let masked = pyramid_of(&view, &occluders, RasterMode::Masked);
+        prop_assert_eq!(masked.base().texel_size(), 4);
+        prop_assert_eq!(masked.level_count() + 2, centres.level_count());
+        for k in 0..masked.level_count() {
+            let (blocks, pixels) = (masked.level(k), centres.level(k + 2));
+            prop_assert_eq!((blocks.width(), blocks.height()), (pixels.width(), pixels.height()));
+            for (i, (&block, &pixel)) in blocks.texels().iter().zip(pixels.texels()).enumerate() {
+                prop_assert!(block <= pixel, "level {} texel {}: block {} nearer than pixels {}", k, i, block, pixel);
+            }
+        }
+    }
 }
 
 /// The property test's scenes are not vacuous: over a fixed sample of them, occlusion culls many boxes.

@@ -19,7 +19,6 @@ use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::test_occlusion;
-use cullet::raster::RasterMode::PixelCentres;
 use cullet::raster::rasterize;
 use cullet::visible::VisibleSet;
 use std::any::TypeId;
@@ -249,8 +248,9 @@ pub(crate) fn cull_views(
             view.last = None;
         }
         let mut settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
-        // A pixel-centre buffer is conservative only at the resolution drawn: the camera's viewport.
-        if let Some(size) = camera.physical_viewport_size().filter(|_| settings.occlusion.mode == PixelCentres) {
+        // A pixel-centre or masked buffer is conservative only at the resolution drawn: the camera's viewport.
+        let follows_viewport = settings.occlusion.mode.samples_pixel_centres();
+        if let Some(size) = camera.physical_viewport_size().filter(|_| follows_viewport) {
             (settings.occlusion.width, settings.occlusion.height) = (size.x, size.y);
         }
         view.cull(&cullet, &culled, &settings, !no_occlusion && !no_cpu_culling, |slot| {

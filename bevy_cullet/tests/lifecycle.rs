@@ -140,11 +140,11 @@ fn occluders_hide_what_is_behind_them_while_they_are_shown() {
 }
 
 #[test]
-fn a_pixel_centre_buffer_takes_the_cameras_viewport_size() {
+fn pixel_centre_and_masked_buffers_take_the_cameras_viewport_size() {
     let (mut app, camera, _, hidden_box) = walled();
     app.world_mut().resource_mut::<CulletSettings>().occlusion.mode = cullet::raster::RasterMode::PixelCentres;
     let viewport = bevy_camera::Viewport { physical_size: bevy_math::UVec2::new(320, 180), ..Default::default() };
-    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport);
+    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport.clone());
     app.update();
     let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
     assert_eq!((buffer.width(), buffer.height()), (320, 180));
@@ -154,6 +154,13 @@ fn a_pixel_centre_buffer_takes_the_cameras_viewport_size() {
     app.update();
     let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
     assert_eq!((buffer.width(), buffer.height()), (256, 144));
+    assert!(!visible(&app, hidden_box));
+    // A masked buffer follows the viewport too, with a texel per 4x4 pixels.
+    app.world_mut().resource_mut::<CulletSettings>().occlusion.mode = cullet::raster::RasterMode::Masked;
+    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport);
+    app.update();
+    let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
+    assert_eq!((buffer.width(), buffer.height(), buffer.texel_size()), (80, 45, 4));
     assert!(!visible(&app, hidden_box));
 }
 

@@ -51,7 +51,8 @@ struct View {
     camera: vec4<f32>,
     // Render target width, height in pixels.
     viewport: vec2<f32>,
-    // HZB level-0 width, height in texels.
+    // The view's size in HZB level-0 texels: maps NDC to texels (a fraction less than level 0's size where
+    // its texels are pixel blocks that do not divide the view).
     hzb_size: vec2<f32>,
     hzb_levels: array<HzbLevel, MAX_HZB_LEVELS>,
     hzb_level_count: u32,
@@ -159,7 +160,8 @@ fn hidden_by_hzb(center: vec3<f32>, extent: f32) -> bool {
         hi = max(hi, screen);
         nearest = max(nearest, inv_w);
     }
-    let size = view.hzb_size - vec2<f32>(1.0);
+    // The last texel, which may reach past the view (`hzb_size` is then a fraction less than the level's size).
+    let size = vec2<f32>(f32(view.hzb_levels[0].width - 1u), f32(view.hzb_levels[0].height - 1u));
     let lo_texel = vec2<u32>(clamp(floor(lo - RECT_MARGIN), vec2<f32>(0.0), size));
     let hi_texel = vec2<u32>(clamp(floor(hi + RECT_MARGIN), vec2<f32>(0.0), size));
     let span = max(hi_texel.x - lo_texel.x, hi_texel.y - lo_texel.y) + 1u;

@@ -316,9 +316,12 @@ fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
         return false;
     }
     let size = (rect.x1 - rect.x0).max(rect.y1 - rect.y0).max(1);
-    let coarse = (size.next_power_of_two().trailing_zeros() as usize).min(pyramid.level_count() - 1);
+    // The rectangle is in pixels; level 0's texels may span several (a masked buffer's 4x4 blocks).
+    let pixel_level = size.next_power_of_two().trailing_zeros().saturating_sub(pyramid.base().texel_shift());
+    let coarse = (pixel_level as usize).min(pyramid.level_count() - 1);
     rect.nearest < farthest_in::<2>(rect, pyramid, coarse)
         || (coarse > 0 && rect.nearest < farthest_in::<3>(rect, pyramid, coarse - 1))
+        || pyramid.blocks_hide([rect.x0, rect.y0, rect.x1, rect.y1], rect.nearest)
 }
 
 /// The farthest depth among the texels of level `level` under `rect`, read as a `WINDOW` x `WINDOW` block from
@@ -327,8 +330,9 @@ fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
 fn farthest_in<const WINDOW: u32>(rect: &ScreenRect, pyramid: &DepthPyramid, level: usize) -> f32 {
     let texels = pyramid.level(level);
     let width = texels.width() as usize;
-    let (x0, y0) = (rect.x0 >> level, rect.y0 >> level);
-    let (x1, y1) = ((rect.x1 - 1) >> level, (rect.y1 - 1) >> level);
+    let shift = texels.texel_shift();
+    let (x0, y0) = (rect.x0 >> shift, rect.y0 >> shift);
+    let (x1, y1) = ((rect.x1 - 1) >> shift, (rect.y1 - 1) >> shift);
     let mut farthest = f32::INFINITY;
     for dy in 0..WINDOW {
         let start = (y0 + dy).min(y1) as usize * width;

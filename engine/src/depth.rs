@@ -117,17 +117,31 @@ impl ScreenView {
 }
 
 /// A `width` x `height` buffer of depths (see the module documentation), row-major, row 0 at the top of the screen.
+///
+/// A texel covers [`DepthBuffer::texel_size`] pixels of its view on each side: one, except for a buffer
+/// rasterized in [`crate::raster::RasterMode::Masked`], whose texels are 4x4 pixel blocks.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DepthBuffer {
     width: u32,
     height: u32,
+    /// `log2` of the pixels of the view a texel spans on each side.
+    texel_shift: u32,
+    /// The view's size in pixels (`width`, `height` for a buffer of one texel a pixel; the last row and column
+    /// of texels may reach past it otherwise).
+    view_size: (u32, u32),
     texels: Vec<f32>,
 }
 
 impl DepthBuffer {
     /// A buffer with no occluder anywhere (all zeros).
     pub fn new(width: u32, height: u32) -> Self {
-        Self { width, height, texels: vec![0.0; width as usize * height as usize] }
+        Self {
+            width,
+            height,
+            texel_shift: 0,
+            view_size: (width, height),
+            texels: vec![0.0; width as usize * height as usize],
+        }
     }
 
     /// Width in texels.
@@ -138,6 +152,25 @@ impl DepthBuffer {
     /// Height in texels.
     pub fn height(&self) -> u32 {
         self.height
+    }
+
+    /// Pixels of the view a texel spans on each side (a power of two): 1, or 4 in
+    /// [`crate::raster::RasterMode::Masked`].
+    pub fn texel_size(&self) -> u32 {
+        1 << self.texel_shift
+    }
+
+    /// `log2` of [`DepthBuffer::texel_size`].
+    pub(crate) fn texel_shift(&self) -> u32 {
+        self.texel_shift
+    }
+
+    /// The size in texels of the view the buffer covers, `view pixels / texel_size` per axis: the buffer's own
+    /// size when that divides evenly, otherwise a fraction less (the last texels reach past the view). Maps
+    /// normalized device coordinates to texels: `x = (ndc_x * 0.5 + 0.5) * screen_size[0]`.
+    pub fn screen_size(&self) -> [f32; 2] {
+        let scale = self.texel_size() as f32;
+        [self.view_size.0 as f32 / scale, self.view_size.1 as f32 / scale]
     }
 
     /// Depth (of the farthest covering occluder, 0 for none) at texel `(x, y)`.
@@ -160,13 +193,15 @@ impl DepthBuffer {
     pub(crate) fn resize_for_overwrite(&mut self, width: u32, height: u32) {
         self.width = width;
         self.height = height;
+        (self.texel_shift, self.view_size) = (0, (width, height));
         self.texels.resize(width as usize * height as usize, 0.0);
     }
 
-    /// Resizes to `width` x `height` and clears to "no occluder".
+    /// Resizes to `width` x `height` and clears to "no occluder", one texel a pixel.
     pub fn reset(&mut self, width: u32, height: u32) {
         self.width = width;
         self.height = height;
+        (self.texel_shift, self.view_size) = (0, (width, height));
         self.texels.clear();
         self.texels.resize(width as usize * height as usize, 0.0);
     }
@@ -176,16 +211,25 @@ impl DepthBuffer {
 /// each texel holds the minimum depth (farthest) of the up to 2x2 texels of level `k` it covers, so a
 /// coarse texel never claims more occlusion than every fine texel under it. Odd sizes keep their last row and
 /// column (a coarse texel over the edge takes the texels that exist; off-screen parts are never tested).
+///
+/// A pyramid rasterized in [`crate::raster::RasterMode::Masked`] also keeps, per level-0 texel (a 4x4 block of
+/// pixels), the pixels known covered no farther than a second depth (the block's working layer), which the
+/// occlusion test reads for rectangles of a few blocks.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DepthPyramid {
     levels: Vec<DepthBuffer>,
+    /// Per level-0 texel of a masked pyramid: a depth, and the pixels (bit `4 * row + column`) covered by
+    /// occluders no farther than it. Empty otherwise.
+    partial: (Vec<f32>, Vec<u16>),
 }
 
 impl DepthPyramid {
     /// Rebuilds the pyramid from `base`, reusing allocations. Level 0 is a copy of `base`.
     /// [`crate::raster::rasterize`] fills a pyramid directly, without the copy.
     pub fn build(&mut self, base: &DepthBuffer) {
-        self.resize_for_overwrite(base.width, base.height);
+        self.resize_blocks_for_overwrite(base.view_size.0, base.view_size.1, base.texel_shift);
+        self.partial.0.clear();
+        self.partial.1.clear();
         self.levels[0].texels.copy_from_slice(&base.texels);
         self.reduce_from(0);
     }
@@ -193,16 +237,66 @@ impl DepthPyramid {
     /// Sizes the levels for a `width` x `height` base, leaving their texels unspecified (finite), for a caller
     /// that then writes level 0 and reduces the rest.
     pub(crate) fn resize_for_overwrite(&mut self, width: u32, height: u32) {
-        let mut sizes = vec![(width, height)];
-        let (mut w, mut h) = (width, height);
+        self.resize_blocks_for_overwrite(width, height, 0);
+        self.partial.0.clear();
+        self.partial.1.clear();
+    }
+
+    /// [`DepthPyramid::resize_for_overwrite`] for a view of `width` x `height` pixels whose level 0 has a texel
+    /// a block of `2^shift` pixels on each side (`ceil(size / 2^shift)` texels per axis).
+    pub(crate) fn resize_blocks_for_overwrite(&mut self, width: u32, height: u32, shift: u32) {
+        let (mut w, mut h) = (width.div_ceil(1 << shift), height.div_ceil(1 << shift));
+        let mut sizes = vec![(w, h)];
         while w > 1 || h > 1 {
             (w, h) = (w.div_ceil(2), h.div_ceil(2));
             sizes.push((w, h));
         }
         self.levels.resize_with(sizes.len(), DepthBuffer::default);
-        for (level, (w, h)) in self.levels.iter_mut().zip(sizes) {
+        for (k, (level, (w, h))) in self.levels.iter_mut().zip(sizes).enumerate() {
             level.resize_for_overwrite(w, h);
+            (level.texel_shift, level.view_size) = (shift + k as u32, (width, height));
         }
+    }
+
+    /// Level 0's texels with the partial coverage of each (see [`DepthPyramid`]), sized for it, for
+    /// [`crate::raster::rasterize`] in masked mode.
+    pub(crate) fn blocks_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [u16]) {
+        let count = self.levels[0].texels.len();
+        self.partial.0.resize(count, 0.0);
+        self.partial.1.resize(count, 0);
+        (&mut self.levels[0].texels, &mut self.partial.0, &mut self.partial.1)
+    }
+
+    /// Whether the blocks of a masked pyramid's level 0 under the pixel rectangle `x0..x1`, `y0..y1` (non-empty,
+    /// within the view) hide everything there no nearer than `nearest`: in each, the block's depth is nearer,
+    /// or the rectangle's pixels are all among those its partial coverage holds and that depth is nearer.
+    /// `false` for a pyramid without partial coverage, and for rectangles over more than 3x3 blocks (left to
+    /// the levels).
+    #[inline]
+    pub(crate) fn blocks_hide(&self, [x0, y0, x1, y1]: [u32; 4], nearest: f32) -> bool {
+        let (Some(level), false) = (self.levels.first(), self.partial.0.is_empty()) else {
+            return false;
+        };
+        let shift = level.texel_shift;
+        let side = 1u32 << shift;
+        let (bx0, by0, bx1, by1) = (x0 >> shift, y0 >> shift, (x1 - 1) >> shift, (y1 - 1) >> shift);
+        if bx1 - bx0 > 2 || by1 - by0 > 2 {
+            return false;
+        }
+        let width = level.width as usize;
+        (by0..=by1).all(|by| {
+            let rows = y0.max(by * side) - by * side..y1.min(by * side + side) - by * side;
+            (bx0..=bx1).all(|bx| {
+                let i = by as usize * width + bx as usize;
+                if nearest < level.texels[i] {
+                    return true;
+                }
+                let columns = x0.max(bx * side) - bx * side..x1.min(bx * side + side) - bx * side;
+                let row_bits = ((1u32 << columns.end) - (1u32 << columns.start)) as u16;
+                let pixels = rows.clone().fold(0u16, |bits, row| bits | row_bits << (row * side));
+                nearest < self.partial.0[i] && pixels & !self.partial.1[i] == 0
+            })
+        })
     }
 
     /// All levels, writable, for [`crate::raster::rasterize`].
@@ -230,7 +324,8 @@ impl DepthPyramid {
 
     /// Level 0, the depth buffer the pyramid was built from; an empty (0x0) buffer for a pyramid never built.
     pub fn base(&self) -> &DepthBuffer {
-        static EMPTY: DepthBuffer = DepthBuffer { width: 0, height: 0, texels: Vec::new() };
+        static EMPTY: DepthBuffer =
+            DepthBuffer { width: 0, height: 0, texel_shift: 0, view_size: (0, 0), texels: Vec::new() };
         self.levels.first().unwrap_or(&EMPTY)
     }
 

@@ -64,7 +64,7 @@ pub mod gpu;
 pub mod occluder;
 #[path = "5_occlusion.rs"]
 pub mod occlusion;
-#[path = "4_raster.rs"]
+#[path = "4_raster/mod.rs"]
 pub mod raster;
 
 pub mod camera;

@@ -291,7 +291,8 @@ pub struct OcclusionSettings {
     pub width: u32,
     /// Depth-buffer height in texels.
     pub height: u32,
-    /// Conservative (default) or fast sampling.
+    /// How texels are sampled ([`RasterMode`]): conservative (default), pixel centres or masked blocks at the
+    /// viewport's size, or fast.
     pub mode: RasterMode,
     /// Most occluder triangles rasterized per frame. The default, 4096, sits on the measured run-time-against-
     /// error Pareto front (see the README): on the city, 16 384 culls 1.5% more for 75% more time.

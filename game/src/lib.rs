@@ -62,13 +62,17 @@ struct Args {
     #[arg(long, default_value = "256x144")]
     occlusion_resolution: String,
     /// Sample the occlusion buffer at texel centres (not conservative) instead of whole-texel coverage.
-    #[arg(long, conflicts_with = "pixel_centres")]
+    #[arg(long, conflicts_with_all = ["pixel_centres", "masked"])]
     fast_occlusion: bool,
     /// Make the occlusion buffer as large as the viewport (`--resolution`, in place of
     /// `--occlusion-resolution`) and sample it at pixel centres: conservative for the frame drawn, and it
     /// culls more than the default at a higher cost.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "masked")]
     pixel_centres: bool,
+    /// Like `--pixel-centres`, with the covered pixels kept as coverage masks and one depth per 4x4 block
+    /// (Masked Occlusion Culling's layout): conservative for the frame drawn, and cheaper.
+    #[arg(long)]
+    masked: bool,
     /// Turn the software occlusion stage off.
     #[arg(long)]
     no_occlusion: bool,
@@ -247,17 +251,19 @@ pub struct Prepared {
 fn prepare(args: &Args) -> Result<Prepared, String> {
     let (width, height) = parse_resolution(&args.resolution)?;
     let aspect = width as f32 / height as f32;
+    let mode = match (args.fast_occlusion, args.pixel_centres, args.masked) {
+        (true, _, _) => RasterMode::Fast,
+        (_, true, _) => RasterMode::PixelCentres,
+        (_, _, true) => RasterMode::Masked,
+        _ => RasterMode::Conservative,
+    };
     let (occlusion_width, occlusion_height) =
-        if args.pixel_centres { (width, height) } else { parse_resolution(&args.occlusion_resolution)? };
+        if mode.samples_pixel_centres() { (width, height) } else { parse_resolution(&args.occlusion_resolution)? };
     let occlusion = OcclusionSettings {
         enabled: !args.no_occlusion,
         width: occlusion_width,
         height: occlusion_height,
-        mode: match (args.fast_occlusion, args.pixel_centres) {
-            (true, _) => RasterMode::Fast,
-            (_, true) => RasterMode::PixelCentres,
-            _ => RasterMode::Conservative,
-        },
+        mode,
         triangle_budget: args.occluder_budget,
     };
 

@@ -16,7 +16,6 @@ use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
-use cullet::raster::RasterMode;
 use glam::Vec3;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -536,10 +535,10 @@ impl ApplicationHandler for Game {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
                 let before = std::mem::replace(&mut self.size, (size.width, size.height));
-                // A pixel-centre buffer is conservative only at the frame's size: it follows the window.
+                // A pixel-centre or masked buffer is conservative only at the frame's size: it follows the window.
                 let mut controls = self.controls();
                 let occlusion = &mut controls.occlusion;
-                if occlusion.mode == RasterMode::PixelCentres && (occlusion.width, occlusion.height) == before {
+                if occlusion.mode.samples_pixel_centres() && (occlusion.width, occlusion.height) == before {
                     (occlusion.width, occlusion.height) = self.size;
                     self.set_controls(controls);
                 }

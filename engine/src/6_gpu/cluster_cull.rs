@@ -211,7 +211,8 @@ fn hidden_by_hzb(view: &GpuView, hzb: &[f32], center: Vec3, extent: f32) -> bool
         hi = hi.max(screen);
         nearest = nearest.max(inv_w);
     }
-    let top = size - Vec2::ONE;
+    // The last texel, which may reach past the view (`size` is then a fraction less than the level's size).
+    let top = Vec2::new(view.hzb_levels[0].width as f32, view.hzb_levels[0].height as f32) - Vec2::ONE;
     let lo_texel = (lo - RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
     let hi_texel = (hi + RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
     let span = (hi_texel.x - lo_texel.x).max(hi_texel.y - lo_texel.y) + 1;

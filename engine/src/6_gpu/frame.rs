@@ -258,7 +258,7 @@ impl GpuCuller {
             planes,
             camera: camera.position.extend(0.0).to_array(),
             viewport: [width as f32, height as f32],
-            hzb_size: [self.hzb.levels[0].width as f32, self.hzb.levels[0].height as f32],
+            hzb_size: self.hzb.screen_size,
             hzb_levels,
             hzb_level_count: self.hzb.levels.len() as u32,
             visible_count,
@@ -321,6 +321,7 @@ impl GpuCuller {
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
+        self.hzb.set_screen(depth);
         let instances = self.scene.instances();
         let out_of_range = |slots: &[u32]| slots.iter().copied().find(|&slot| slot as usize >= instances.len());
         let casters = cascades.into_iter().flatten().map(|cascade| cascade.casters);

@@ -47,6 +47,9 @@ pub struct Hzb {
     pub buffer: wgpu::Buffer,
     /// Level sizes and offsets.
     pub levels: Vec<HzbLevel>,
+    /// The view's size in level-0 texels ([`DepthBuffer::screen_size`] of the last buffer built from): maps
+    /// normalized device coordinates to texels.
+    pub screen_size: [f32; 2],
     pipeline: wgpu::ComputePipeline,
     /// One bind group per level above 0, with its (fine, coarse) pair.
     level_bind_groups: Vec<wgpu::BindGroup>,
@@ -78,12 +81,20 @@ impl Hzb {
                 context.bind_buffers("hzb level", &layout, &[(1, &buffer), (2, &uniform)])
             })
             .collect();
-        Self { buffer, levels, pipeline, level_bind_groups }
+        let screen_size = [levels[0].width as f32, levels[0].height as f32];
+        Self { buffer, levels, screen_size, pipeline, level_bind_groups }
     }
 
     /// Whether this pyramid fits buffers of `width` x `height`.
     pub fn fits(&self, width: u32, height: u32) -> bool {
         self.levels[0].width == width.max(1) && self.levels[0].height == height.max(1)
+    }
+
+    /// Sets [`Hzb::screen_size`] for building from `depth` (which [`Hzb::build`] uploads only when it fits).
+    pub fn set_screen(&mut self, depth: &DepthBuffer) {
+        let base = self.levels[0];
+        let fits = depth.width() == base.width && depth.height() == base.height;
+        self.screen_size = if fits { depth.screen_size() } else { [base.width as f32, base.height as f32] };
     }
 
     /// Uploads `depth` as level 0 (all zero when it is empty) and records the passes that build the rest,

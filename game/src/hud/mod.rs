@@ -441,7 +441,7 @@ fn adaptive_flags(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls
     let occlusion = &controls.occlusion;
     if !occlusion.is_conservative_for(frame.viewport) {
         let why = match occlusion.mode {
-            RasterMode::PixelCentres => "pixel centres below the viewport's size",
+            RasterMode::PixelCentres | RasterMode::Masked => "pixel centres below the viewport's size",
             _ => "fast occlusion",
         };
         ui.colored_label(WARNING_COLOUR, format!("{why}: lossy, may cull visible objects"));
@@ -541,6 +541,7 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
     ui.horizontal(|ui| {
         ui.radio_value(&mut occlusion.mode, RasterMode::Conservative, "conservative");
         ui.radio_value(&mut occlusion.mode, RasterMode::PixelCentres, "pixel centres (at the viewport's size)");
+        ui.radio_value(&mut occlusion.mode, RasterMode::Masked, "masked (at the viewport's size)");
         ui.radio_value(&mut occlusion.mode, RasterMode::Fast, "fast (lossy)");
     });
     ui.add(egui::Slider::new(&mut occlusion.triangle_budget, 64..=65536).logarithmic(true).text("occluder triangles"));
