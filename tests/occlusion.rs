@@ -44,14 +44,8 @@ fn cull(
     (frustum_visible, visible)
 }
 
-/// Raster and occlusion test of `tested` through `view`; returns the survivors.
-fn occlude(
-    store: &BoundsStore,
-    tested: &VisibleSet,
-    view: &ScreenView,
-    occluders: &[Occluder],
-    mode: RasterMode,
-) -> VisibleSet {
+/// Occluders in an instance list, and the pyramid `mode` rasterizes them into through `view`.
+fn pyramid_of(view: &ScreenView, occluders: &[Occluder], mode: RasterMode) -> DepthPyramid {
     let meshes: Vec<cullet::Occluder> =
         occluders.iter().map(|(triangles, _)| cullet::Occluder::new(triangles.clone())).collect();
     let instances: Vec<OccluderInstance<'_>> = meshes
@@ -61,6 +55,18 @@ fn occlude(
         .collect();
     let mut pyramid = DepthPyramid::default();
     rasterize(view, &instances, mode, &mut pyramid);
+    pyramid
+}
+
+/// Raster and occlusion test of `tested` through `view`; returns the survivors.
+fn occlude(
+    store: &BoundsStore,
+    tested: &VisibleSet,
+    view: &ScreenView,
+    occluders: &[Occluder],
+    mode: RasterMode,
+) -> VisibleSet {
+    let pyramid = pyramid_of(view, occluders, mode);
     let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
     test_occlusion(store, tested, view, &pyramid, &mut visible, &mut occluded);
     for slot in 0..store.len() {
@@ -362,8 +368,8 @@ const CENTRE_MODES: [RasterMode; 2] = [RasterMode::PixelCentres, RasterMode::Mas
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
-    /// The pixel-centre and masked modes never cull a box that an f64 depth buffer of the same occluders at the same
-    /// resolution shows at some pixel centre; the occluders include ones crossing the near plane.
+    /// The pixel-centre and masked modes never cull a box that an f64 depth buffer of the same occluders at the
+    /// same resolution shows at some pixel centre; the occluders include ones crossing the near plane.
     #[test]
     fn pixel_centre_mode_never_culls_what_the_same_resolution_shows(
         (camera, occluders, boxes) in scene_strategy(),
@@ -415,20 +421,6 @@ fn the_pixel_centre_mode_occludes_more_than_the_default() {
     }
     assert!(centres > conservative && centres * 10 > total, "{centres} and {conservative} of {total} boxes occluded");
     assert!(masked > conservative, "masked: {masked} and {conservative} of {total} boxes occluded");
-}
-
-/// Occluders in an instance list, and the pyramid `mode` rasterizes them into through `view`.
-fn pyramid_of(view: &ScreenView, occluders: &[Occluder], mode: RasterMode) -> DepthPyramid {
-    let meshes: Vec<cullet::Occluder> =
-        occluders.iter().map(|(triangles, _)| cullet::Occluder::new(triangles.clone())).collect();
-    let instances: Vec<OccluderInstance<'_>> = meshes
-        .iter()
-        .zip(occluders)
-        .map(|(occluder, (_, transform))| OccluderInstance { occluder, transform: *transform })
-        .collect();
-    let mut pyramid = DepthPyramid::default();
-    rasterize(view, &instances, mode, &mut pyramid);
-    pyramid
 }
 
 proptest! {

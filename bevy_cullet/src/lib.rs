@@ -112,9 +112,9 @@ pub struct CulletSettings {
     /// The software occlusion stage: on or off, its buffer's resolution (texels, default 256x144), its mode
     /// (conservative by default) and the most occluder triangles rasterized per view and frame. In
     /// [`cullet::raster::RasterMode::PixelCentres`] and [`cullet::raster::RasterMode::Masked`] (see
-    /// [`cullet::raster::RasterMode::samples_pixel_centres`]) each camera's buffer takes the size of its physical viewport
-    /// where Bevy knows it (the mode is conservative only at the resolution drawn), and `width` x `height`
-    /// elsewhere (a camera with no render target yet).
+    /// [`cullet::raster::RasterMode::samples_pixel_centres`]) each camera's buffer takes the size of its
+    /// physical viewport where Bevy knows it (those modes are conservative only at the resolution drawn), and
+    /// `width` x `height` elsewhere (a camera with no render target yet).
     pub occlusion: OcclusionSettings,
 }
 

@@ -28,7 +28,7 @@
 //! the corner facing it: most blocks are decided by three tests, and only the blocks an edge crosses have
 //! their centres tested one by one. So a block's mask never holds a centre pixel-centre mode leaves uncovered.
 
-use super::{SetupArena, SetupOccluder, SetupTriangle, TexelRect};
+use super::{SetupArena, SetupOccluder, SetupTriangle, TexelRect, bin_by_band};
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
 use rayon::prelude::*;
@@ -57,14 +57,7 @@ pub(super) fn rasterize_blocks(
     }
     let blocks_wide = view.width.div_ceil(BLOCK) as usize;
     let band_rows = BAND_BLOCK_ROWS * BLOCK as usize;
-    let bands = (view.height as usize).div_ceil(band_rows);
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); bands];
-    for (index, occluder) in setups.iter().enumerate() {
-        let rows = occluder.rect.y0 as usize / band_rows..(occluder.rect.y1 as usize).div_ceil(band_rows);
-        for bin in &mut bins[rows] {
-            bin.push(index as u32);
-        }
-    }
+    let bins = bin_by_band(setups, view.height, band_rows);
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let (known, working, mask) = pyramid.blocks_mut();
     let chunk = blocks_wide * BAND_BLOCK_ROWS;
@@ -247,25 +240,15 @@ impl Blocks<'_> {
 /// * y` of a row (f32, set up once a triangle).
 struct Span {
     rect: TexelRect,
-    /// Per edge: `(origin, slope, side)`, `side` 1 for an edge that bounds the triangle on the left (`a > 0`),
-    /// -1 on the right, 0 for a horizontal edge (which decides rows, not columns).
+    /// Per edge: `(origin, slope, a)`; `a > 0` for an edge that bounds the triangle on the left, `a < 0` on the
+    /// right, `a == 0` for a horizontal edge (which decides rows, not columns).
     edges: [(f32, f32, f32); 3],
 }
 
 impl Span {
     #[inline(always)]
     fn of(edges: &[[f32; 3]; 3], rect: TexelRect) -> Self {
-        let edges = edges.map(|[a, b, c]| {
-            let side = if a > 0.0 {
-                1.0
-            } else if a < 0.0 {
-                -1.0
-            } else {
-                0.0
-            };
-            (-c / a, -b / a, side)
-        });
-        Self { rect, edges }
+        Self { rect, edges: edges.map(|[a, b, c]| (-c / a, -b / a, a)) }
     }
 
     /// Blocks `first..end` of the block row whose pixel rows start at `top` to visit: within the rectangle, and
@@ -278,12 +261,12 @@ impl Span {
         let (x0, x1) = (self.rect.x0 as f32, self.rect.x1 as f32);
         let (mut lo, mut hi) = (x0, x1);
         let (y_top, y_bottom) = (top as f32, (top + BLOCK - 1) as f32);
-        for &(origin, slope, side) in &self.edges {
+        for &(origin, slope, a) in &self.edges {
             let crossing = |y: f32| (origin + slope * y).clamp(x0 - 4.0, x1 + 4.0);
             let (at_top, at_bottom) = (crossing(y_top), crossing(y_bottom));
-            if side > 0.0 {
+            if a > 0.0 {
                 lo = lo.max(at_top.min(at_bottom) - 2.0);
-            } else if side < 0.0 {
+            } else if a < 0.0 {
                 hi = hi.min(at_top.max(at_bottom) + 2.0);
             }
         }

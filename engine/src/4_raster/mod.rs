@@ -228,13 +228,7 @@ pub fn rasterize(
 
     let width = view.width as usize;
     let bands = (view.height as usize).div_ceil(BAND_ROWS);
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); bands];
-    for (index, occluder) in setups.iter().enumerate() {
-        let rows = occluder.rect.y0 as usize / BAND_ROWS..(occluder.rect.y1 as usize).div_ceil(BAND_ROWS);
-        for bin in &mut bins[rows] {
-            bin.push(index as u32);
-        }
-    }
+    let bins = bin_by_band(&setups, view.height, BAND_ROWS);
     // Each band's rows in level 0 and in the fused levels above it: level k holds BAND_ROWS >> k of them
     // (ceil-halving sizes give every band its share, the last band a shorter one).
     let levels = pyramid.levels_mut();
@@ -276,6 +270,19 @@ pub fn rasterize(
     });
     pyramid.reduce_from(fused);
     stats
+}
+
+/// The indices of `setups` (in their order) whose rectangles reach each band of `band_rows` rows of a buffer
+/// `height` rows high.
+fn bin_by_band(setups: &[SetupOccluder], height: u32, band_rows: usize) -> Vec<Vec<u32>> {
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); (height as usize).div_ceil(band_rows)];
+    for (index, occluder) in setups.iter().enumerate() {
+        let rows = occluder.rect.y0 as usize / band_rows..(occluder.rect.y1 as usize).div_ceil(band_rows);
+        for bin in &mut bins[rows] {
+            bin.push(index as u32);
+        }
+    }
+    bins
 }
 
 /// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1).
