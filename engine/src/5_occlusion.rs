@@ -363,9 +363,16 @@ mod avx2 {
         let mut gathered = [[0f32; LANES]; 6];
         let soa = store.soa();
         let arrays = [soa.center_x, soa.center_y, soa.center_z, soa.extent_x, soa.extent_y, soa.extent_z];
-        for (i, &lane) in lanes.iter().enumerate() {
+        if lanes.len() == LANES && lanes[LANES - 1] - lanes[0] == LANES - 1 {
+            // Eight consecutive slots (a run of frustum survivors): one load per array.
             for (values, array) in gathered.iter_mut().zip(arrays) {
-                values[i] = array[base + lane];
+                values.copy_from_slice(&array[base + lanes[0]..][..LANES]);
+            }
+        } else {
+            for (i, &lane) in lanes.iter().enumerate() {
+                for (values, array) in gathered.iter_mut().zip(arrays) {
+                    values[i] = array[base + lane];
+                }
             }
         }
         // SAFETY: each array holds exactly the 8 lanes an unaligned load reads.
@@ -486,16 +493,20 @@ mod tests {
         // The camera's perspective view and a sun's orthographic cascade.
         let sun = crate::frustum::LightSource::Sun { direction: Vec3::new(0.3, -1.0, 0.2), splits: vec![0.1, 60.0] };
         let cascade = ScreenView::of_light_view(&sun.light_views(&camera).unwrap()[0], 128).unwrap();
-        let lanes: Vec<usize> = (0..LANES).collect();
+        // Eight consecutive slots (loaded whole) and scattered ones (gathered lane by lane).
+        let consecutive: Vec<usize> = (0..LANES).collect();
+        let scattered = [1, 4, 5, 9, 12, 30, 63];
         for view in [ScreenView::new(&camera, 256, 144), cascade] {
-            for base in (0..512).step_by(LANES) {
-                let scalar = project_boxes(&store, &view, base, &lanes);
-                // SAFETY: AVX2 was detected above; the slots exist.
-                let simd = unsafe { avx2::project_boxes(&store, &view, base, &lanes) };
-                for (a, b) in scalar.iter().zip(&simd) {
-                    assert_eq!(a.always_visible, b.always_visible);
-                    if !a.always_visible {
-                        assert_eq!(a, b);
+            for base in (0..512).step_by(64) {
+                for lanes in [&consecutive[..], &scattered[..]] {
+                    let scalar = project_boxes(&store, &view, base, lanes);
+                    // SAFETY: AVX2 was detected above; the slots exist.
+                    let simd = unsafe { avx2::project_boxes(&store, &view, base, lanes) };
+                    for (a, b) in scalar.iter().zip(&simd).take(lanes.len()) {
+                        assert_eq!(a.always_visible, b.always_visible);
+                        if !a.always_visible {
+                            assert_eq!(a, b);
+                        }
                     }
                 }
             }

@@ -295,7 +295,7 @@ pub struct OcclusionSettings {
     /// viewport's size, or fast.
     pub mode: RasterMode,
     /// Most occluder triangles rasterized per frame. The default, 4096, sits on the measured run-time-against-
-    /// error Pareto front (see the README): on the city, 16 384 culls 1.5% more for 75% more time.
+    /// error Pareto front (see the README): on the city, 16 384 culls 1.5 points more for 60% more time.
     pub triangle_budget: usize,
 }
 
