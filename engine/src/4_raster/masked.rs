@@ -39,8 +39,9 @@ const BLOCK_SHIFT: u32 = 2;
 const BLOCK: u32 = 1 << BLOCK_SHIFT;
 /// Every pixel of a block covered.
 const FULL: u16 = u16::MAX;
-/// Block rows rasterized by one rayon task.
-const BAND_BLOCK_ROWS: usize = 4;
+/// Block rows rasterized by one rayon task (32 pixel rows): a triangle is set up once per band it reaches, so
+/// fewer bands cost less (5-8% less than 16 rows on the street view), while 1080 rows still make 34 tasks.
+const BAND_BLOCK_ROWS: usize = 8;
 
 /// Rasterizes the set-up occluders (nearest first) into blocks: level 0 of `pyramid` gets one texel per 4x4
 /// pixels of `view` (the last row and column of blocks may reach past the view), and the levels above are
