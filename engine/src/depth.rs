@@ -228,8 +228,6 @@ impl DepthPyramid {
     /// [`crate::raster::rasterize`] fills a pyramid directly, without the copy.
     pub fn build(&mut self, base: &DepthBuffer) {
         self.resize_blocks_for_overwrite(base.view_size.0, base.view_size.1, base.texel_shift);
-        self.partial.0.clear();
-        self.partial.1.clear();
         self.levels[0].texels.copy_from_slice(&base.texels);
         self.reduce_from(0);
     }
@@ -238,13 +236,14 @@ impl DepthPyramid {
     /// that then writes level 0 and reduces the rest.
     pub(crate) fn resize_for_overwrite(&mut self, width: u32, height: u32) {
         self.resize_blocks_for_overwrite(width, height, 0);
-        self.partial.0.clear();
-        self.partial.1.clear();
     }
 
     /// [`DepthPyramid::resize_for_overwrite`] for a view of `width` x `height` pixels whose level 0 has a texel
-    /// a block of `2^shift` pixels on each side (`ceil(size / 2^shift)` texels per axis).
+    /// a block of `2^shift` pixels on each side (`ceil(size / 2^shift)` texels per axis). Drops the partial
+    /// coverage, which [`DepthPyramid::blocks_mut`] sizes again for a masked raster.
     pub(crate) fn resize_blocks_for_overwrite(&mut self, width: u32, height: u32, shift: u32) {
+        self.partial.0.clear();
+        self.partial.1.clear();
         let (mut w, mut h) = (width.div_ceil(1 << shift), height.div_ceil(1 << shift));
         let mut sizes = vec![(w, h)];
         while w > 1 || h > 1 {

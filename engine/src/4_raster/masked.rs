@@ -28,7 +28,7 @@
 //! the corner facing it: most blocks are decided by three tests, and only the blocks an edge crosses have
 //! their centres tested one by one. So a block's mask never holds a centre pixel-centre mode leaves uncovered.
 
-use super::{SetupArena, SetupOccluder, SetupTriangle, TexelRect, bin_by_band};
+use super::{SetupArena, SetupOccluder, SetupTriangle, TexelRect, all_nearer, bin_by_band};
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
 use rayon::prelude::*;
@@ -153,12 +153,7 @@ impl Blocks<'_> {
         }
         let columns = (rect.x0 >> BLOCK_SHIFT) as usize..(rect.x1.div_ceil(BLOCK)) as usize;
         let rows = ((y0 - self.y0) >> BLOCK_SHIFT) as usize..((y1 - self.y0).div_ceil(BLOCK)) as usize;
-        rows.into_iter().all(|row| {
-            // Counting the blocks that are not nearer vectorizes; an early exit per group keeps the common case
-            // (a visible occluder) short.
-            let known = &self.known[row * self.blocks_wide..][columns.clone()];
-            known.chunks(32).all(|group| group.iter().map(|&known| (known <= nearest) as u32).sum::<u32>() == 0)
-        })
+        rows.into_iter().all(|row| all_nearer(&self.known[row * self.blocks_wide..][columns.clone()], nearest))
     }
 
     /// Merges the pixel centres `triangle` covers within the band into its blocks (see the module

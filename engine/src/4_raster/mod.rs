@@ -285,6 +285,13 @@ fn bin_by_band(setups: &[SetupOccluder], height: u32, band_rows: usize) -> Vec<V
     bins
 }
 
+/// Whether every depth of `depths` is nearer (larger) than `nearest`. Counting the ones that are not
+/// vectorizes; an early exit per group of 32 keeps the common case (a visible occluder) short.
+#[inline(always)]
+fn all_nearer(depths: &[f32], nearest: f32) -> bool {
+    depths.chunks(32).all(|group| group.iter().map(|&depth| (depth <= nearest) as u32).sum::<u32>() == 0)
+}
+
 /// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1).
 const FUSED_LEVELS: usize = 3;
 
@@ -316,10 +323,7 @@ impl Band<'_> {
         }
         let rect = self.clip(rect);
         (rect.y0..rect.y1).all(|y| {
-            let row = &self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize];
-            // Counting the texels that are not nearer vectorizes; an early exit per group keeps the common
-            // case (a visible occluder) short.
-            row.chunks(32).all(|group| group.iter().map(|&texel| (texel <= nearest) as u32).sum::<u32>() == 0)
+            all_nearer(&self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize], nearest)
         })
     }
 

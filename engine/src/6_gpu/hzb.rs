@@ -90,11 +90,16 @@ impl Hzb {
         self.levels[0].width == width.max(1) && self.levels[0].height == height.max(1)
     }
 
-    /// Sets [`Hzb::screen_size`] for building from `depth` (which [`Hzb::build`] uploads only when it fits).
+    /// Whether [`Hzb::build`] uploads `depth` as level 0: it has level 0's size (otherwise level 0 is cleared).
+    fn uploads(&self, depth: &DepthBuffer) -> bool {
+        depth.width() == self.levels[0].width && depth.height() == self.levels[0].height
+    }
+
+    /// Sets [`Hzb::screen_size`] for building from `depth`.
     pub fn set_screen(&mut self, depth: &DepthBuffer) {
         let base = self.levels[0];
-        let fits = depth.width() == base.width && depth.height() == base.height;
-        self.screen_size = if fits { depth.screen_size() } else { [base.width as f32, base.height as f32] };
+        self.screen_size =
+            if self.uploads(depth) { depth.screen_size() } else { [base.width as f32, base.height as f32] };
     }
 
     /// Uploads `depth` as level 0 (all zero when it is empty) and records the passes that build the rest,
@@ -107,7 +112,7 @@ impl Hzb {
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
         let base = self.levels[0];
-        if depth.width() == base.width && depth.height() == base.height {
+        if self.uploads(depth) {
             context.queue.write_buffer(&self.buffer, 0, bytemuck::cast_slice(depth.texels()));
         } else {
             encoder.clear_buffer(&self.buffer, 0, Some(u64::from(base.width * base.height) * 4));

@@ -440,9 +440,10 @@ fn adaptive_flags(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls
     }
     let occlusion = &controls.occlusion;
     if !occlusion.is_conservative_for(frame.viewport) {
-        let why = match occlusion.mode {
-            RasterMode::PixelCentres | RasterMode::Masked => "pixel centres below the viewport's size",
-            _ => "fast occlusion",
+        let why = if occlusion.mode.samples_pixel_centres() {
+            "pixel centres below the viewport's size"
+        } else {
+            "fast occlusion"
         };
         ui.colored_label(WARNING_COLOUR, format!("{why}: lossy, may cull visible objects"));
     }
