@@ -185,6 +185,22 @@ fn boxes_reaching_the_near_plane_are_kept_even_behind_full_screen_occluders() {
     assert_eq!(visible.iter().collect::<Vec<_>>(), vec![0, 2]);
 }
 
+/// A conservative buffer covers every texel behind an occluder that fills the screen, the edge columns too:
+/// boundary edges far off screen block nothing.
+#[test]
+fn a_screen_filling_occluder_covers_every_texel() {
+    let camera = camera_on_z(10.0);
+    let near: Occluder = (
+        vec![Vec3::new(-100.0, -100.0, 0.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 0.0)],
+        Affine3A::IDENTITY,
+    );
+    for size in [BUFFER, (333, 187)] {
+        let view = ScreenView::new(&camera, size.0, size.1);
+        let pyramid = pyramid_of(&view, std::slice::from_ref(&near), RasterMode::Conservative);
+        assert!(pyramid.base().texels().iter().all(|&depth| depth > 0.0), "{size:?}");
+    }
+}
+
 #[test]
 fn occluders_crossing_the_near_plane_or_behind_the_camera() {
     let camera = camera_on_z(0.0);
@@ -403,24 +419,53 @@ proptest! {
     }
 }
 
-/// The pixel-centre property tests are not vacuous either, and the mode at the viewport's resolution culls at
-/// least as much as the conservative mode at 256x144 on the same scenes.
+/// On random quads each pixel-centre mode at the full resolution hides a good share of the boxes. Not more
+/// than the default 256x144 conservative buffer there: their pixel-centre margins leave cracks along each
+/// quad's inner diagonal, which the conservative mode's union of faces does not (459 and 458 boxes hidden
+/// against the default's 490 of 1,611; 493 without the margins). On the city's street view, where occluders
+/// are large boxes, they hide far more than the default.
 #[test]
-fn the_pixel_centre_mode_occludes_more_than_the_default() {
+fn the_pixel_centre_modes_occlude_more_than_the_default_on_the_street() {
+    use cullet::scene::city::{CityParams, CityScene};
     use proptest::strategy::ValueTree;
     let mut runner = proptest::test_runner::TestRunner::deterministic();
     let strategy = scene_strategy();
-    let (mut centres, mut masked, mut conservative, mut total) = (0, 0, 0, 0);
+    let full = (1920, 1080);
+    let (mut centres, mut masked, mut total) = (0, 0, 0);
     for _ in 0..48 {
         let (camera, occluders, boxes) = strategy.new_tree(&mut runner).unwrap().current();
-        let full = (1920, 1080);
         centres += check_against_reference(&camera, &occluders, &boxes, RasterMode::PixelCentres, full, full);
         masked += check_against_reference(&camera, &occluders, &boxes, RasterMode::Masked, full, full);
-        conservative += check_against_full_resolution(&camera, &occluders, &boxes, BUFFER);
         total += boxes.len();
     }
-    assert!(centres > conservative && centres * 10 > total, "{centres} and {conservative} of {total} boxes occluded");
-    assert!(masked > conservative, "masked: {masked} and {conservative} of {total} boxes occluded");
+    assert!(centres * 5 > total && masked * 5 > total, "{centres} and {masked} of {total} boxes occluded");
+
+    let city = CityScene::generate(CityParams::with_objects(20_000));
+    let camera = city.benchmark_cameras()[0].1;
+    let occluders: Vec<Occluder> = city
+        .scene
+        .objects
+        .iter()
+        .filter_map(|o| o.occluder.as_ref().map(|occluder| (occluder.triangles().to_vec(), o.transform)))
+        .collect();
+    let boxes: Vec<(Vec3, Vec3)> = city
+        .scene
+        .objects
+        .iter()
+        .map(|o| {
+            let local = &city.scene.mesh_bounds[o.mesh as usize];
+            let bounds = cullet::WorldBounds::from_local(Entity::PLACEHOLDER, local, &o.transform).unwrap();
+            (bounds.center, bounds.half_extent)
+        })
+        .collect();
+    let kept = |mode, size| {
+        let (frustum, visible) = cull(&camera, &occluders, &boxes, mode, size);
+        (frustum.count(), visible.count())
+    };
+    let (in_frustum, default) = kept(RasterMode::Conservative, BUFFER);
+    let (_, centres) = kept(RasterMode::PixelCentres, full);
+    let (_, masked) = kept(RasterMode::Masked, full);
+    assert!(centres < default && masked < default, "kept {centres} and {masked} against {default} of {in_frustum}");
 }
 
 proptest! {

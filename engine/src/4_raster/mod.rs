@@ -545,13 +545,15 @@ fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [b
             continue;
         }
         let (xa, xb) = (x0 + dx * t0, x0 + dx * t1);
-        let first = ((xa.min(xb) - GROW).floor().max(rect.x0 as f64)) as u32;
-        let last = ((xa.max(xb) + GROW).floor().min(rect.x1 as f64 - 1.0)) as u32;
+        let (left, right) = ((xa.min(xb) - GROW).floor(), (xa.max(xb) + GROW).floor());
+        // Compared before converting: a column left of the rectangle would saturate to column 0.
+        if right < rect.x0 as f64 || left >= rect.x1 as f64 {
+            continue;
+        }
+        let (first, last) = (left.max(rect.x0 as f64) as u32, right.min(rect.x1 as f64 - 1.0) as u32);
         let row = (y - rect.y0) as usize * w;
-        for x in first..=last.max(first) {
-            if x >= rect.x0 && x <= last {
-                blocked[row + (x - rect.x0) as usize] = true;
-            }
+        for x in first..=last {
+            blocked[row + (x - rect.x0) as usize] = true;
         }
     }
 }
