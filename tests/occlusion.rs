@@ -201,6 +201,40 @@ fn a_screen_filling_occluder_covers_every_texel() {
     }
 }
 
+/// Occluders are drawn nearest first, and one hidden behind nearer ones wherever it reaches is skipped before
+/// its triangles are set up: it changes no texel, in every mode. One that peeks out past them is drawn.
+#[test]
+fn occluders_hidden_behind_nearer_ones_are_skipped_before_setup() {
+    let camera = camera_on_z(10.0);
+    // One triangle over the whole screen: no inner edge, along which pixel centres could be left uncovered.
+    let near: Occluder = (
+        vec![Vec3::new(-100.0, -100.0, 0.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 0.0)],
+        Affine3A::IDENTITY,
+    );
+    let hidden = [wall((-3.0, -3.0), (3.0, 3.0), -5.0), wall((-50.0, -20.0), (50.0, 20.0), -30.0)];
+    let view = ScreenView::new(&camera, 320, 180);
+    let level_0 = |occluders: &[Occluder], mode| pyramid_of(&view, occluders, mode).base().texels().to_vec();
+    let meshes: Vec<cullet::Occluder> = [&near, &hidden[0], &hidden[1]]
+        .into_iter()
+        .map(|(triangles, _)| cullet::Occluder::new(triangles.clone()))
+        .collect();
+    // Listed farthest first: the raster sorts them.
+    let instances: Vec<OccluderInstance<'_>> =
+        meshes.iter().rev().map(|occluder| OccluderInstance { occluder, transform: Affine3A::IDENTITY }).collect();
+    for mode in [RasterMode::Conservative, RasterMode::PixelCentres, RasterMode::Masked, RasterMode::Fast] {
+        let stats = rasterize(&view, &instances, mode, &mut DepthPyramid::default());
+        assert_eq!((stats.occluders_hidden, stats.triangles_rasterized), (2, 1), "{mode:?}");
+        let all = [hidden[1].clone(), hidden[0].clone(), near.clone()];
+        assert_eq!(level_0(&all, mode), level_0(std::slice::from_ref(&near), mode), "{mode:?}");
+    }
+    // The near wall shrunk to the middle of the screen: the farthest wall reaches past it and is drawn.
+    let small_near = wall((-2.0, -2.0), (2.0, 2.0), 0.0);
+    let all = [hidden[1].clone(), small_near.clone()];
+    for mode in [RasterMode::Conservative, RasterMode::Masked] {
+        assert_ne!(level_0(&all, mode), level_0(std::slice::from_ref(&small_near), mode), "{mode:?}");
+    }
+}
+
 #[test]
 fn occluders_crossing_the_near_plane_or_behind_the_camera() {
     let camera = camera_on_z(0.0);

@@ -39,6 +39,9 @@ pub struct Occluder {
     vertices: Arc<[Vec3]>,
     /// For each entry of `triangles`, the index of its position in `vertices`.
     corners: Arc<[u32]>,
+    /// The least and greatest of `vertices`, per axis (`[+inf, -inf]` for no triangle): the raster bounds the
+    /// occluder on screen from this box's corners before it sets up any triangle.
+    local_box: [Vec3; 2],
 }
 
 impl Occluder {
@@ -80,7 +83,9 @@ impl Occluder {
                 }
             }
         }
-        Self { triangles, neighbours: neighbours.into(), vertices: vertices.into(), corners: corners.into() }
+        let local_box =
+            vertices.iter().fold([Vec3::INFINITY, Vec3::NEG_INFINITY], |[min, max], &v| [min.min(v), max.max(v)]);
+        Self { triangles, neighbours: neighbours.into(), vertices: vertices.into(), corners: corners.into(), local_box }
     }
 
     /// The triangle list: every three vertices form one triangle, in the entity's local space, counter-clockwise
@@ -103,6 +108,11 @@ impl Occluder {
     /// The distinct vertex positions, and for each corner of [`Occluder::triangles`] its index among them.
     pub(crate) fn indexed(&self) -> (&[Vec3], &[u32]) {
         (&self.vertices, &self.corners)
+    }
+
+    /// The least and greatest vertex position per axis, in local space; `[+inf, -inf]` without triangles.
+    pub(crate) fn local_box(&self) -> [Vec3; 2] {
+        self.local_box
     }
 }
 

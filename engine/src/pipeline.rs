@@ -112,8 +112,12 @@ pub struct CullStats {
     pub light_occlusion_time: Duration,
     /// Occluders rasterized this frame.
     pub occluders: usize,
-    /// Occluder triangles rasterized this frame (after clipping, front faces only).
+    /// Occluder triangles rasterized this frame (after clipping, front faces only; none of the hidden
+    /// occluders').
     pub occluder_triangles: usize,
+    /// Occluders skipped without setting up their triangles, found hidden behind nearer ones wherever they
+    /// reach ([`RasterStats::occluders_hidden`](crate::raster::RasterStats::occluders_hidden)).
+    pub occluders_hidden: usize,
     /// Objects left after occlusion culling.
     pub after_occlusion: usize,
     /// Time spent selecting and rasterizing occluders and building the depth pyramid.
@@ -658,7 +662,7 @@ pub fn occlusion_stage(
         state.pyramid = DepthPyramid::default();
         state.visible.clone_from(&frustum_visible.0);
         state.occluded.reset(store.len());
-        stats.occluder_triangles = 0;
+        (stats.occluder_triangles, stats.occluders_hidden) = (0, 0);
         stats.after_occlusion = stats.after_frustum;
         stats.raster_time = start.elapsed();
         stats.occlusion_time = Duration::ZERO;
@@ -666,7 +670,7 @@ pub fn occlusion_stage(
     }
     let view = ScreenView::new(&camera, settings.width, settings.height);
     let raster = rasterize(&view, &chosen, settings.mode, &mut state.pyramid);
-    stats.occluder_triangles = raster.triangles_rasterized;
+    (stats.occluder_triangles, stats.occluders_hidden) = (raster.triangles_rasterized, raster.occluders_hidden);
     stats.raster_time = start.elapsed();
 
     let start = Instant::now();

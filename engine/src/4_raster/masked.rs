@@ -28,7 +28,7 @@
 //! the corner facing it: most blocks are decided by three tests, and only the blocks an edge crosses have
 //! their centres tested one by one. So a block's mask never holds a centre pixel-centre mode leaves uncovered.
 
-use super::{SetupArena, SetupOccluder, SetupTriangle, TexelRect, all_nearer, bin_by_band};
+use super::{PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, bin_by_band};
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
 use rayon::prelude::*;
@@ -43,22 +43,17 @@ const FULL: u16 = u16::MAX;
 /// fewer bands cost less (5-8% less than 16 rows on the street view), while 1080 rows still make 34 tasks.
 const BAND_BLOCK_ROWS: usize = 8;
 
-/// Rasterizes the set-up occluders (nearest first) into blocks: level 0 of `pyramid` gets one texel per 4x4
-/// pixels of `view` (the last row and column of blocks may reach past the view), and the levels above are
-/// reduced from it.
-pub(super) fn rasterize_blocks(
-    view: &ScreenView,
-    setups: &[SetupOccluder],
-    arenas: &[SetupArena],
-    pyramid: &mut DepthPyramid,
-) {
+/// Rasterizes the occluders (nearest first) into blocks: level 0 of `pyramid` gets one texel per 4x4 pixels of
+/// `view` (the last row and column of blocks may reach past the view), and the levels above are reduced from
+/// it.
+pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], pyramid: &mut DepthPyramid) {
     pyramid.resize_blocks_for_overwrite(view.width, view.height, BLOCK_SHIFT);
     if view.width == 0 || view.height == 0 {
         return;
     }
     let blocks_wide = view.width.div_ceil(BLOCK) as usize;
     let band_rows = BAND_BLOCK_ROWS * BLOCK as usize;
-    let bins = bin_by_band(setups, view.height, band_rows);
+    let bins = bin_by_band(pending, view.height, band_rows);
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let (known, working, mask) = pyramid.blocks_mut();
     let chunk = blocks_wide * BAND_BLOCK_ROWS;
@@ -78,7 +73,7 @@ pub(super) fn rasterize_blocks(
             view: (view.width, view.height),
             outside_columns: outside_columns(view.width),
         };
-        draw_band_with_backend(avx2, &mut blocks, bin, setups, arenas);
+        draw_band_with_backend(avx2, &mut blocks, bin, view, pending);
     });
     pyramid.reduce_from(0);
 }
@@ -89,14 +84,14 @@ fn draw_band_with_backend(
     avx2: bool,
     blocks: &mut Blocks<'_>,
     bin: &[u32],
-    setups: &[SetupOccluder],
-    arenas: &[SetupArena],
+    view: &ScreenView,
+    pending: &[PendingOccluder],
 ) {
     match avx2 {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `avx2` is set only where AVX2 was detected.
-        true => unsafe { draw_band_avx2(blocks, bin, setups, arenas) },
-        _ => draw_band(blocks, bin, setups, arenas),
+        true => unsafe { draw_band_avx2(blocks, bin, view, pending) },
+        _ => draw_band(blocks, bin, view, pending),
     }
 }
 
@@ -106,20 +101,21 @@ fn draw_band_with_backend(
 /// The processor must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn draw_band_avx2(blocks: &mut Blocks<'_>, bin: &[u32], setups: &[SetupOccluder], arenas: &[SetupArena]) {
-    draw_band(blocks, bin, setups, arenas)
+unsafe fn draw_band_avx2(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &[PendingOccluder]) {
+    draw_band(blocks, bin, view, pending)
 }
 
-/// Draws the occluders of `bin` (indices into `setups`, nearest first) into a band's blocks, skipping those
-/// already hidden there.
+/// Draws the occluders of `bin` (indices into `pending`, nearest first) into a band's blocks, skipping those
+/// already hidden there, and setting up the others if no band has yet.
 #[inline(always)]
-fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], setups: &[SetupOccluder], arenas: &[SetupArena]) {
+fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &[PendingOccluder]) {
+    let mut scratch = SetupScratch::default();
     for &index in bin {
-        let occluder = &setups[index as usize];
-        if blocks.hides(occluder.rect, occluder.nearest) {
+        let pending = &pending[index as usize];
+        if blocks.hides(pending.rect, pending.nearest) {
             continue;
         }
-        for triangle in occluder.triangles(arenas) {
+        for triangle in pending.setup(view, RasterMode::Masked, &mut scratch).map_or(&[][..], |o| &o.triangles) {
             blocks.draw(triangle);
         }
     }

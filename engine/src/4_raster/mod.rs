@@ -30,6 +30,10 @@
 //! - [`RasterMode::Fast`]: sampled at texel centres like Collin's 256x144 buffer, with no margins; lossy
 //!   below the viewport's resolution.
 //!
+//! Occluders are first bounded on screen from the corners of their local boxes, and drawn nearest first. A band
+//! skips an occluder that the ones drawn before it already hide there, and an occluder's triangles are set up
+//! only when some band does not skip it: from a street between buildings, most occluders cost only their bound.
+//!
 //! Triangle setup (transform, clipping against the near plane, edge and depth planes) runs in f64, each distinct
 //! vertex of an occluder transformed and projected once; only the per-texel loop runs in f32, with margins that
 //! cover its rounding. Nothing is clipped against the sides of the screen: f64 setup is precise far outside it,
@@ -42,6 +46,7 @@ use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DVec3, DVec4, Vec3};
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 mod masked;
 
@@ -138,35 +143,34 @@ impl TexelRect {
     }
 }
 
-/// One occluder after setup: its front-facing triangles, and the screen segments that bound their union, as
-/// ranges of its chunk's [`SetupArena`] (one allocation a chunk of occluders, not two an occluder).
+/// One occluder after setup: its front-facing triangles, and the screen segments that bound their union.
 #[derive(Clone, Debug)]
 struct SetupOccluder {
-    /// Index of the arena holding its triangles and boundary.
-    arena: u32,
-    triangles: std::ops::Range<u32>,
-    /// Silhouette, open-boundary and near-clip edges `(x0, y0, x1, y1)`: the union of the triangles has no other
-    /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole.
-    boundary: std::ops::Range<u32>,
-    rect: TexelRect,
-    /// The largest depth of any of its vertices: nothing of the occluder is nearer.
-    nearest: f32,
-}
-
-/// The triangles and boundary segments of a chunk of set-up occluders.
-#[derive(Default)]
-struct SetupArena {
     triangles: Vec<SetupTriangle>,
+    /// Silhouette, open-boundary and near-clip edges `(x0, y0, x1, y1)`: the union of the triangles has no other
+    /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole. Only
+    /// the conservative mode reads them; empty in the others.
     boundary: Vec<[f64; 4]>,
+    rect: TexelRect,
 }
 
-impl SetupOccluder {
-    fn triangles<'a>(&self, arenas: &'a [SetupArena]) -> &'a [SetupTriangle] {
-        &arenas[self.arena as usize].triangles[self.triangles.start as usize..self.triangles.end as usize]
-    }
+/// An occluder to draw, bounded on screen before its triangles are set up. A band sets it up the first time
+/// it finds the occluder not hidden behind nearer ones, so an occluder hidden in every band it reaches (most
+/// of them, from a street between buildings) costs only its bound.
+struct PendingOccluder<'a> {
+    instance: &'a OccluderInstance<'a>,
+    /// Texels its triangles may cover: a superset of the set-up occluder's rectangle.
+    rect: TexelRect,
+    /// Nothing of the occluder is nearer: at least the largest depth of any of its set-up vertices.
+    nearest: f32,
+    setup: OnceLock<Option<SetupOccluder>>,
+}
 
-    fn boundary<'a>(&self, arenas: &'a [SetupArena]) -> &'a [[f64; 4]] {
-        &arenas[self.arena as usize].boundary[self.boundary.start as usize..self.boundary.end as usize]
+impl PendingOccluder<'_> {
+    /// Its set-up triangles, made by the first caller; `None` when none is drawn (all back-facing, clipped
+    /// away or degenerate, or in conservative mode too small to cover a texel whole).
+    fn setup(&self, view: &ScreenView, mode: RasterMode, scratch: &mut SetupScratch) -> Option<&SetupOccluder> {
+        self.setup.get_or_init(|| setup_occluder(view, self.instance, mode, scratch)).as_ref()
     }
 }
 
@@ -175,10 +179,14 @@ impl SetupOccluder {
 pub struct RasterStats {
     /// Triangles submitted.
     pub triangles_in: usize,
-    /// Triangles (after clipping and fan splitting) that reached the texel loop.
+    /// Triangles (after clipping and fan splitting) that reached the texel loop: those of the occluders set up,
+    /// the ones not hidden behind nearer occluders everywhere they reach.
     pub triangles_rasterized: usize,
-    /// Triangles skipped as back-facing, degenerate, off screen or clipped away entirely.
+    /// Triangles skipped: back-facing, degenerate, off screen or clipped away entirely, or in an occluder
+    /// hidden behind nearer ones before it was set up.
     pub triangles_rejected: usize,
+    /// Occluders on screen but never set up: hidden behind nearer occluders everywhere they reach.
+    pub occluders_hidden: usize,
 }
 
 /// Rasterizes `occluders` into level 0 of `pyramid` (resized to the view and cleared first), in parallel over
@@ -192,43 +200,43 @@ pub fn rasterize(
     mode: RasterMode,
     pyramid: &mut DepthPyramid,
 ) -> RasterStats {
-    let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
-    // A few chunks a worker, each setting up its occluders into one arena.
-    let chunk = occluders.len().div_ceil(4 * rayon::current_num_threads()).max(16);
-    let chunks: Vec<(SetupArena, Vec<SetupOccluder>)> = occluders
-        .par_chunks(chunk)
-        .enumerate()
-        .map(|(index, chunk)| {
-            let (mut arena, mut scratch) = (SetupArena::default(), SetupScratch::default());
-            let setups = chunk
-                .iter()
-                .filter_map(|occluder| setup_occluder(view, occluder, mode, &mut scratch, &mut arena, index as u32))
-                .collect();
-            (arena, setups)
+    let mut pending: Vec<PendingOccluder> = occluders
+        .par_iter()
+        .with_min_len(64)
+        .filter_map(|instance| {
+            let (rect, nearest) = screen_bound(view, instance)?;
+            Some(PendingOccluder { instance, rect, nearest, setup: OnceLock::new() })
         })
         .collect();
-    let (arenas, setups): (Vec<SetupArena>, Vec<Vec<SetupOccluder>>) = chunks.into_iter().unzip();
-    let mut setups: Vec<SetupOccluder> = setups.into_iter().flatten().collect();
     // Nearest first, so that occluders hidden behind nearer ones can be skipped.
-    setups.sort_unstable_by(|a, b| b.nearest.total_cmp(&a.nearest));
-    let triangles_rasterized = setups.iter().map(|o| o.triangles.len()).sum();
-    let stats = RasterStats {
+    pending.sort_unstable_by(|a, b| b.nearest.total_cmp(&a.nearest));
+    if mode == RasterMode::Masked {
+        masked::rasterize_blocks(view, &pending, pyramid);
+    } else {
+        rasterize_texels(view, &pending, mode, pyramid);
+    }
+    let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
+    let set_up = pending.iter().filter_map(|occluder| occluder.setup.get()?.as_ref());
+    let triangles_rasterized = set_up.map(|occluder| occluder.triangles.len()).sum();
+    RasterStats {
         triangles_in,
         triangles_rasterized,
         triangles_rejected: triangles_in.saturating_sub(triangles_rasterized),
-    };
-    if mode == RasterMode::Masked {
-        masked::rasterize_blocks(view, &setups, &arenas, pyramid);
-        return stats;
+        occluders_hidden: pending.iter().filter(|occluder| occluder.setup.get().is_none()).count(),
     }
+}
+
+/// Draws `pending` (nearest first) into a buffer of one texel per pixel of `view`, level 0 of `pyramid`, and
+/// reduces the levels above.
+fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: RasterMode, pyramid: &mut DepthPyramid) {
     pyramid.resize_for_overwrite(view.width, view.height);
     if view.width == 0 || view.height == 0 {
-        return stats; // No texel to write, at any level.
+        return; // No texel to write, at any level.
     }
 
     let width = view.width as usize;
     let bands = (view.height as usize).div_ceil(BAND_ROWS);
-    let bins = bin_by_band(&setups, view.height, BAND_ROWS);
+    let bins = bin_by_band(pending, view.height, BAND_ROWS);
     // Each band's rows in level 0 and in the fused levels above it: level k holds BAND_ROWS >> k of them
     // (ceil-halving sizes give every band its share, the last band a shorter one).
     let levels = pyramid.levels_mut();
@@ -248,17 +256,20 @@ pub fn rasterize(
         let band_y0 = (band * BAND_ROWS) as u32;
         let band_y1 = band_y0 + (texels.len() / width) as u32;
         let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
-        let mut scratch = Scratch::default();
+        let (mut scratch, mut setup_scratch) = (Scratch::default(), SetupScratch::default());
         let (mut blocks, mut columns) = (vec![0.0; width.div_ceil(BLOCK_COLUMNS)], Vec::new());
         for &index in bin {
-            let occluder = &setups[index as usize];
-            if band.hides(&blocks, occluder.rect, occluder.nearest) {
+            let pending = &pending[index as usize];
+            if band.hides(&blocks, pending.rect, pending.nearest) {
                 continue;
             }
+            let Some(occluder) = pending.setup(view, mode, &mut setup_scratch) else {
+                continue;
+            };
             match mode {
-                RasterMode::Conservative => raster_union(occluder, &arenas, band.reborrow(), &mut scratch),
+                RasterMode::Conservative => raster_union(occluder, band.reborrow(), &mut scratch),
                 RasterMode::PixelCentres | RasterMode::Masked | RasterMode::Fast => {
-                    raster_centres_with_backend(avx2, occluder.triangles(&arenas), band.reborrow())
+                    raster_centres_with_backend(avx2, &occluder.triangles, band.reborrow())
                 }
             }
             band.update_blocks(&mut blocks, occluder.rect, &mut columns);
@@ -269,14 +280,13 @@ pub fn rasterize(
         }
     });
     pyramid.reduce_from(fused);
-    stats
 }
 
-/// The indices of `setups` (in their order) whose rectangles reach each band of `band_rows` rows of a buffer
+/// The indices of `occluders` (in their order) whose rectangles reach each band of `band_rows` rows of a buffer
 /// `height` rows high.
-fn bin_by_band(setups: &[SetupOccluder], height: u32, band_rows: usize) -> Vec<Vec<u32>> {
+fn bin_by_band(occluders: &[PendingOccluder], height: u32, band_rows: usize) -> Vec<Vec<u32>> {
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); (height as usize).div_ceil(band_rows)];
-    for (index, occluder) in setups.iter().enumerate() {
+    for (index, occluder) in occluders.iter().enumerate() {
         let rows = occluder.rect.y0 as usize / band_rows..(occluder.rect.y1 as usize).div_ceil(band_rows);
         for bin in &mut bins[rows] {
             bin.push(index as u32);
@@ -456,7 +466,7 @@ fn write_covered(row: &mut [f32], x0: u32, a: [f32; 3], rows: [f32; 3], p: f32, 
 /// Conservative mode: a texel is written when the occluder's front faces cover its centre and no boundary
 /// segment of their union touches it (so the union covers it whole), with the farthest depth of every
 /// triangle that may overlap it.
-fn raster_union(occluder: &SetupOccluder, arenas: &[SetupArena], band: Band<'_>, scratch: &mut Scratch) {
+fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch) {
     let rect = band.clip(occluder.rect);
     if rect.is_empty() {
         return;
@@ -469,7 +479,7 @@ fn raster_union(occluder: &SetupOccluder, arenas: &[SetupArena], band: Band<'_>,
     scratch.farthest.clear();
     scratch.farthest.resize(w * h, f32::INFINITY);
 
-    for tri in occluder.triangles(arenas) {
+    for tri in &occluder.triangles {
         let tri_rect = band.clip(tri.rect);
         let [[a0, b0, c0, o0], [a1, b1, c1, o1], [a2, b2, c2, o2]] = tri.edges;
         let [p, q, r] = tri.depth;
@@ -512,7 +522,7 @@ fn raster_union(occluder: &SetupOccluder, arenas: &[SetupArena], band: Band<'_>,
             }
         }
     }
-    for segment in occluder.boundary(arenas) {
+    for segment in &occluder.boundary {
         block_segment(segment, rect, w, &mut scratch.blocked);
     }
     for y in rect.y0..rect.y1 {
@@ -558,21 +568,66 @@ fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [b
     }
 }
 
+/// The texels an occluder may cover and a depth nothing of it is nearer than, from the corners of its local
+/// box: `None` when it covers no texel. A box reaching behind the near plane is bounded by the whole buffer
+/// and an infinite depth.
+///
+/// Every vertex lies in the box, and with `w` at least the near plane's over the box, its projection lies in
+/// the corners' hull and its depth `d/w` is at most theirs; the bound is widened by far more than f64
+/// rounding moves either. It only decides which occluders are skipped (as hidden, or off a band), and
+/// drawing fewer occluders never hides more, so even a bound too tight would cost culling, not correctness.
+fn screen_bound(view: &ScreenView, instance: &OccluderInstance<'_>) -> Option<(TexelRect, f32)> {
+    let [low, high] = instance.occluder.local_box();
+    if !(low.cmple(high).all()) {
+        return None; // No triangle.
+    }
+    let transform = relative_transform(view, instance);
+    let (m, depth_row, near) = (view.clip_from_relative, view.depth_from_relative, view.near as f64);
+    let (mut min, mut max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    let mut in_front = true;
+    for corner in 0..8 {
+        let local = Vec3::select(glam::BVec3::new(corner & 1 != 0, corner & 2 != 0, corner & 4 != 0), high, low);
+        let relative = transform.transform_point3(local.as_dvec3()).extend(1.0);
+        let v = m * relative;
+        let clip = DVec4::new(v.x, v.y, v.w, depth_row.dot(relative));
+        // Written so that NaN counts as behind.
+        in_front &= clip.z - near >= 0.0;
+        let screen = to_screen(view, clip);
+        (min, max) = (min.min(screen), max.max(screen));
+    }
+    let (width, height) = (view.width as f64, view.height as f64);
+    if !(in_front && min.is_finite() && max.is_finite()) {
+        let whole = TexelRect { x0: 0, x1: view.width, y0: 0, y1: view.height };
+        return (!whole.is_empty()).then_some((whole, f32::INFINITY));
+    }
+    let widen = |v: f64| 1e-3 + 1e-9 * v.abs();
+    let rect = TexelRect {
+        x0: floor((min.x - widen(min.x)).clamp(0.0, width)),
+        x1: ceil((max.x + widen(max.x)).clamp(0.0, width)),
+        y0: floor((min.y - widen(min.y)).clamp(0.0, height)),
+        y1: ceil((max.y + widen(max.y)).clamp(0.0, height)),
+    };
+    (!rect.is_empty()).then_some((rect, (max.z as f32).next_up()))
+}
+
+/// The occluder's local-to-camera-relative transform, in f64.
+fn relative_transform(view: &ScreenView, instance: &OccluderInstance<'_>) -> DAffine3 {
+    DAffine3::from_mat3_translation(
+        glam::Mat3::from(instance.transform.matrix3).as_dmat3(),
+        DVec3::from(Vec3::from(instance.transform.translation)) - view.origin.as_dvec3(),
+    )
+}
+
 /// Transforms, clips against the near plane and sets up the front faces of one occluder, with the boundary of
-/// their union: edges whose neighbour is missing or back-facing, and edges made by near clipping. Triangles and
-/// segments go into `arena` (number `arena_index`); a rejected occluder leaves nothing there.
+/// their union (conservative mode only): edges whose neighbour is missing or back-facing, and edges made by
+/// near clipping. `None` when no triangle is left to draw.
 fn setup_occluder(
     view: &ScreenView,
     instance: &OccluderInstance<'_>,
     mode: RasterMode,
     scratch: &mut SetupScratch,
-    arena: &mut SetupArena,
-    arena_index: u32,
 ) -> Option<SetupOccluder> {
-    let transform = DAffine3::from_mat3_translation(
-        glam::Mat3::from(instance.transform.matrix3).as_dmat3(),
-        DVec3::from(Vec3::from(instance.transform.translation)) - view.origin.as_dvec3(),
-    );
+    let transform = relative_transform(view, instance);
     let occluder = instance.occluder;
     let (vertices, corners) = occluder.indexed();
     let neighbours = occluder.neighbours();
@@ -599,9 +654,11 @@ fn setup_occluder(
         let clip = DVec4::new(v.x, v.y, v.w, depth_row.dot(corner.extend(1.0)));
         (clip, to_screen(view, clip))
     }));
-    let (first_triangle, first_segment) = (arena.triangles.len(), arena.boundary.len());
-    let mut setup =
-        SetupOccluder { arena: arena_index, triangles: 0..0, boundary: 0..0, rect: TexelRect::EMPTY, nearest: 0.0 };
+    let mut setup = SetupOccluder {
+        triangles: Vec::with_capacity(occluder.triangle_count()),
+        boundary: Vec::new(),
+        rect: TexelRect::EMPTY,
+    };
     for (t, triangle) in corners.chunks_exact(3).enumerate() {
         if !front[t] {
             continue;
@@ -634,18 +691,17 @@ fn setup_occluder(
         for v in screen {
             (screen_min, screen_max) = (screen_min.min(*v), screen_max.max(*v));
         }
-        setup.nearest = screen.iter().fold(setup.nearest, |nearest, v| nearest.max(v.z as f32));
         // Only the conservative mode reads the boundary.
         for (i, &(_, boundary)) in polygon[..count].iter().enumerate() {
             if boundary && mode == RasterMode::Conservative {
                 let (a, b) = (screen[i], screen[(i + 1) % count]);
-                arena.boundary.push([a.x, a.y, b.x, b.y]);
+                setup.boundary.push([a.x, a.y, b.x, b.y]);
             }
         }
         for i in 1..count - 1 {
             if let Some(tri) = setup_triangle([screen[0], screen[i], screen[i + 1]], view, mode) {
                 setup.rect = setup.rect.union(tri.rect);
-                arena.triangles.push(tri);
+                setup.triangles.push(tri);
             }
         }
     }
@@ -653,17 +709,10 @@ fn setup_occluder(
     // across on screen (before clamping to the buffer) can write none.
     let extent = screen_max - screen_min;
     let too_small = mode == RasterMode::Conservative && (extent.x < 1.0 || extent.y < 1.0);
-    setup.triangles = first_triangle as u32..arena.triangles.len() as u32;
-    setup.boundary = first_segment as u32..arena.boundary.len() as u32;
-    if setup.triangles.is_empty() || too_small {
-        arena.triangles.truncate(first_triangle);
-        arena.boundary.truncate(first_segment);
-        return None;
-    }
-    Some(setup)
+    (!setup.triangles.is_empty() && !too_small).then_some(setup)
 }
 
-/// Reused buffers of [`setup_occluder`], one per rayon worker.
+/// Reused buffers of [`setup_occluder`], one per band.
 #[derive(Default)]
 struct SetupScratch {
     relative: Vec<DVec3>,
@@ -716,10 +765,10 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     let min = v[0].min(v[1]).min(v[2]);
     let max = v[0].max(v[1]).max(v[2]);
     let rect = TexelRect {
-        x0: min.x.floor().clamp(0.0, width) as u32,
-        x1: max.x.ceil().clamp(0.0, width) as u32,
-        y0: min.y.floor().clamp(0.0, height) as u32,
-        y1: max.y.ceil().clamp(0.0, height) as u32,
+        x0: floor(min.x.clamp(0.0, width)),
+        x1: ceil(max.x.clamp(0.0, width)),
+        y0: floor(min.y.clamp(0.0, height)),
+        y1: ceil(max.y.clamp(0.0, height)),
     };
     if rect.is_empty() {
         return None;
@@ -750,5 +799,89 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
         RasterMode::Fast => centre,
     };
     let depth = [p as f32, q as f32, r_written as f32];
-    (edges.iter().flatten().chain(&depth).all(|c| c.is_finite())).then_some(SetupTriangle { edges, depth, rect })
+    // Not short-circuiting, so that the fixed-size loops unroll.
+    let finite = edges.as_flattened().iter().chain(&depth).fold(true, |finite, c| finite & c.is_finite());
+    finite.then_some(SetupTriangle { edges, depth, rect })
+}
+
+/// `x.floor()` for `x >= 0` (and 0 for NaN), without a libm call (baseline x86-64 has no rounding instruction).
+#[inline(always)]
+fn floor(x: f64) -> u32 {
+    x as u32
+}
+
+/// `x.ceil()` for `x >= 0` (and 0 for NaN), without a libm call.
+#[inline(always)]
+fn ceil(x: f64) -> u32 {
+    let truncated = x as u32;
+    truncated + ((truncated as f64) < x) as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Camera, Occluder, mesh::Mesh};
+    use glam::{Affine3A, Quat};
+    use proptest::prelude::*;
+
+    /// A box in front is bounded tightly, by its own texels and its nearest corner's depth; one reaching behind
+    /// the near plane by the whole buffer; one behind the camera is kept for setup to reject.
+    #[test]
+    fn the_bound_before_setup_is_tight_in_front() {
+        let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+        let view = ScreenView::new(&camera, 320, 180);
+        let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+        let bound = |translation: Vec3| {
+            screen_bound(
+                &view,
+                &OccluderInstance { occluder: &occluder, transform: Affine3A::from_translation(translation) },
+            )
+        };
+        let (rect, nearest) = bound(Vec3::new(0.0, 0.0, -10.0)).unwrap();
+        assert!(rect.x1 - rect.x0 < 40 && rect.y1 - rect.y0 < 40 && rect.x0 > 100, "{rect:?}");
+        // The unit cube spans -0.5..0.5: its nearest face is 9.5 in front of the camera.
+        assert!(nearest >= 1.0 / 9.5 && nearest < 1.0 / 9.49, "{nearest}");
+        let whole = TexelRect { x0: 0, x1: 320, y0: 0, y1: 180 };
+        assert_eq!(bound(Vec3::ZERO), Some((whole, f32::INFINITY)));
+        let behind = bound(Vec3::new(0.0, 0.0, 10.0));
+        let setup = setup_occluder(
+            &view,
+            &OccluderInstance { occluder: &occluder, transform: Affine3A::from_translation(Vec3::new(0.0, 0.0, 10.0)) },
+            RasterMode::Conservative,
+            &mut SetupScratch::default(),
+        );
+        assert!(behind.is_some() && setup.is_none());
+    }
+
+    proptest! {
+        /// The bound made before setup holds every texel the set-up triangles reach, whether the box lies in
+        /// front, crosses the near plane or lies behind the camera; and an occluder with no texel on screen is
+        /// dropped before setup only when setup would draw nothing either.
+        #[test]
+        fn the_bound_before_setup_holds_the_set_up_triangles(
+            scale in prop::array::uniform3(0.01f32..30.0),
+            angles in prop::array::uniform3(-3.2f32..3.2),
+            offset in prop::array::uniform3(-40.0f32..40.0),
+            far_away in prop::bool::ANY,
+        ) {
+            let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+            let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+            let rotation = Quat::from_euler(glam::EulerRot::XYZ, angles[0], angles[1], angles[2]);
+            let translation = Vec3::from(offset) + if far_away { Vec3::new(1e5, 0.0, -2e5) } else { Vec3::ZERO };
+            let transform = Affine3A::from_scale_rotation_translation(Vec3::from(scale), rotation, translation);
+            let instance = OccluderInstance { occluder: &occluder, transform };
+            for mode in [RasterMode::Conservative, RasterMode::PixelCentres] {
+                let view = ScreenView::new(&camera, 333, 187);
+                let setup = setup_occluder(&view, &instance, mode, &mut SetupScratch::default());
+                match (setup, screen_bound(&view, &instance)) {
+                    (None, _) => {}
+                    (Some(setup), Some((rect, _))) => {
+                        let inside = rect.x0 <= setup.rect.x0 && setup.rect.x1 <= rect.x1;
+                        prop_assert!(inside && rect.y0 <= setup.rect.y0 && setup.rect.y1 <= rect.y1);
+                    }
+                    (Some(setup), None) => prop_assert!(false, "set up over {:?}, bounded off screen", setup.rect),
+                }
+            }
+        }
+    }
 }

@@ -358,7 +358,8 @@ fn stage_table(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame) {
             rows.push(plain_row([format!("   {name}"), format!("{kept} casters"), String::new()]));
         }
     }
-    let occluders = format!("{} occluders, {} tris", stats.occluders, stats.occluder_triangles);
+    let occluders =
+        format!("{} occluders ({} hidden), {} tris", stats.occluders, stats.occluders_hidden, stats.occluder_triangles);
     rows.push(stage_row(RASTER_COLOUR, "occluder raster", occluders, us(stats.raster_time)));
     let kept = format!("{} of {}", stats.after_occlusion, stats.after_frustum);
     rows.push(stage_row(OCCLUSION_COLOUR, "occlusion test", kept, us(stats.occlusion_time)));
