@@ -840,7 +840,7 @@ mod tests {
         let (rect, nearest) = bound(Vec3::new(0.0, 0.0, -10.0)).unwrap();
         assert!(rect.x1 - rect.x0 < 40 && rect.y1 - rect.y0 < 40 && rect.x0 > 100, "{rect:?}");
         // The unit cube spans -0.5..0.5: its nearest face is 9.5 in front of the camera.
-        assert!(nearest >= 1.0 / 9.5 && nearest < 1.0 / 9.49, "{nearest}");
+        assert!((1.0 / 9.5..1.0 / 9.49).contains(&nearest), "{nearest}");
         let whole = TexelRect { x0: 0, x1: 320, y0: 0, y1: 180 };
         assert_eq!(bound(Vec3::ZERO), Some((whole, f32::INFINITY)));
         let behind = bound(Vec3::new(0.0, 0.0, 10.0));
