@@ -86,6 +86,20 @@ fn wall(min: (f32, f32), max: (f32, f32), z: f32) -> Occluder {
     (vec![corners[0], corners[1], corners[2], corners[0], corners[2], corners[3]], Affine3A::IDENTITY)
 }
 
+/// The city's occluders, each with its object's transform.
+fn city_occluders(city: &cullet::scene::city::CityScene) -> Vec<Occluder> {
+    let objects = city.scene.objects.iter();
+    objects.filter_map(|o| o.occluder.as_ref().map(|occluder| (occluder.triangles().to_vec(), o.transform))).collect()
+}
+
+/// One triangle in the plane z = 0, facing +z, that fills the view of [`camera_on_z`]`(10.0)`.
+fn screen_filling_triangle() -> Occluder {
+    (
+        vec![Vec3::new(-100.0, -100.0, 0.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 0.0)],
+        Affine3A::IDENTITY,
+    )
+}
+
 fn camera_on_z(z: f32) -> Camera {
     Camera::looking_at(Vec3::new(0.0, 0.0, z), Vec3::new(0.0, 0.0, z - 1.0))
 }
@@ -190,10 +204,7 @@ fn boxes_reaching_the_near_plane_are_kept_even_behind_full_screen_occluders() {
 #[test]
 fn a_screen_filling_occluder_covers_every_texel() {
     let camera = camera_on_z(10.0);
-    let near: Occluder = (
-        vec![Vec3::new(-100.0, -100.0, 0.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 0.0)],
-        Affine3A::IDENTITY,
-    );
+    let near = screen_filling_triangle();
     for size in [BUFFER, (333, 187)] {
         let view = ScreenView::new(&camera, size.0, size.1);
         let pyramid = pyramid_of(&view, std::slice::from_ref(&near), RasterMode::Conservative);
@@ -206,11 +217,8 @@ fn a_screen_filling_occluder_covers_every_texel() {
 #[test]
 fn occluders_hidden_behind_nearer_ones_are_skipped_before_setup() {
     let camera = camera_on_z(10.0);
-    // One triangle over the whole screen: no inner edge, along which pixel centres could be left uncovered.
-    let near: Occluder = (
-        vec![Vec3::new(-100.0, -100.0, 0.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 0.0)],
-        Affine3A::IDENTITY,
-    );
+    // No inner edge, along which pixel centres could be left uncovered.
+    let near = screen_filling_triangle();
     let hidden = [wall((-3.0, -3.0), (3.0, 3.0), -5.0), wall((-50.0, -20.0), (50.0, 20.0), -30.0)];
     let view = ScreenView::new(&camera, 320, 180);
     let level_0 = |occluders: &[Occluder], mode| pyramid_of(&view, occluders, mode).base().texels().to_vec();
@@ -476,12 +484,7 @@ fn the_pixel_centre_modes_occlude_more_than_the_default_on_the_street() {
 
     let city = CityScene::generate(CityParams::with_objects(20_000));
     let camera = city.benchmark_cameras()[0].1;
-    let occluders: Vec<Occluder> = city
-        .scene
-        .objects
-        .iter()
-        .filter_map(|o| o.occluder.as_ref().map(|occluder| (occluder.triangles().to_vec(), o.transform)))
-        .collect();
+    let occluders = city_occluders(&city);
     let boxes: Vec<(Vec3, Vec3)> = city
         .scene
         .objects
@@ -560,12 +563,7 @@ fn city_street_view_is_occluded_conservatively() {
     schedule.run(&mut world);
     let stats = *world.resource::<CullStats>();
 
-    let occluders: Vec<Occluder> = city
-        .scene
-        .objects
-        .iter()
-        .filter_map(|o| o.occluder.as_ref().map(|occ| (occ.triangles().to_vec(), o.transform)))
-        .collect();
+    let occluders = city_occluders(&city);
     let reference = exact_depth(&camera, &occluders, (1920, 1080));
     let store = world.resource::<cullet::BoundsStore>();
     let state = world.resource::<OcclusionState>();

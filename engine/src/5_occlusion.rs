@@ -11,7 +11,7 @@
 //! error, so the test culls only what the pyramid provably hides.
 
 use crate::bounds::{BoundsStore, GroupBounds};
-use crate::depth::{DepthPyramid, ScreenView, farther};
+use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor};
 use crate::frustum::SimdBackend;
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
@@ -275,10 +275,10 @@ fn project<const N: usize>(view: &ScreenView, c: &[[f32; N]; 3], e: &[[f32; N]; 
         }
         let to_texel_x = |ndc: f32| ((ndc * 0.5 + 0.5) * width).clamp(0.0, width);
         let to_texel_y = |ndc: f32| ((0.5 - ndc * 0.5) * height).clamp(0.0, height);
-        rect.x0 = floor(to_texel_x(min_x));
-        rect.x1 = ceil(to_texel_x(max_x));
-        rect.y0 = floor(to_texel_y(max_y));
-        rect.y1 = ceil(to_texel_y(min_y));
+        rect.x0 = floor(to_texel_x(min_x).into());
+        rect.x1 = ceil(to_texel_x(max_x).into());
+        rect.y0 = floor(to_texel_y(max_y).into());
+        rect.y1 = ceil(to_texel_y(min_y).into());
         // A perspective view's depth is 1/w; an orthographic one's at most the depth row's largest value (w is
         // 1 within rounding, and w_min below it). Never 0 or less, which would read as hidden behind texels
         // no occluder covers.
@@ -288,19 +288,6 @@ fn project<const N: usize>(view: &ScreenView, c: &[[f32; N]; 3], e: &[[f32; N]; 
         rect.always_visible = rect.x0 >= rect.x1 || rect.y0 >= rect.y1;
     }
     rects
-}
-
-/// `x.floor()` for `x >= 0`, without a libm call (baseline x86-64 has no rounding instruction).
-#[inline(always)]
-fn floor(x: f32) -> u32 {
-    x as u32
-}
-
-/// `x.ceil()` for `x >= 0`, without a libm call.
-#[inline(always)]
-fn ceil(x: f32) -> u32 {
-    let truncated = x as u32;
-    truncated + ((truncated as f32) < x) as u32
 }
 
 /// Whether `rect` is hidden by the pyramid.

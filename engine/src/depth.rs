@@ -380,6 +380,20 @@ pub(crate) fn farther(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
+/// `x.floor()` for `0 <= x < 2^32` (and 0 for NaN), without a libm call (baseline x86-64 has no rounding
+/// instruction). An f32 converts exactly.
+#[inline(always)]
+pub(crate) fn floor(x: f64) -> u32 {
+    x as u32
+}
+
+/// `x.ceil()` for `0 <= x < 2^32` (and 0 for NaN), without a libm call.
+#[inline(always)]
+pub(crate) fn ceil(x: f64) -> u32 {
+    let truncated = x as u32;
+    truncated + ((truncated as f64) < x) as u32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -41,7 +41,7 @@
 //! orthographic view) are skipped: a closed occluder's front faces hide everything its back faces would, and
 //! from inside an occluder nothing is hidden by it.
 
-use crate::depth::{DepthPyramid, ScreenView, farther, reduce_rows};
+use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor, reduce_rows};
 use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DVec3, DVec4, Vec3};
@@ -802,19 +802,6 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     // Not short-circuiting, so that the fixed-size loops unroll.
     let finite = edges.as_flattened().iter().chain(&depth).fold(true, |finite, c| finite & c.is_finite());
     finite.then_some(SetupTriangle { edges, depth, rect })
-}
-
-/// `x.floor()` for `x >= 0` (and 0 for NaN), without a libm call (baseline x86-64 has no rounding instruction).
-#[inline(always)]
-fn floor(x: f64) -> u32 {
-    x as u32
-}
-
-/// `x.ceil()` for `x >= 0` (and 0 for NaN), without a libm call.
-#[inline(always)]
-fn ceil(x: f64) -> u32 {
-    let truncated = x as u32;
-    truncated + ((truncated as f64) < x) as u32
 }
 
 #[cfg(test)]
