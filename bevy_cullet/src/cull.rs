@@ -36,9 +36,11 @@ pub struct ViewStats {
     /// Entities made visible in this view, mirrored or not, after `InheritedVisibility`, `RenderLayers` and
     /// `VisibilityRange`.
     pub visible: usize,
-    /// Occluders rasterized.
+    /// Occluders chosen to rasterize.
     pub occluders: usize,
-    /// Occluder triangles rasterized.
+    /// Of those, skipped before setup as hidden behind nearer ones wherever they reach.
+    pub occluders_hidden: usize,
+    /// Occluder triangles rasterized (none of the hidden occluders').
     pub occluder_triangles: usize,
     /// Whether this frame reused the last frame's result (same view, settings, bounds and occluders).
     pub reused: bool,
@@ -140,7 +142,7 @@ impl CulletView {
             .collect(),
             _ => Vec::new(),
         };
-        (self.stats.occluders, self.stats.occluder_triangles) = (chosen.len(), 0);
+        (self.stats.occluders, self.stats.occluders_hidden, self.stats.occluder_triangles) = (chosen.len(), 0, 0);
         let Some(camera) = view.camera.filter(|_| !chosen.is_empty()) else {
             // Nothing to occlude with: the stage costs the selection alone.
             self.pyramid = DepthPyramid::default();
@@ -151,7 +153,8 @@ impl CulletView {
         };
         let screen = ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height);
         let raster = rasterize(&screen, &chosen, settings.occlusion.mode, &mut self.pyramid);
-        self.stats.occluder_triangles = raster.triangles_rasterized;
+        (self.stats.occluder_triangles, self.stats.occluders_hidden) =
+            (raster.triangles_rasterized, raster.occluders_hidden);
         self.stats.raster_time = start.elapsed();
 
         let start = Instant::now();
