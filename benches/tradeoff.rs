@@ -22,12 +22,14 @@ use plotters::prelude::*;
 use std::collections::HashMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 const RESOLUTIONS: [(u32, u32); 5] = [(64, 36), (128, 72), (256, 144), (512, 288), (1024, 576)];
 const BUDGETS: [usize; 4] = [1024, 4096, 8192, 16_384];
-/// Timed passes per configuration; the fastest is kept (the machine is noisy, the work is deterministic).
-const TIMED_PASSES: usize = 3;
+/// Timed passes per configuration, after the judged one; the fastest is kept (the machine is noisy, the work is
+/// deterministic). Each round times every configuration once, so that a slow stretch of the machine slows one
+/// pass of each rather than every pass of a few.
+const TIMED_ROUNDS: usize = 3;
 
 /// One configuration's results over the path.
 struct Row {
@@ -36,6 +38,8 @@ struct Row {
     cull_us: f64,
     raster_us: f64,
     occlusion_us: f64,
+    /// Mean per-frame bounds and frustum time of that pass, microseconds.
+    frustum_us: f64,
     accuracy: PathMetrics,
     on_front: bool,
     /// Intel MOC at `settings`' resolution, not Cullet.
@@ -43,6 +47,12 @@ struct Row {
 }
 
 impl Row {
+    /// A row not timed yet: its time infinite until a pass is timed.
+    fn untimed(settings: OcclusionSettings, accuracy: PathMetrics, moc: bool) -> Self {
+        let (cull_us, raster_us, occlusion_us, frustum_us) = (f64::INFINITY, 0.0, 0.0, 0.0);
+        Self { settings, cull_us, raster_us, occlusion_us, frustum_us, accuracy, on_front: false, moc }
+    }
+
     fn label(&self) -> String {
         if self.moc {
             return format!("MOC {}x{} {}", self.settings.width, self.settings.height, self.settings.triangle_budget);
@@ -128,9 +138,8 @@ fn main() {
         let mut run = flight(settings);
         let budget_ideal = settings.enabled.then(|| ideal.contains_key(&settings.triangle_budget));
         let mut ideal_this_budget = Vec::new();
-        let mut times: Vec<Vec<CullStats>> = (0..TIMED_PASSES).map(|_| Vec::new()).collect();
         for frame in 0..frames {
-            times[0].push(run.run_frame(frame));
+            run.run_frame(frame);
             let mut metrics = stage_metrics(&run.world, &truth[frame as usize]);
             if settings.enabled {
                 let state = run.world.resource::<OcclusionState>();
@@ -148,30 +157,39 @@ fn main() {
         if budget_ideal == Some(false) {
             ideal.insert(settings.triangle_budget, ideal_this_budget);
         }
-        for pass in times.iter_mut().skip(1) {
-            let mut run = flight(settings);
-            pass.extend((0..frames).map(|frame| run.run_frame(frame)));
-        }
-        let mean =
-            |pass: &[CullStats], part: fn(&CullStats) -> f64| pass.iter().map(part).sum::<f64>() / pass.len() as f64;
-        let total =
-            |s: &CullStats| (s.bounds_time + s.frustum_time + s.raster_time + s.occlusion_time).as_secs_f64() * 1e6;
-        let fastest = times.iter().min_by(|a, b| mean(a, total).total_cmp(&mean(b, total))).unwrap();
-        let row = Row {
-            settings,
-            cull_us: mean(fastest, total),
-            raster_us: mean(fastest, |s| s.raster_time.as_secs_f64() * 1e6),
-            occlusion_us: mean(fastest, |s| s.occlusion_time.as_secs_f64() * 1e6),
-            accuracy,
-            on_front: false,
-            moc: false,
-        };
-        print_row(&row, start);
+        let row = Row::untimed(settings, accuracy, false);
+        println!("{:<28} judged in {:.1} s", row.label(), start.elapsed().as_secs_f64());
         rows.push(row);
     }
+    let mut moc = MocSeries::new(flight(OcclusionSettings::default()), &truth);
+    let start = Instant::now();
+    for round in 0..TIMED_ROUNDS {
+        for row in rows.iter_mut() {
+            let mut run = flight(row.settings);
+            let pass: Vec<CullStats> = (0..frames).map(|frame| run.run_frame(frame)).collect();
+            let mean = |part: fn(&CullStats) -> Duration| {
+                pass.iter().map(|s| part(s).as_secs_f64()).sum::<f64>() / pass.len() as f64 * 1e6
+            };
+            let (frustum, raster, occlusion) =
+                (mean(|s| s.bounds_time + s.frustum_time), mean(|s| s.raster_time), mean(|s| s.occlusion_time));
+            if frustum + raster + occlusion < row.cull_us {
+                (row.cull_us, row.raster_us, row.occlusion_us, row.frustum_us) =
+                    (frustum + raster + occlusion, raster, occlusion, frustum);
+            }
+        }
+        if let Some(moc) = &mut moc {
+            moc.time_pass(flight(OcclusionSettings::default()), frames);
+        }
+        println!("timed round {} of {TIMED_ROUNDS} in {:.1} s", round + 1, start.elapsed().as_secs_f64());
+    }
+    for row in &rows {
+        print_row(row);
+    }
     let default = rows.iter().find(|r| r.is_default()).unwrap();
-    let frustum_us = default.cull_us - default.raster_us - default.occlusion_us;
-    rows.extend(moc_rows(flight(OcclusionSettings::default()), &truth, frustum_us));
+    let frustum_us = default.frustum_us;
+    if let Some(moc) = moc {
+        rows.extend(moc.rows(frustum_us));
+    }
     mark_pareto_front(&mut rows, (reference.width, reference.height));
     let default = rows.iter().find(|r| r.is_default()).unwrap();
     println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
@@ -183,81 +201,99 @@ fn main() {
     println!("wrote {}", dir.canonicalize().unwrap().display());
 }
 
-fn print_row(row: &Row, start: Instant) {
+fn print_row(row: &Row) {
     println!(
         "{:<28} {:8.1} us/frame  efficiency {:5.1}%  vs ideal {:5.1}%  false negatives {:7.2}/frame  \
-         image error {:8.1} px/frame  ({:.1} s)",
+         image error {:8.1} px/frame",
         row.label(),
         row.cull_us,
         100.0 * row.efficiency(),
         100.0 * row.accuracy.occlusion_efficiency().unwrap_or(f64::NAN),
         row.false_negatives_per_frame(),
         row.image_error_per_frame(),
-        start.elapsed().as_secs_f64()
     );
 }
 
 /// Intel MOC at each resolution of the sweep and the viewport's (1920x1080), with the default triangle
-/// budget: `run` is Cullet's default configuration, whose frustum survivors and selected occluders MOC gets
-/// each frame. MOC rasterizes on its own 2-thread pool and tests on rayon's. Its time per frame is its raster
-/// and `TestRect` plus `frustum_us` (the default's bounds and frustum time): projecting the boxes, which MOC
-/// leaves to its caller, is not counted (Cullet's time counts its own, and choosing the occluders). The
-/// fastest of [`TIMED_PASSES`] passes counts. None where MOC is not built.
-fn moc_rows(mut run: Flight, truth: &[ExactVisibility], frustum_us: f64) -> Vec<Row> {
-    let start = Instant::now();
-    let sizes: Vec<(u32, u32)> = RESOLUTIONS.iter().copied().chain([(1920, 1080)]).collect();
-    let near = run.path.camera_at(0.0, run.aspect).near;
-    let mut peers = match sizes.iter().map(|&(w, h)| Moc::new(w, h, near, 2)).collect::<Result<Vec<_>, _>>() {
-        Ok(peers) => peers,
-        Err(why) => {
-            println!("SKIPPED the Intel MOC series: {why}");
-            return Vec::new();
+/// budget, given each frame the frustum survivors and selected occluders of Cullet's default configuration.
+/// MOC rasterizes on its own 2-thread pool and tests on rayon's. Its time per frame is its raster and
+/// `TestRect` plus the default's bounds and frustum time: projecting the boxes, which MOC leaves to its caller,
+/// is not counted (Cullet's time counts its own, and choosing the occluders).
+struct MocSeries {
+    sizes: Vec<(u32, u32)>,
+    peers: Vec<Moc>,
+    accuracy: Vec<PathMetrics>,
+    /// Per size: the fastest pass's summed raster and `TestRect` seconds, and its summed projection seconds.
+    fastest: Vec<(f64, f64, f64)>,
+    frames: f64,
+    scratch: Occludees,
+}
+
+impl MocSeries {
+    /// Builds MOC at each size and judges it over the path `run` flies against `truth`. None, with a message,
+    /// where MOC is not built.
+    fn new(mut run: Flight, truth: &[ExactVisibility]) -> Option<Self> {
+        let start = Instant::now();
+        let sizes: Vec<(u32, u32)> = RESOLUTIONS.iter().copied().chain([(1920, 1080)]).collect();
+        let near = run.path.camera_at(0.0, run.aspect).near;
+        let mut peers = match sizes.iter().map(|&(w, h)| Moc::new(w, h, near, 2)).collect::<Result<Vec<_>, _>>() {
+            Ok(peers) => peers,
+            Err(why) => {
+                println!("SKIPPED the Intel MOC series: {why}");
+                return None;
+            }
+        };
+        println!("Intel MOC, {} back end, given the default's survivors and occluders", peers[0].implementation());
+        let mut accuracy = vec![PathMetrics::default(); sizes.len()];
+        let mut scratch = Occludees::default();
+        for (frame, exact) in truth.iter().enumerate() {
+            run.run_frame(frame as u32);
+            for (peer, accuracy) in peers.iter_mut().zip(&mut accuracy) {
+                accuracy.add(&moc::cull_world(peer, &run.world, 2, &mut scratch).judge(&run.world, exact));
+            }
         }
-    };
-    println!("Intel MOC, {} back end, given the default's survivors and occluders", peers[0].implementation());
-    let mut accuracy = vec![PathMetrics::default(); sizes.len()];
-    // Per size and pass: summed raster and TestRect seconds.
-    let mut times = vec![[(0.0, 0.0); TIMED_PASSES]; sizes.len()];
-    // Per size: the fastest projection of the boxes, summed over frames (shown, not counted).
-    let mut project = vec![0.0; sizes.len()];
-    let mut scratch = Occludees::default();
-    for (frame, exact) in truth.iter().enumerate() {
-        run.run_frame(frame as u32);
-        for (i, peer) in peers.iter_mut().enumerate() {
-            let mut fastest_project = f64::MAX;
-            for (pass, time) in times[i].iter_mut().enumerate() {
-                let culled = moc::cull_world(peer, &run.world, 2, &mut scratch);
+        println!("MOC judged in {:.1} s", start.elapsed().as_secs_f64());
+        let fastest = vec![(f64::INFINITY, 0.0, 0.0); sizes.len()];
+        Some(Self { sizes, peers, accuracy, fastest, frames: truth.len().max(1) as f64, scratch })
+    }
+
+    /// Times one pass of every size over the path `run` flies, keeping each size's fastest.
+    fn time_pass(&mut self, mut run: Flight, frames: u32) {
+        let mut pass = vec![(0.0, 0.0, 0.0); self.sizes.len()];
+        for frame in 0..frames {
+            run.run_frame(frame);
+            for (peer, time) in self.peers.iter_mut().zip(&mut pass) {
+                let culled = moc::cull_world(peer, &run.world, 2, &mut self.scratch);
                 time.0 += culled.raster.as_secs_f64();
                 time.1 += culled.test.as_secs_f64();
-                fastest_project = fastest_project.min(culled.project.as_secs_f64());
-                if pass == 0 {
-                    accuracy[i].add(&culled.judge(&run.world, exact));
-                }
+                time.2 += culled.project.as_secs_f64();
             }
-            project[i] += fastest_project;
+        }
+        for (fastest, time) in self.fastest.iter_mut().zip(pass) {
+            if time.0 + time.1 < fastest.0 + fastest.1 {
+                *fastest = time;
+            }
         }
     }
-    let frames = truth.len().max(1) as f64;
-    sizes
-        .into_iter()
-        .zip(accuracy.into_iter().zip(times).zip(project))
-        .map(|((width, height), ((accuracy, times), project))| {
-            let (raster, occlusion) = times.into_iter().min_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1))).unwrap();
-            let (raster_us, occlusion_us) = (raster / frames * 1e6, occlusion / frames * 1e6);
-            let row = Row {
-                settings: OcclusionSettings { width, height, ..OcclusionSettings::default() },
-                cull_us: frustum_us + raster_us + occlusion_us,
-                raster_us,
-                occlusion_us,
-                accuracy,
-                on_front: false,
-                moc: true,
-            };
-            print_row(&row, start);
-            println!("    (MOC's box projection, not counted above: {:.1} us/frame)", project / frames * 1e6);
-            row
-        })
-        .collect()
+
+    /// The series' rows, `frustum_us` (the default's bounds and frustum time) added to each.
+    fn rows(self, frustum_us: f64) -> Vec<Row> {
+        let frames = self.frames;
+        self.sizes
+            .into_iter()
+            .zip(self.accuracy.into_iter().zip(self.fastest))
+            .map(|((width, height), (accuracy, (raster, test, project)))| {
+                let settings = OcclusionSettings { width, height, ..OcclusionSettings::default() };
+                let mut row = Row::untimed(settings, accuracy, true);
+                (row.raster_us, row.occlusion_us, row.frustum_us) =
+                    (raster / frames * 1e6, test / frames * 1e6, frustum_us);
+                row.cull_us = frustum_us + row.raster_us + row.occlusion_us;
+                print_row(&row);
+                println!("    (MOC's box projection, not counted above: {:.1} us/frame)", project / frames * 1e6);
+                row
+            })
+            .collect()
+    }
 }
 
 /// Marks the conservative configurations (occlusion off, or on in a mode conservative for the `viewport` judged:
