@@ -16,6 +16,8 @@ pub struct HudPainter {
     built: Option<Built>,
     /// egui asked to be run again at once (an animation, a widget settling).
     run_again: bool,
+    /// When the painter was made: egui's clock starts there.
+    start: Instant,
 }
 
 /// One build of the HUD: its triangles (uploaded), for what screen, and the areas it covers.
@@ -54,7 +56,7 @@ impl HudPainter {
             Some(max_texture_side),
         );
         let renderer = egui_wgpu::Renderer::new(&gpu.device, format, egui_wgpu::RendererOptions::default());
-        Self { context, input, renderer, built: None, run_again: false }
+        Self { context, input, renderer, built: None, run_again: false, start: Instant::now() }
     }
 
     /// Passes a window event to egui. Returns whether egui used it (a click on the HUD, a drag of one of its
@@ -79,7 +81,7 @@ impl HudPainter {
         build: impl FnMut(&egui::Context) -> Vec<egui::Rect>,
     ) -> Painted {
         let thread_start = ThreadTime::now();
-        let raw_input = self.input.take_egui_input(window);
+        let raw_input = self.take_input(window, size);
         let rebuild = changed
             || self.run_again
             || !raw_input.events.is_empty()
@@ -105,6 +107,22 @@ impl HudPainter {
         }
         wall_times[2] += recording.elapsed();
         Painted { regions: built.regions.clone(), rebuilt: rebuild, wall_times, cpu_time: thread_start.elapsed() }
+    }
+
+    /// egui's input since the last frame, for a `size`-pixel frame: `egui_winit::State::take_egui_input`, but
+    /// with the size the game already knows, where that asks the window (on X11 a round trip to the server each
+    /// frame, which blocked the HUD's thread).
+    fn take_input(&mut self, window: &Window, size: (u32, u32)) -> egui::RawInput {
+        let native_pixels_per_point = window.scale_factor() as f32;
+        let points = egui::vec2(size.0 as f32, size.1 as f32) / (native_pixels_per_point * self.context.zoom_factor());
+        let input = self.input.egui_input_mut();
+        input.time = Some(self.start.elapsed().as_secs_f64());
+        input.screen_rect =
+            (points.x > 0.0 && points.y > 0.0).then(|| egui::Rect::from_min_size(egui::Pos2::ZERO, points));
+        input.viewport_id = egui::ViewportId::ROOT;
+        input.viewports.entry(egui::ViewportId::ROOT).or_default().native_pixels_per_point =
+            Some(native_pixels_per_point);
+        input.take()
     }
 
     /// Runs egui with `build` and uploads what it drew: textures and the triangles' buffers.
