@@ -34,12 +34,10 @@ const TIMED_ROUNDS: usize = 3;
 /// One configuration's results over the path.
 struct Row {
     settings: OcclusionSettings,
-    /// Mean per-frame time of all culling stages, fastest pass, microseconds.
-    cull_us: f64,
+    /// Mean per-frame times of the fastest pass, microseconds: bounds and frustum, raster, occlusion test.
+    frustum_us: f64,
     raster_us: f64,
     occlusion_us: f64,
-    /// Mean per-frame bounds and frustum time of that pass, microseconds.
-    frustum_us: f64,
     accuracy: PathMetrics,
     on_front: bool,
     /// Intel MOC at `settings`' resolution, not Cullet.
@@ -49,8 +47,13 @@ struct Row {
 impl Row {
     /// A row not timed yet: its time infinite until a pass is timed.
     fn untimed(settings: OcclusionSettings, accuracy: PathMetrics, moc: bool) -> Self {
-        let (cull_us, raster_us, occlusion_us, frustum_us) = (f64::INFINITY, 0.0, 0.0, 0.0);
-        Self { settings, cull_us, raster_us, occlusion_us, frustum_us, accuracy, on_front: false, moc }
+        let (frustum_us, raster_us, occlusion_us) = (f64::INFINITY, 0.0, 0.0);
+        Self { settings, frustum_us, raster_us, occlusion_us, accuracy, on_front: false, moc }
+    }
+
+    /// Mean per-frame time of all culling stages, fastest pass, microseconds.
+    fn cull_us(&self) -> f64 {
+        self.frustum_us + self.raster_us + self.occlusion_us
     }
 
     fn label(&self) -> String {
@@ -172,13 +175,12 @@ fn main() {
             };
             let (frustum, raster, occlusion) =
                 (mean(|s| s.bounds_time + s.frustum_time), mean(|s| s.raster_time), mean(|s| s.occlusion_time));
-            if frustum + raster + occlusion < row.cull_us {
-                (row.cull_us, row.raster_us, row.occlusion_us, row.frustum_us) =
-                    (frustum + raster + occlusion, raster, occlusion, frustum);
+            if frustum + raster + occlusion < row.cull_us() {
+                (row.frustum_us, row.raster_us, row.occlusion_us) = (frustum, raster, occlusion);
             }
         }
         if let Some(moc) = &mut moc {
-            moc.time_pass(flight(OcclusionSettings::default()), frames);
+            moc.time_pass(flight(OcclusionSettings::default()));
         }
         println!("timed round {} of {TIMED_ROUNDS} in {:.1} s", round + 1, start.elapsed().as_secs_f64());
     }
@@ -206,7 +208,7 @@ fn print_row(row: &Row) {
         "{:<28} {:8.1} us/frame  efficiency {:5.1}%  vs ideal {:5.1}%  false negatives {:7.2}/frame  \
          image error {:8.1} px/frame",
         row.label(),
-        row.cull_us,
+        row.cull_us(),
         100.0 * row.efficiency(),
         100.0 * row.accuracy.occlusion_efficiency().unwrap_or(f64::NAN),
         row.false_negatives_per_frame(),
@@ -225,7 +227,7 @@ struct MocSeries {
     accuracy: Vec<PathMetrics>,
     /// Per size: the fastest pass's summed raster and `TestRect` seconds, and its summed projection seconds.
     fastest: Vec<(f64, f64, f64)>,
-    frames: f64,
+    frames: u32,
     scratch: Occludees,
 }
 
@@ -254,13 +256,13 @@ impl MocSeries {
         }
         println!("MOC judged in {:.1} s", start.elapsed().as_secs_f64());
         let fastest = vec![(f64::INFINITY, 0.0, 0.0); sizes.len()];
-        Some(Self { sizes, peers, accuracy, fastest, frames: truth.len().max(1) as f64, scratch })
+        Some(Self { sizes, peers, accuracy, fastest, frames: truth.len() as u32, scratch })
     }
 
     /// Times one pass of every size over the path `run` flies, keeping each size's fastest.
-    fn time_pass(&mut self, mut run: Flight, frames: u32) {
+    fn time_pass(&mut self, mut run: Flight) {
         let mut pass = vec![(0.0, 0.0, 0.0); self.sizes.len()];
-        for frame in 0..frames {
+        for frame in 0..self.frames {
             run.run_frame(frame);
             for (peer, time) in self.peers.iter_mut().zip(&mut pass) {
                 let culled = moc::cull_world(peer, &run.world, 2, &mut self.scratch);
@@ -278,16 +280,15 @@ impl MocSeries {
 
     /// The series' rows, `frustum_us` (the default's bounds and frustum time) added to each.
     fn rows(self, frustum_us: f64) -> Vec<Row> {
-        let frames = self.frames;
+        let frames = self.frames.max(1) as f64;
         self.sizes
             .into_iter()
             .zip(self.accuracy.into_iter().zip(self.fastest))
             .map(|((width, height), (accuracy, (raster, test, project)))| {
                 let settings = OcclusionSettings { width, height, ..OcclusionSettings::default() };
                 let mut row = Row::untimed(settings, accuracy, true);
-                (row.raster_us, row.occlusion_us, row.frustum_us) =
-                    (raster / frames * 1e6, test / frames * 1e6, frustum_us);
-                row.cull_us = frustum_us + row.raster_us + row.occlusion_us;
+                (row.frustum_us, row.raster_us, row.occlusion_us) =
+                    (frustum_us, raster / frames * 1e6, test / frames * 1e6);
                 print_row(&row);
                 println!("    (MOC's box projection, not counted above: {:.1} us/frame)", project / frames * 1e6);
                 row
@@ -302,9 +303,10 @@ impl MocSeries {
 /// path happened to show no false negative: it guarantees none.
 fn mark_pareto_front(rows: &mut [Row], viewport: (u32, u32)) {
     let conservative = |r: &Row| !r.moc && r.accuracy.false_negatives == 0 && r.settings.is_conservative_for(viewport);
-    let exact: Vec<(f64, f64)> = rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us, r.efficiency())).collect();
+    let exact: Vec<(f64, f64)> =
+        rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us(), r.efficiency())).collect();
     for row in rows.iter_mut().filter(|r| conservative(r)) {
-        let (time, efficiency) = (row.cull_us, row.efficiency());
+        let (time, efficiency) = (row.cull_us(), row.efficiency());
         row.on_front = !exact.iter().any(|&(t, e)| t <= time && e >= efficiency && (t < time || e > efficiency));
     }
 }
@@ -328,7 +330,7 @@ fn csv(rows: &[Row]) -> String {
             s.mode,
             s.triangle_budget,
             r.accuracy.frames,
-            r.cull_us,
+            r.cull_us(),
             r.raster_us,
             r.occlusion_us,
             r.accuracy.efficiency(0),
@@ -358,7 +360,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
         ("sans-serif", 26),
     )?;
     let panels = root.split_evenly((1, 3));
-    let max_time = rows.iter().map(|r| r.cull_us / 1e3).fold(0.0, f64::max) * 1.1;
+    let max_time = rows.iter().map(|r| r.cull_us() / 1e3).fold(0.0, f64::max) * 1.1;
     let mode_color = |mode| match mode {
         RasterMode::Conservative => BLUE,
         RasterMode::PixelCentres => CYAN,
@@ -386,7 +388,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
         chart.configure_mesh().x_desc("cull time per frame (ms), all CPU stages").y_desc(y_desc).draw()?;
         if efficiency_panel {
             let mut front: Vec<(f64, f64)> =
-                rows.iter().filter(|r| r.on_front).map(|r| (r.cull_us / 1e3, value(r))).collect();
+                rows.iter().filter(|r| r.on_front).map(|r| (r.cull_us() / 1e3, value(r))).collect();
             front.sort_by(|a, b| a.0.total_cmp(&b.0));
             chart
                 .draw_series(LineSeries::new(front, BLUE.stroke_width(2)))?
@@ -403,7 +405,7 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
             let series = rows.iter().filter(|r| !r.moc && r.settings.enabled && r.settings.mode == mode);
             let c = mode_color(mode);
             chart
-                .draw_series(series.map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, color(r).filled())))?
+                .draw_series(series.map(|r| Circle::new((r.cull_us() / 1e3, value(r)), 5, color(r).filled())))?
                 .label(name)
                 .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
         }
@@ -411,24 +413,24 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
             .draw_series(
                 rows.iter()
                     .filter(|r| r.moc)
-                    .map(|r| TriangleMarker::new((r.cull_us / 1e3, value(r)), 7, MAGENTA.filled())),
+                    .map(|r| TriangleMarker::new((r.cull_us() / 1e3, value(r)), 7, MAGENTA.filled())),
             )?
             .label("Intel MOC")
             .legend(|(x, y)| TriangleMarker::new((x + 10, y), 7, MAGENTA.filled()));
         chart.draw_series(
             rows.iter()
                 .filter(|r| !r.settings.enabled)
-                .map(|r| Circle::new((r.cull_us / 1e3, value(r)), 5, BLACK.filled())),
+                .map(|r| Circle::new((r.cull_us() / 1e3, value(r)), 5, BLACK.filled())),
         )?;
         chart.draw_series(
             rows.iter()
                 .filter(|r| r.is_default())
-                .map(|r| Circle::new((r.cull_us / 1e3, value(r)), 10, ShapeStyle::from(&GREEN).stroke_width(3))),
+                .map(|r| Circle::new((r.cull_us() / 1e3, value(r)), 10, ShapeStyle::from(&GREEN).stroke_width(3))),
         )?;
         let labelled = |r: &&Row| r.is_default() || (efficiency_panel && (r.on_front || r.moc || !r.settings.enabled));
         chart.draw_series(rows.iter().filter(labelled).map(|r| {
             let label = if r.is_default() { format!("{} (default)", r.label()) } else { r.label() };
-            Text::new(label, (r.cull_us / 1e3, value(r)), ("sans-serif", 13))
+            Text::new(label, (r.cull_us() / 1e3, value(r)), ("sans-serif", 13))
         }))?;
         chart.configure_series_labels().position(SeriesLabelPosition::LowerRight).border_style(BLACK).draw()?;
     }
