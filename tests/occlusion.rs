@@ -8,7 +8,7 @@ use cullet::depth::{DepthPyramid, ScreenView};
 use cullet::frustum::cull_frustum;
 use cullet::mesh::Mesh;
 use cullet::occluder::OccluderInstance;
-use cullet::occlusion::test_occlusion;
+use cullet::occlusion;
 use cullet::raster::{RasterMode, rasterize};
 use cullet::{BoundsStore, Camera, VisibleSet};
 use cullet_truth::occluders::ExactOccluderDepth;
@@ -44,21 +44,26 @@ fn cull(
     (frustum_visible, visible)
 }
 
-/// Occluders in an instance list, and the pyramid `mode` rasterizes them into through `view`.
+/// Occluders as an instance list of `meshes`, the occluders' meshes.
+fn instances_of<'a>(meshes: &'a [cullet::Occluder], occluders: &[Occluder]) -> Vec<OccluderInstance<'a>> {
+    let transforms = occluders.iter().map(|(_, transform)| *transform);
+    meshes.iter().zip(transforms).map(|(occluder, transform)| OccluderInstance { occluder, transform }).collect()
+}
+
+fn meshes_of(occluders: &[Occluder]) -> Vec<cullet::Occluder> {
+    occluders.iter().map(|(triangles, _)| cullet::Occluder::new(triangles.clone())).collect()
+}
+
+/// The pyramid `mode` rasterizes `occluders` into through `view`.
 fn pyramid_of(view: &ScreenView, occluders: &[Occluder], mode: RasterMode) -> DepthPyramid {
-    let meshes: Vec<cullet::Occluder> =
-        occluders.iter().map(|(triangles, _)| cullet::Occluder::new(triangles.clone())).collect();
-    let instances: Vec<OccluderInstance<'_>> = meshes
-        .iter()
-        .zip(occluders)
-        .map(|(occluder, (_, transform))| OccluderInstance { occluder, transform: *transform })
-        .collect();
+    let meshes = meshes_of(occluders);
     let mut pyramid = DepthPyramid::default();
-    rasterize(view, &instances, mode, &mut pyramid);
+    rasterize(view, &instances_of(&meshes, occluders), mode, &mut pyramid);
     pyramid
 }
 
-/// Raster and occlusion test of `tested` through `view`; returns the survivors.
+/// Raster and occlusion test of `tested` through `view` (the engine's [`occlusion::occlude`]); returns the
+/// survivors.
 fn occlude(
     store: &BoundsStore,
     tested: &VisibleSet,
@@ -66,9 +71,19 @@ fn occlude(
     occluders: &[Occluder],
     mode: RasterMode,
 ) -> VisibleSet {
-    let pyramid = pyramid_of(view, occluders, mode);
-    let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
-    test_occlusion(store, tested, view, &pyramid, &mut visible, &mut occluded);
+    let meshes = meshes_of(occluders);
+    let (mut pyramid, mut visible, mut occluded) = Default::default();
+    let run = occlusion::occlude(
+        store,
+        tested,
+        Some(view),
+        &instances_of(&meshes, occluders),
+        mode,
+        &mut pyramid,
+        &mut visible,
+        &mut occluded,
+    );
+    assert_eq!((run.test.tested, run.test.visible), (tested.count(), visible.count()));
     for slot in 0..store.len() {
         assert_eq!(occluded.contains(slot), tested.contains(slot) && !visible.contains(slot));
     }
@@ -152,6 +167,41 @@ fn box_behind_a_wall_is_culled_and_one_in_front_kept() {
         let (frustum, visible) = cull(&camera, &occluders, &boxes, mode, BUFFER);
         assert!(frustum.contains(0) && !visible.contains(0), "{mode:?}: hidden box kept");
         assert!(visible.contains(1), "{mode:?}: box in front of the wall culled");
+    }
+}
+
+/// With no occluder, or no screen to draw them on, the stage rasterizes and tests nothing: it keeps every
+/// frustum survivor, hides none, and leaves no pyramid behind from an earlier view.
+#[test]
+fn with_no_occluder_or_no_screen_every_frustum_survivor_is_kept() {
+    let camera = camera_on_z(10.0);
+    let view = ScreenView::new(&camera, BUFFER.0, BUFFER.1);
+    let boxes = [(Vec3::new(0.0, 0.0, -5.0), Vec3::ONE), (Vec3::new(0.0, 0.0, 30.0), Vec3::ONE)];
+    let store = store_of(&boxes);
+    let mut frustum_visible = VisibleSet::default();
+    cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+    assert_eq!(frustum_visible.count(), 1, "the box behind the camera is outside the frustum");
+    let walls = [wall((-5.0, -5.0), (5.0, 5.0), 0.0)];
+    let meshes = meshes_of(&walls);
+    let wall = instances_of(&meshes, &walls);
+    for (screen, occluders) in [(Some(&view), &[][..]), (None, &wall[..])] {
+        let mut pyramid = pyramid_of(&view, &[screen_filling_triangle()], RasterMode::Conservative);
+        let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::all(7));
+        let mode = RasterMode::Conservative;
+        let run = occlusion::occlude(
+            &store,
+            &frustum_visible,
+            screen,
+            occluders,
+            mode,
+            &mut pyramid,
+            &mut visible,
+            &mut occluded,
+        );
+        assert_eq!(visible, frustum_visible);
+        assert_eq!((occluded.len(), occluded.count()), (store.len(), 0));
+        assert_eq!(pyramid.level_count(), 0, "an earlier view's pyramid was left behind");
+        assert_eq!((run.raster, run.test.tested, run.test.visible), (Default::default(), 1, 1));
     }
 }
 

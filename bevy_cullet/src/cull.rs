@@ -18,8 +18,7 @@ use cullet::Occluder;
 use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
 use cullet::occluder::{OccluderInstance, select_occluders};
-use cullet::occlusion::test_occlusion;
-use cullet::raster::rasterize;
+use cullet::occlusion::occlude;
 use cullet::visible::VisibleSet;
 use std::any::TypeId;
 use std::time::{Duration, Instant};
@@ -142,26 +141,26 @@ impl CulletView {
             .collect(),
             _ => Vec::new(),
         };
-        (self.stats.occluders, self.stats.occluders_hidden, self.stats.occluder_triangles) = (chosen.len(), 0, 0);
-        let Some(camera) = view.camera.filter(|_| !chosen.is_empty()) else {
-            // Nothing to occlude with: the stage costs the selection alone.
-            self.pyramid = DepthPyramid::default();
-            self.visible.clone_from(&self.frustum_visible);
-            self.stats.after_occlusion = self.stats.after_frustum;
-            (self.stats.raster_time, self.stats.occlusion_time) = (start.elapsed(), Duration::ZERO);
-            return;
-        };
-        let screen = ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height);
-        let raster = rasterize(&screen, &chosen, settings.occlusion.mode, &mut self.pyramid);
-        (self.stats.occluder_triangles, self.stats.occluders_hidden) =
-            (raster.triangles_rasterized, raster.occluders_hidden);
-        self.stats.raster_time = start.elapsed();
-
-        let start = Instant::now();
-        let result =
-            test_occlusion(store, &self.frustum_visible, &screen, &self.pyramid, &mut self.visible, &mut self.occluded);
-        self.stats.after_occlusion = result.visible;
-        self.stats.occlusion_time = start.elapsed();
+        self.stats.occluders = chosen.len();
+        let selection_time = start.elapsed();
+        // Without a perspective camera (or occluders) the stage costs the selection and a copy.
+        let screen =
+            view.camera.map(|camera| ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height));
+        let run = occlude(
+            store,
+            &self.frustum_visible,
+            screen.as_ref(),
+            &chosen,
+            settings.occlusion.mode,
+            &mut self.pyramid,
+            &mut self.visible,
+            &mut self.occluded,
+        );
+        let stats = &mut self.stats;
+        (stats.occluder_triangles, stats.occluders_hidden) =
+            (run.raster.triangles_rasterized, run.raster.occluders_hidden);
+        stats.after_occlusion = run.test.visible;
+        (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
     }
 }
 

@@ -13,8 +13,11 @@
 use crate::bounds::{BoundsStore, GroupBounds};
 use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor};
 use crate::frustum::SimdBackend;
+use crate::occluder::OccluderInstance;
+use crate::raster::{RasterMode, RasterStats, rasterize};
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
+use std::time::{Duration, Instant};
 
 const LANES: usize = 8;
 /// Bitset words (of 64 objects) handed to one rayon task.
@@ -46,6 +49,54 @@ struct ScreenRect {
     nearest: f32,
     /// Crosses the near plane, leaves the screen in a way the rectangle cannot express, or is degenerate.
     always_visible: bool,
+}
+
+/// Counts and times of one view's occluder raster and occlusion test, as [`occlude`] returns them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ViewOcclusion {
+    /// Counts of the raster; all zero where nothing was rasterized.
+    pub raster: RasterStats,
+    /// Counts of the test.
+    pub test: OcclusionStats,
+    /// Time to rasterize the occluders and build the pyramid.
+    pub raster_time: Duration,
+    /// Time to test the frustum survivors (or, with nothing rasterized, to copy them).
+    pub test_time: Duration,
+}
+
+/// The occluder raster and occlusion test of one view, for a caller that selected `occluders` itself:
+/// rasterizes them with `mode` into `pyramid`, then tests every object set in `frustum_visible` against it as
+/// [`test_occlusion`] does, into `visible` and `occluded`.
+///
+/// Where there is no screen (`view` is `None`, as for a projection the depth buffer cannot express) or no
+/// occluder, it rasterizes and tests nothing: `pyramid` is emptied, `visible` becomes a copy of
+/// `frustum_visible` and `occluded` is empty, sized to the store.
+#[allow(clippy::too_many_arguments)]
+pub fn occlude(
+    store: &BoundsStore,
+    frustum_visible: &VisibleSet,
+    view: Option<&ScreenView>,
+    occluders: &[OccluderInstance<'_>],
+    mode: RasterMode,
+    pyramid: &mut DepthPyramid,
+    visible: &mut VisibleSet,
+    occluded: &mut VisibleSet,
+) -> ViewOcclusion {
+    let Some(view) = view.filter(|_| !occluders.is_empty()) else {
+        let start = Instant::now();
+        *pyramid = DepthPyramid::default();
+        visible.clone_from(frustum_visible);
+        occluded.reset(store.len());
+        let tested = frustum_visible.count();
+        let test = OcclusionStats { tested, visible: tested };
+        return ViewOcclusion { test, test_time: start.elapsed(), ..Default::default() };
+    };
+    let start = Instant::now();
+    let raster = rasterize(view, occluders, mode, pyramid);
+    let raster_time = start.elapsed();
+    let start = Instant::now();
+    let test = test_occlusion(store, frustum_visible, view, pyramid, visible, occluded);
+    ViewOcclusion { raster, test, raster_time, test_time: start.elapsed() }
 }
 
 /// Tests every object set in `frustum_visible` and writes the survivors to `visible` and the hidden ones to

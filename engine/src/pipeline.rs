@@ -12,7 +12,7 @@ use crate::frustum::{
     cull_frustum_coherent, cull_views,
 };
 use crate::occluder::{Occluder, OccluderInstance, select_occluders, select_occluders_for_view};
-use crate::occlusion::{retest_occlusion, test_occlusion};
+use crate::occlusion::{occlude, retest_occlusion, test_occlusion};
 use crate::raster::{RasterMode, rasterize};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
@@ -658,26 +658,24 @@ pub fn occlusion_stage(
     };
     state.occluder_slots = slots;
     stats.occluders = chosen.len();
-    if chosen.is_empty() {
-        state.pyramid = DepthPyramid::default();
-        state.visible.clone_from(&frustum_visible.0);
-        state.occluded.reset(store.len());
-        (stats.occluder_triangles, stats.occluders_hidden) = (0, 0);
-        stats.after_occlusion = stats.after_frustum;
-        stats.raster_time = start.elapsed();
-        stats.occlusion_time = Duration::ZERO;
-        return;
-    }
+    let selection_time = start.elapsed();
     let view = ScreenView::new(&camera, settings.width, settings.height);
-    let raster = rasterize(&view, &chosen, settings.mode, &mut state.pyramid);
-    (stats.occluder_triangles, stats.occluders_hidden) = (raster.triangles_rasterized, raster.occluders_hidden);
-    stats.raster_time = start.elapsed();
-
-    let start = Instant::now();
-    let result =
-        test_occlusion(&store, &frustum_visible.0, &view, &state.pyramid, &mut state.visible, &mut state.occluded);
-    stats.after_occlusion = result.visible;
-    stats.occlusion_time = start.elapsed();
+    let run = occlude(
+        &store,
+        &frustum_visible.0,
+        Some(&view),
+        &chosen,
+        settings.mode,
+        &mut state.pyramid,
+        &mut state.visible,
+        &mut state.occluded,
+    );
+    (stats.occluder_triangles, stats.occluders_hidden) = (run.raster.triangles_rasterized, run.raster.occluders_hidden);
+    stats.after_occlusion = run.test.visible;
+    (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
+    if chosen.is_empty() {
+        return; // Nothing was rasterized: no benefit to record.
+    }
     gate.occlusion.record(
         stats.occlusion_removed(),
         stats.after_frustum,
