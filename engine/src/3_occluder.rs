@@ -11,13 +11,15 @@
 //!    view (a sun's cascade, [`select_occluders_for_view`]) every occluder is seen from one direction, so the
 //!    rank is `radius^2` and nothing contains the eye.
 //! 4. Budget: occluders are taken best-first while their triangles fit in the budget; one that does not fit
-//!    is skipped and smaller ones after it may still fill the budget (see [`select_occluders`]).
+//!    is skipped and smaller ones after it may still fill the budget, until less room is left than the
+//!    smallest occluder taken (see [`select_occluders`]).
 
 use crate::bounds::BoundsStore;
 use crate::depth::ScreenView;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -127,6 +129,16 @@ pub struct OccluderInstance<'a> {
 
 /// Candidates ordered per round of selection: enough to fill most budgets in one round.
 const ROUND: usize = 1024;
+/// Relative room for f32 rounding when telling whether the eye may be inside an occluder's sphere: the squared
+/// distance and radius are each within a few ulps of their exact values.
+const INSIDE_SPHERE_SLACK: f32 = 1.0 + 1e-4;
+/// Bitset words (of 64 slots) one thread ranks at a time.
+const RANK_WORDS_PER_TASK: usize = 256;
+/// Bitset words above which ranking runs in parallel (about 260,000 objects). Measured in one interleaved run
+/// on the city's fly-through (`cullet-game --headless --cpu-only --fixed-pipeline`, 2 threads, median of 120
+/// frames, three runs each): at 1e6 objects ranking took 0.44-0.47 ms in parallel against 0.51-0.58 ms in one
+/// pass; at 1e5, 45-51 us against 22-45 us.
+const RANK_IN_PARALLEL_ABOVE: usize = 4096;
 
 /// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluders`])
 /// that the frustum kept and whose box does not contain the camera, best-first while their triangles fit in
@@ -134,8 +146,9 @@ const ROUND: usize = 1024;
 /// their occluders, best first.
 ///
 /// Candidates are found with a bitwise AND and ranked from the store's arrays; only the best are ordered, a
-/// round of `ROUND` (1024) at a time, until the budget is full, a whole round fits nothing more, or a round
-/// leaves less room than the smallest occluder it met (so at most that many triangles of the budget go unused).
+/// round of `ROUND` (1024) at a time, until the budget is full, it has less room left than the smallest
+/// occluder chosen, a whole round fits nothing more, or a round leaves less room than the smallest occluder it
+/// met (so at most that many triangles of the budget go unused).
 pub fn select_occluders<'a>(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,
@@ -177,30 +190,27 @@ fn select_ranked<'a>(
     triangle_budget: usize,
     occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
-    let mut ranked: Vec<(f32, u32)> = Vec::new();
-    let soa = store.soa();
-    for (word_index, (&visible, &occluders)) in visible.words().iter().zip(store.occluders().words()).enumerate() {
-        let mut bits = visible & occluders;
-        while bits != 0 {
-            let slot = word_index * 64 + bits.trailing_zeros() as usize;
-            bits &= bits - 1;
-            let radius_squared = soa.radius[slot] * soa.radius[slot];
-            let Viewpoint::Position(eye) = viewpoint else {
-                ranked.push((radius_squared, slot as u32));
-                continue;
-            };
-            let offset = Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]) - eye;
-            let extent = Vec3::new(soa.extent_x[slot], soa.extent_y[slot], soa.extent_z[slot]);
-            let distance_squared = offset.length_squared();
-            if offset.abs().cmple(extent).all() || distance_squared <= 0.0 {
-                continue; // The camera is inside the object.
-            }
-            ranked.push((radius_squared / distance_squared, slot as u32));
+    // Ranking reads the bounds of every candidate: at 1e6 objects that streams much of the store, which two
+    // threads do faster than one; below, waking the pool costs more than it saves. Chunks are joined in order,
+    // so ties fall as they would in one pass.
+    let rank_chunk = |(chunk, (visible, occluders)): (usize, (&[u64], &[u64]))| {
+        let mut ranked = Vec::new();
+        for (i, (&visible, &occluders)) in visible.iter().zip(occluders).enumerate() {
+            rank_word(store, (chunk * RANK_WORDS_PER_TASK + i) * 64, visible & occluders, viewpoint, &mut ranked);
         }
-    }
+        ranked
+    };
+    let (visible, occluders) = (visible.words(), store.occluders().words());
+    let mut ranked: Vec<(f32, u32)> = if visible.len() < RANK_IN_PARALLEL_ABOVE {
+        rank_chunk((0, (visible, occluders)))
+    } else {
+        let chunks = visible.par_chunks(RANK_WORDS_PER_TASK).zip(occluders.par_chunks(RANK_WORDS_PER_TASK));
+        chunks.enumerate().map(rank_chunk).flatten_iter().collect()
+    };
     let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0);
     let mut remaining = triangle_budget;
     let mut chosen = Vec::new();
+    let mut smallest_chosen = usize::MAX;
     let mut rest = &mut ranked[..];
     while remaining > 0 && !rest.is_empty() {
         let round = ROUND.min(rest.len());
@@ -217,8 +227,11 @@ fn select_ranked<'a>(
             smallest = smallest.min(triangles);
             if triangles <= remaining {
                 remaining -= triangles;
+                smallest_chosen = smallest_chosen.min(triangles);
                 chosen.push((slot, instance));
-                if remaining == 0 {
+                // With less room than the smallest occluder chosen, looking on (each look fetches an occluder,
+                // a cache miss in a large world) could fill at most that little.
+                if remaining == 0 || remaining < smallest_chosen {
                     break;
                 }
             }
@@ -231,6 +244,34 @@ fn select_ranked<'a>(
         rest = tail;
     }
     chosen
+}
+
+/// Appends the rank of each occluder candidate set in `bits` (slots from `base`) to `ranked`, larger first
+/// seen from `viewpoint`: `radius^2 / distance^2` from an eye, leaving out occluders whose box contains it, or
+/// `radius^2` from a direction.
+fn rank_word(store: &BoundsStore, base: usize, mut bits: u64, viewpoint: Viewpoint, ranked: &mut Vec<(f32, u32)>) {
+    let soa = store.soa();
+    while bits != 0 {
+        let slot = base + bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        let radius_squared = soa.radius[slot] * soa.radius[slot];
+        let Viewpoint::Position(eye) = viewpoint else {
+            ranked.push((radius_squared, slot as u32));
+            continue;
+        };
+        let offset = Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]) - eye;
+        let distance_squared = offset.length_squared();
+        // A box holding the eye lies within its sphere (the store's radius is at least the box's circumradius),
+        // so only an eye inside the sphere, with room for rounding, needs the extents: the other three arrays
+        // stay unread for nearly every candidate.
+        if distance_squared <= radius_squared * INSIDE_SPHERE_SLACK {
+            let extent = Vec3::new(soa.extent_x[slot], soa.extent_y[slot], soa.extent_z[slot]);
+            if offset.abs().cmple(extent).all() || distance_squared <= 0.0 {
+                continue; // The camera is inside the object.
+            }
+        }
+        ranked.push((radius_squared / distance_squared, slot as u32));
+    }
 }
 
 #[cfg(test)]
@@ -246,6 +287,69 @@ mod tests {
         let rebuilt: Vec<Vec3> = corners.iter().map(|&c| vertices[c as usize]).collect();
         assert_eq!(rebuilt, occluder.triangles());
         assert!(occluder.neighbours().iter().all(|&n| n != NO_NEIGHBOUR));
+    }
+
+    /// A store of boxes at `centres` (half extent `half`), every one an occluder.
+    fn occluder_store(centres: &[Vec3], half: Vec3) -> BoundsStore {
+        let mut store = BoundsStore::default();
+        for (i, &centre) in centres.iter().enumerate() {
+            let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
+            let slot = store.insert(entity, &crate::WorldBounds::new(entity, centre, half).unwrap()).unwrap();
+            store.set_occluder(slot, true).unwrap();
+        }
+        store
+    }
+
+    /// Selects among every slot of `store`, each occluder a cube of 12 triangles.
+    fn select(store: &BoundsStore, eye: Vec3, budget: usize) -> Vec<u32> {
+        let cube = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+        let instance = OccluderInstance { occluder: &cube, transform: glam::Affine3A::IDENTITY };
+        let visible = VisibleSet::all(store.len());
+        select_occluders(store, &visible, eye, budget, |_| Some(instance)).into_iter().map(|(slot, _)| slot).collect()
+    }
+
+    /// Nearest (largest on screen) first, as many as the budget holds; an occluder whose box holds the eye is
+    /// left out, and one whose sphere holds the eye but whose box does not is still chosen.
+    #[test]
+    fn occluders_are_chosen_largest_on_screen_first_and_never_around_the_eye() {
+        let half = Vec3::new(1.0, 1.0, 0.1);
+        // Slot 0 holds the eye; slot 1 has the eye inside its sphere, just off its thin box; then farther ones.
+        let centres = [Vec3::ZERO, Vec3::new(0.0, 0.0, 0.5), Vec3::new(0.0, 0.0, 30.0), Vec3::new(0.0, 0.0, 9.0)];
+        let store = occluder_store(&centres, half);
+        assert!(store.soa().radius[1] > 0.5, "the eye must lie inside slot 1's sphere");
+        assert_eq!(select(&store, Vec3::ZERO, 36), [1, 3, 2]);
+        assert_eq!(select(&store, Vec3::ZERO, 24), [1, 3]);
+        assert_eq!(select(&store, Vec3::ZERO, 11), [] as [u32; 0]);
+    }
+
+    /// An occluder too large for the budget is passed over; once less room is left than the smallest occluder
+    /// chosen, the search stops, leaving fewer triangles than that unused.
+    #[test]
+    fn selection_passes_over_what_does_not_fit_and_stops_when_little_room_is_left() {
+        let centres: Vec<Vec3> = (2..7).map(|d| Vec3::new(0.0, 0.0, d as f32)).collect();
+        let store = occluder_store(&centres, Vec3::splat(0.5));
+        let meshes: Vec<Occluder> = [100, 12, 12, 2, 12].map(|n| Occluder::new(vec![Vec3::ZERO; 3 * n])).into();
+        let visible = VisibleSet::all(store.len());
+        let occluder_of =
+            |slot: usize| Some(OccluderInstance { occluder: &meshes[slot], transform: Default::default() });
+        let chosen: Vec<u32> =
+            select_occluders(&store, &visible, Vec3::ZERO, 30, occluder_of).into_iter().map(|(s, _)| s).collect();
+        // 6 triangles left after slots 1 and 2, less than the 12 of the smallest chosen: slot 3's 2 are not sought.
+        assert_eq!(chosen, [1, 2]);
+    }
+
+    /// Above `RANK_IN_PARALLEL_ABOVE` words the ranking runs in parallel: the choice is still the best ranked
+    /// occluders, as a sort of every candidate gives them.
+    #[test]
+    fn a_store_ranked_in_parallel_chooses_as_a_full_sort_does() {
+        let count = RANK_IN_PARALLEL_ABOVE * 64 + 1000;
+        // Distinct distances along a scrambled order, so that no two ranks tie.
+        let centres: Vec<Vec3> =
+            (0..count).map(|i| Vec3::new(((i * 7919) % count) as f32 * 0.5 + 10.0, 0.0, 0.0)).collect();
+        let store = occluder_store(&centres, Vec3::splat(0.5));
+        let mut nearest: Vec<u32> = (0..count as u32).collect();
+        nearest.sort_by(|&a, &b| centres[a as usize].x.total_cmp(&centres[b as usize].x));
+        assert_eq!(select(&store, Vec3::ZERO, 12 * 2000), nearest[..2000]);
     }
 
     #[test]
