@@ -558,13 +558,33 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
     }
 }
 
+/// Half the width of the margin a texel is grown by before a boundary segment is tested against it.
+const SEGMENT_GROW: f64 = 1e-3;
+
 /// Marks every texel of `rect` that the segment touches, each texel grown by a margin for rounding.
 fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [bool]) {
-    const GROW: f64 = 1e-3;
+    block_segment_rows(segment, rect, segment_rows(segment, rect), w, blocked);
+}
+
+/// The rows of `rect` a segment can touch: those its height reaches, a row more each side. Ends that are not
+/// finite keep every row, as the test of [`block_segment_rows`] blocks them all.
+fn segment_rows(segment: &[f64; 4], rect: TexelRect) -> std::ops::Range<u32> {
+    let [_, y0, _, y1] = *segment;
+    let mut rows = rect.y0..rect.y1;
+    if y0.is_finite() && y1.is_finite() {
+        let (top, bottom) = (y0.min(y1) - SEGMENT_GROW - 1.0, y0.max(y1) + SEGMENT_GROW + 1.0);
+        rows.start = rows.start.max(top.max(0.0).floor().min(rect.y1 as f64) as u32);
+        rows.end = rows.end.min(bottom.max(0.0).ceil().min(u32::MAX as f64) as u32);
+    }
+    rows
+}
+
+/// [`block_segment`] over `rows` of `rect` only.
+fn block_segment_rows(segment: &[f64; 4], rect: TexelRect, rows: std::ops::Range<u32>, w: usize, blocked: &mut [bool]) {
     let [x0, y0, x1, y1] = *segment;
     let (dx, dy) = (x1 - x0, y1 - y0);
-    for y in rect.y0..rect.y1 {
-        let (lo, hi) = (y as f64 - GROW, y as f64 + 1.0 + GROW);
+    for y in rows {
+        let (lo, hi) = (y as f64 - SEGMENT_GROW, y as f64 + 1.0 + SEGMENT_GROW);
         // Parameter range of the segment inside the slab lo <= y <= hi.
         let (t0, t1) = if dy.abs() < 1e-12 {
             if y0 < lo || y0 > hi { continue } else { (0.0, 1.0) }
@@ -576,7 +596,7 @@ fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [b
             continue;
         }
         let (xa, xb) = (x0 + dx * t0, x0 + dx * t1);
-        let (left, right) = ((xa.min(xb) - GROW).floor(), (xa.max(xb) + GROW).floor());
+        let (left, right) = ((xa.min(xb) - SEGMENT_GROW).floor(), (xa.max(xb) + SEGMENT_GROW).floor());
         // Compared before converting: a column left of the rectangle would saturate to column 0.
         if right < rect.x0 as f64 || left >= rect.x1 as f64 {
             continue;
@@ -904,6 +924,33 @@ mod tests {
                 let (portable, avx2) = (draw(false), draw(true));
                 prop_assert!(portable.iter().zip(&avx2).all(|(a, b)| a.to_bits() == b.to_bits()), "{mode:?}");
             }
+        }
+
+        /// A boundary segment blocks the same texels whether every row of the rectangle is tested or only the
+        /// rows its height reaches: the rows left out can block nothing, and ends that are not finite keep
+        /// every row.
+        #[test]
+        fn a_segment_blocks_the_same_texels_from_its_own_rows(
+            ends in prop::array::uniform4(-20.0f64..60.0),
+            special in prop::sample::select(vec![None, Some(f64::NAN), Some(f64::INFINITY), Some(-f64::INFINITY)]),
+            which in 0usize..4,
+            near_horizontal in prop::bool::ANY,
+        ) {
+            let mut segment = ends;
+            if near_horizontal {
+                segment[3] = segment[1] + 1e-13; // Below the test's slope threshold.
+            }
+            if let Some(value) = special {
+                segment[which] = value;
+            }
+            let rect = TexelRect { x0: 3, x1: 37, y0: 5, y1: 41 };
+            let w = (rect.x1 - rect.x0) as usize;
+            let blocked = |rows| {
+                let mut blocked = vec![false; w * (rect.y1 - rect.y0) as usize];
+                block_segment_rows(&segment, rect, rows, w, &mut blocked);
+                blocked
+            };
+            prop_assert_eq!(blocked(segment_rows(&segment, rect)), blocked(rect.y0..rect.y1));
         }
 
         /// The bound made before setup holds every texel the set-up triangles reach, whether the box lies in
