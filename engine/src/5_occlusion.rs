@@ -9,6 +9,9 @@
 //!
 //! Projection runs in f32; the rectangle is widened and the depth moved nearer by a bound on its rounding
 //! error, so the test culls only what the pyramid provably hides.
+//!
+//! [`occlude`] runs the occluder raster and this test for one view whose occluders the caller chose (the
+//! engine's occlusion stage and the Bevy plugin's cameras both do).
 
 use crate::bounds::{BoundsStore, GroupBounds};
 use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor};
