@@ -246,9 +246,9 @@ fn select_ranked<'a>(
     chosen
 }
 
-/// Appends the rank of each occluder candidate set in `bits` (slots from `base`) to `ranked`, larger first
-/// seen from `viewpoint`: `radius^2 / distance^2` from an eye, leaving out occluders whose box contains it, or
-/// `radius^2` from a direction.
+/// Appends the rank (larger is better) of each occluder candidate set in `bits` (slots from `base`) to `ranked`,
+/// as seen from `viewpoint`: `radius^2 / distance^2` from an eye, leaving out occluders whose box contains it,
+/// or `radius^2` from a direction.
 fn rank_word(store: &BoundsStore, base: usize, mut bits: u64, viewpoint: Viewpoint, ranked: &mut Vec<(f32, u32)>) {
     let soa = store.soa();
     while bits != 0 {
