@@ -12,8 +12,8 @@ use crate::frustum::{
     cull_frustum_coherent, cull_views,
 };
 use crate::occluder::{Occluder, OccluderInstance, select_occluders, select_occluders_for_view};
-use crate::occlusion::{occlude, retest_occlusion, test_occlusion};
-use crate::raster::{RasterMode, rasterize};
+use crate::occlusion::{occlude, retest_occlusion};
+use crate::raster::RasterMode;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use rayon::prelude::*;
@@ -757,9 +757,10 @@ pub fn light_occlusion_stage(
                 occluded.reset(0);
                 return;
             };
-            rasterize(screen, chosen, RasterMode::Conservative, pyramid);
             let tested = view.kept;
-            view.kept = test_occlusion(&store, &view.visible, screen, pyramid, survivors, occluded).visible;
+            let mode = RasterMode::Conservative;
+            view.kept =
+                occlude(&store, &view.visible, Some(screen), chosen, mode, pyramid, survivors, occluded).test.visible;
             std::mem::swap(&mut view.visible, survivors);
             view.occluded = tested - view.kept;
         });
