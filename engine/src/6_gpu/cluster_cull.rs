@@ -19,7 +19,7 @@ use glam::{Vec2, Vec3, Vec4};
 
 /// The buffers the cluster pass reads and writes.
 pub(crate) struct ClusterCullBuffers<'a> {
-    /// The [`GpuView`] uniform.
+    /// The [`GpuView`] buffer.
     pub view: &'a wgpu::Buffer,
     /// [`GpuInstance`] per store slot.
     pub instances: &'a wgpu::Buffer,

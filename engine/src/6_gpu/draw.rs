@@ -135,7 +135,7 @@ pub struct DrawBuffers<'a> {
     pub max_draws: u32,
     /// [`super::scene::GpuInstance`] per store slot (storage buffer, 64 bytes each): each object's transform and colour.
     pub instances: &'a wgpu::Buffer,
-    /// The [`super::interface::GpuView`] uniform the frame was culled with (`view` in `common.wgsl`).
+    /// The [`super::interface::GpuView`] buffer the frame was culled with (`view` in `common.wgsl`).
     pub view: &'a wgpu::Buffer,
 }
 

@@ -1,4 +1,4 @@
-//! One frame of the GPU pipeline, orchestrated: the view uniform, then the passes in order (HZB build, cluster
+//! One frame of the GPU pipeline, orchestrated: the view buffer, then the passes in order (HZB build, cluster
 //! culling, triangle culling, draw), each recorded by its own module, then the counters read back. Frames whose
 //! candidates exceed the device's largest storage binding run in batches.
 
@@ -212,7 +212,7 @@ impl GpuCuller {
         &self.targets
     }
 
-    /// The last frame's view uniform (for the CPU twins in tests).
+    /// The last frame's view (for the CPU twins in tests).
     pub fn last_view(&self) -> &GpuView {
         &self.last_view
     }
@@ -230,7 +230,7 @@ impl GpuCuller {
         self.camera.draws(&self.scene, self.last_gate.skip_triangles)
     }
 
-    /// The view uniform for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
+    /// The view for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
     pub fn view_for(&self, camera: &Camera, settings: &GpuCullSettings, visible_count: u32) -> GpuView {
         let (width, height) = self.targets.size();
         let matrix = camera.clip_from_relative_f64().as_mat4();

@@ -106,7 +106,7 @@ pub struct GpuShadows {
     pub _pad: [u32; 3],
 }
 
-/// The per-frame uniform every pass reads (`View` in `common.wgsl`).
+/// The per-frame view every pass reads (`View` in `common.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct GpuView {

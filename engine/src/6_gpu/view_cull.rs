@@ -54,12 +54,12 @@ pub(crate) fn storage_buffer(context: &GpuContext, label: &str, size: u64, extra
     })
 }
 
-/// A uniform buffer for one [`GpuView`].
+/// A read-only storage buffer for one [`GpuView`] (`view` in `common.wgsl` says why not a uniform).
 pub(crate) fn view_buffer(context: &GpuContext, label: &str) -> wgpu::Buffer {
     context.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
         size: std::mem::size_of::<GpuView>() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     })
 }
