@@ -10,7 +10,7 @@ use cullet::gpu::hzb::Hzb;
 use cullet::gpu::interface::GpuView;
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
-use cullet::gpu::{GpuContext, context_for_tests};
+use cullet::gpu::{GpuContext, GpuError, STORAGE_BUFFERS_PER_STAGE, context_for_tests};
 use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating};
 use cullet::pipeline::{OcclusionSettings, OcclusionState};
 use cullet::raster::RasterMode;
@@ -549,4 +549,25 @@ fn sun_cascades_draw_shadows_from_their_culled_casters() {
     let changed = (0..plain.color.len()).filter(|&i| all_casters.color[i] != shadowed.color[i]).count();
     println!("all objects as casters changed {changed} pixels");
     assert_eq!(changed, 0, "casters the light views dropped shadow {changed} pixels");
+}
+
+/// Every pass fits in a device that allows only the storage buffers per shader stage the engine asks an adapter
+/// for: wgpu refuses a pipeline that binds more (its default error handler panics), so a pass grown past
+/// `STORAGE_BUFFERS_PER_STAGE` fails here rather than on a user's adapter with that few. One fewer is refused
+/// when the context is opened, with an error that says so.
+#[test]
+fn every_pass_fits_the_storage_buffers_asked_of_the_adapter() {
+    let Some(_) = context_for_tests() else { return };
+    let allowing =
+        |count: u32| move |limits: wgpu::Limits| wgpu::Limits { max_storage_buffers_per_shader_stage: count, ..limits };
+    let context = GpuContext::new_with_limits(allowing(STORAGE_BUFFERS_PER_STAGE)).expect("a device with that many");
+    let mut setup = setup(&context, 2000);
+    let camera = cameras(setup.half)[0].1;
+    let (output, _, _) = setup.run(&context, camera, &GpuCullSettings::default());
+    assert!(output.counters.draws > 0, "nothing drawn");
+    match GpuContext::new_with_limits(allowing(STORAGE_BUFFERS_PER_STAGE - 1)) {
+        Err(error @ GpuError::Unsupported { .. }) => assert!(error.to_string().contains("storage buffers"), "{error}"),
+        Err(error) => panic!("refused for another reason: {error}"),
+        Ok(_) => panic!("a device with too few storage buffers was opened"),
+    }
 }

@@ -92,6 +92,10 @@ pub enum GpuError {
     },
 }
 
+/// Most storage buffers one pass binds in one shader stage: the cluster pass and the triangle pass each bind
+/// nine, the view included. [`GpuContext::new`] refuses an adapter that allows fewer.
+pub const STORAGE_BUFFERS_PER_STAGE: u32 = 9;
+
 /// A device and queue opened without a window, with the features the pipeline uses.
 pub struct GpuContext {
     /// The device.
@@ -112,18 +116,25 @@ pub struct GpuContext {
 impl GpuContext {
     /// Opens the default adapter of the primary backends (Vulkan, Metal, DX12; `WGPU_BACKEND` and the other
     /// wgpu environment variables override). Requires indirect draws with a first instance: each indirect draw
-    /// names its instance there.
+    /// names its instance there, and [`STORAGE_BUFFERS_PER_STAGE`] storage buffers in a shader stage. The
+    /// device gets every limit the adapter has.
     ///
     /// # Errors
     /// [`GpuError::NoAdapter`] without a usable driver (install Mesa's `mesa-vulkan-drivers` on a machine
-    /// without a GPU), [`GpuError::Unsupported`] for an adapter without `INDIRECT_FIRST_INSTANCE`,
-    /// [`GpuError::Device`] when the device cannot be opened.
+    /// without a GPU), [`GpuError::Unsupported`] for an adapter without `INDIRECT_FIRST_INSTANCE` or with
+    /// fewer storage buffers, [`GpuError::Device`] when the device cannot be opened.
     pub fn new() -> Result<Self, GpuError> {
-        futures_lite::future::block_on(Self::new_async())
+        Self::new_with_limits(|limits| limits)
     }
 
-    async fn new_async() -> Result<Self, GpuError> {
-        Self::open(&Self::instance(wgpu::InstanceDescriptor::new_without_display_handle_from_env()), None).await
+    /// [`GpuContext::new`] with the device's limits chosen by `limits` from the adapter's: to leave the rest of
+    /// the adapter to other users, or to check that the engine works within less.
+    ///
+    /// # Errors
+    /// As [`GpuContext::new`], the storage buffers counted in the limits chosen.
+    pub fn new_with_limits(limits: impl FnOnce(wgpu::Limits) -> wgpu::Limits) -> Result<Self, GpuError> {
+        let instance = Self::instance(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        futures_lite::future::block_on(Self::open(&instance, None, limits))
     }
 
     /// An instance of `descriptor` limited to the primary backends unless `WGPU_BACKEND` says otherwise.
@@ -141,10 +152,14 @@ impl GpuContext {
     /// # Errors
     /// As [`GpuContext::new`].
     pub fn for_surface(instance: &wgpu::Instance, surface: &wgpu::Surface<'_>) -> Result<Self, GpuError> {
-        futures_lite::future::block_on(Self::open(instance, Some(surface)))
+        futures_lite::future::block_on(Self::open(instance, Some(surface), |limits| limits))
     }
 
-    async fn open(instance: &wgpu::Instance, surface: Option<&wgpu::Surface<'_>>) -> Result<Self, GpuError> {
+    async fn open(
+        instance: &wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+        limits: impl FnOnce(wgpu::Limits) -> wgpu::Limits,
+    ) -> Result<Self, GpuError> {
         let options = wgpu::RequestAdapterOptions { compatible_surface: surface, ..Default::default() };
         let adapter = instance.request_adapter(&options).await.map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let adapter_info = adapter.get_info();
@@ -156,13 +171,23 @@ impl GpuContext {
                 missing: "INDIRECT_FIRST_INSTANCE".into(),
             });
         }
+        let required_limits = limits(adapter.limits());
+        let storage_buffers = required_limits.max_storage_buffers_per_shader_stage;
+        if storage_buffers < STORAGE_BUFFERS_PER_STAGE {
+            return Err(GpuError::Unsupported {
+                adapter: adapter_info.name.clone(),
+                missing: format!(
+                    "{STORAGE_BUFFERS_PER_STAGE} storage buffers in a shader stage (its limit is {storage_buffers})"
+                ),
+            });
+        }
         let optional = wgpu::Features::MULTI_DRAW_INDIRECT_COUNT | wgpu::Features::TIMESTAMP_QUERY;
         let features = required | (available & optional);
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("cullet"),
                 required_features: features,
-                required_limits: adapter.limits(),
+                required_limits,
                 ..Default::default()
             })
             .await
