@@ -3,8 +3,8 @@
 //! indices, indirect arguments, draw count), and compare with drawing everything.
 //!
 //! Your shader starts with the engine's declarations (`cullet::gpu::shader_source`): the `Instance` struct,
-//! the `view` uniform at group 0 binding 0 and `relative_point`. Each indirect draw's `first_instance` is the
-//! object's store slot, so `instance_index` picks its transform.
+//! the `view` (a read-only storage buffer) at group 0 binding 0 and `relative_point`. Each indirect draw's
+//! `first_instance` is the object's store slot, so `instance_index` picks its transform.
 //!
 //! `cargo run --release -p cullet --example own_render_pass` (needs a GPU adapter; Mesa's lavapipe will do).
 
