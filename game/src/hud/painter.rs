@@ -81,13 +81,14 @@ impl HudPainter {
         build: impl FnMut(&egui::Context) -> Vec<egui::Rect>,
     ) -> Painted {
         let thread_start = ThreadTime::now();
-        let raw_input = self.take_input(window, size);
         let rebuild = changed
             || self.run_again
-            || !raw_input.events.is_empty()
+            || !self.input.egui_input().events.is_empty()
             || self.built.as_ref().is_none_or(|built| built.size != size);
         let mut wall_times = [Duration::ZERO; 3];
         if rebuild {
+            // Taken only for a build: taking it copies egui's per-viewport input, which other frames need not.
+            let raw_input = self.take_input(window, size);
             self.build(window, gpu, encoder, raw_input, size, build, &mut wall_times);
         }
         let built = self.built.as_ref().expect("built above when missing");
@@ -109,7 +110,7 @@ impl HudPainter {
         Painted { regions: built.regions.clone(), rebuilt: rebuild, wall_times, cpu_time: thread_start.elapsed() }
     }
 
-    /// egui's input since the last frame, for a `size`-pixel frame: `egui_winit::State::take_egui_input`, but
+    /// egui's input since the last build, for a `size`-pixel frame: `egui_winit::State::take_egui_input`, but
     /// with the size the game already knows, where that asks the window (on X11 a round trip to the server each
     /// frame, which blocked the HUD's thread).
     fn take_input(&mut self, window: &Window, size: (u32, u32)) -> egui::RawInput {
