@@ -46,13 +46,36 @@ impl Labels {
 
     /// Adds a legend entry: a small square of `colour`, then `text`.
     pub fn swatch(&self, ui: &mut Ui, colour: Color32, text: &str) -> Response {
-        let line = self.line(ui, text);
-        let gap = ui.spacing().item_spacing.x;
-        let size = egui::vec2(SQUARE + gap + line.size().x, self.height());
-        let (rect, response) = ui.allocate_exact_size(size, egui::Sense::hover());
+        self.legend(ui, &[(text, colour)])
+    }
+
+    /// Adds a legend of `entries`, each a small square of its colour then its name, side by side and wrapped
+    /// to the width available, as one widget.
+    pub fn legend(&self, ui: &mut Ui, entries: &[(&str, Color32)]) -> Response {
+        let gap = ui.spacing().item_spacing;
+        let available = ui.available_width();
+        let lines: Vec<Arc<Galley>> = entries.iter().map(|&(name, _)| self.line(ui, name)).collect();
+        // Each entry's offset from the widget's top left: a new row before an entry that would pass the width.
+        let mut offsets = Vec::with_capacity(lines.len());
+        let (mut x, mut y, mut width) = (0.0f32, 0.0f32, 0.0f32);
+        for line in &lines {
+            let entry = SQUARE + gap.x + line.size().x;
+            if x > 0.0 && x + entry > available {
+                (x, y) = (0.0, y + self.height() + gap.y);
+            }
+            offsets.push(egui::vec2(x, y));
+            width = width.max(x + entry);
+            x += entry + gap.x;
+        }
+        let height = if lines.is_empty() { 0.0 } else { y + self.height() };
+        let (rect, response) = ui.allocate_exact_size(egui::vec2(width, height), egui::Sense::hover());
         if ui.is_rect_visible(rect) {
-            paint_square(ui.painter(), rect.left_top(), self.height(), colour);
-            ui.painter().galley(rect.left_top() + egui::vec2(SQUARE + gap, 0.0), line, ui.visuals().text_color());
+            let (painter, text_colour) = (ui.painter(), ui.visuals().text_color());
+            for ((line, &(_, colour)), offset) in lines.into_iter().zip(entries).zip(offsets) {
+                let at = rect.left_top() + offset;
+                paint_square(painter, at, self.height(), colour);
+                painter.galley(at + egui::vec2(SQUARE + gap.x, 0.0), line, text_colour);
+            }
         }
         response
     }

@@ -269,11 +269,7 @@ impl Hud {
                        value: &dyn Fn(&Sample, usize) -> f64| {
             let total: f64 = shown.map_or(0.0, |s| (0..series.len()).map(|i| value(s, i)).sum());
             labels.text(ui, &format!("{name}: {total:.decimals$}{unit}"));
-            ui.horizontal_wrapped(|ui| {
-                for &(name, colour) in series {
-                    labels.swatch(ui, colour, name);
-                }
-            });
+            labels.legend(ui, series);
             let values: Vec<[f64; 4]> = self.history.iter().map(|s| std::array::from_fn(|i| value(s, i))).collect();
             stacked_bands(ui, &xs, &values, series);
         };
