@@ -71,10 +71,13 @@ impl Labels {
         let (rect, response) = ui.allocate_exact_size(egui::vec2(width, height), egui::Sense::hover());
         if ui.is_rect_visible(rect) {
             let (painter, text_colour) = (ui.painter(), ui.visuals().text_color());
-            for ((line, &(_, colour)), offset) in lines.into_iter().zip(entries).zip(offsets) {
-                let at = rect.left_top() + offset;
-                paint_square(painter, at, self.height(), colour);
-                painter.galley(at + egui::vec2(SQUARE + gap.x, 0.0), line, text_colour);
+            let mut squares = egui::Mesh::default();
+            for (&(_, colour), offset) in entries.iter().zip(&offsets) {
+                squares.add_colored_rect(square(rect.left_top() + *offset, self.height()), colour);
+            }
+            painter.add(squares);
+            for (line, offset) in lines.into_iter().zip(offsets) {
+                painter.galley(rect.left_top() + offset + egui::vec2(SQUARE + gap.x, 0.0), line, text_colour);
             }
         }
         response
@@ -102,17 +105,25 @@ impl Labels {
         if ui.is_rect_visible(rect) {
             let painter = ui.painter();
             let text_colour = ui.visuals().text_color();
-            for (index, (row, line)) in rows.iter().zip(lines).enumerate() {
-                let top = rect.top() + index as f32 * (row_height + gap.y);
+            let row_top = |index: usize| rect.top() + index as f32 * (row_height + gap.y);
+            let text_top = |index: usize| row_top(index) + (row_height - self.height()) / 2.0;
+            // The stripes and squares as one mesh, under the text.
+            let mut background = egui::Mesh::default();
+            for (index, row) in rows.iter().enumerate() {
+                let top = row_top(index);
                 if index % 2 == 1 {
                     let stripe =
                         egui::Rect::from_x_y_ranges(rect.x_range(), top - gap.y / 2.0..=top + row_height + gap.y / 2.0);
-                    painter.rect_filled(stripe, 0.0, ui.visuals().faint_bg_color);
+                    background.add_colored_rect(stripe, ui.visuals().faint_bg_color);
                 }
-                let text_top = top + (row_height - self.height()) / 2.0;
                 if let Some(colour) = row.swatch {
-                    paint_square(painter, egui::pos2(rect.left(), text_top), self.height(), colour);
+                    background
+                        .add_colored_rect(square(egui::pos2(rect.left(), text_top(index)), self.height()), colour);
                 }
+            }
+            painter.add(background);
+            for (index, line) in lines.into_iter().enumerate() {
+                let text_top = text_top(index);
                 let mut left = rect.left();
                 for (column, line) in line.into_iter().enumerate() {
                     let shift = if column == 0 { indent } else { 0.0 };
@@ -164,10 +175,11 @@ impl Labels {
 /// Side of a legend's square, in points.
 const SQUARE: f32 = 10.0;
 
-/// Paints a legend's square of `colour` at the left of a line of text `height` high whose top left is `at`.
-fn paint_square(painter: &egui::Painter, at: egui::Pos2, height: f32, colour: Color32) {
-    let centre = egui::pos2(at.x + SQUARE / 2.0, at.y + height / 2.0);
-    painter.rect_filled(egui::Rect::from_center_size(centre, egui::Vec2::splat(SQUARE)), 0.0, colour);
+/// A legend's square, at the left of a line of text `height` high whose top left is `at`. Squares and stripes
+/// are added to one mesh a widget, which egui passes on as it is: as rectangle shapes, each was tessellated
+/// on its own, which cost more than the text (callgrind of `benches/hud.rs`).
+fn square(at: egui::Pos2, height: f32) -> egui::Rect {
+    egui::Rect::from_center_size(egui::pos2(at.x + SQUARE / 2.0, at.y + height / 2.0), egui::Vec2::splat(SQUARE))
 }
 
 /// One row of a [`Labels::table`]: its cells' text, and a legend square before the first where it has one.
