@@ -6,7 +6,7 @@
 //! title bar keeps a short summary.
 
 use crate::hud::controls::{Controls, View};
-use crate::hud::painter::HudPainter;
+use crate::hud::painter::{HudPainter, Work};
 use crate::hud::{FRUSTUM_TINT, HELP, Hud, HudFrame, OCCLUSION_TINT};
 use crate::present::{PresentPass, Source};
 use crate::report::{kept_by_light_view, print_gpu_summary, print_savings, print_summary};
@@ -101,40 +101,59 @@ pub fn run(args: &Args, prepared: Prepared, event_loop: EventLoop<()>) -> Result
 
 /// What the HUD cost in one frame.
 struct HudTime {
-    /// CPU time of the thread.
+    /// CPU time of the thread: recording the frame's figures and painting.
     cpu: Duration,
-    /// The UI was built again (not drawn from the last build).
-    rebuilt: bool,
-    /// Wall time building, tessellating, and uploading and recording.
+    /// The part of a build done.
+    work: Work,
+    /// Wall time in egui's pass, tessellating, and uploading and recording.
     wall: [Duration; 3],
 }
 
-/// Prints the HUD's CPU time per frame it was drawn in, and in the frames that built it again.
+/// The HUD's CPU budget a frame, in milliseconds (its issue's target): the summary counts the frames over it.
+const HUD_BUDGET_MS: f64 = 0.3;
+
+/// The frames over which the HUD shows the most it cost a frame: a second at 60 frames a second.
+const HUD_PEAK_FRAMES: usize = 60;
+
+/// Prints the HUD's CPU time per frame it was drawn in, the frames over budget, and the cost of each part of
+/// a build. The first frame, which builds it whole and loads egui's fonts, is told apart.
 fn print_hud_summary(times: &[HudTime]) {
-    if times.is_empty() {
-        return;
-    }
+    let Some((first, times)) = times.split_first() else { return };
     let ms = |duration: Duration| duration.as_secs_f64() * 1e3;
     let cpu = crate::report::Spread::of(times.iter().map(|t| ms(t.cpu)).collect());
-    let rebuilds: Vec<&HudTime> = times.iter().filter(|t| t.rebuilt).collect();
-    let per_rebuild = |value: &dyn Fn(&HudTime) -> Duration| {
-        rebuilds.iter().map(|t| ms(value(t))).sum::<f64>() / rebuilds.len().max(1) as f64
-    };
+    let over_budget = times.iter().filter(|t| ms(t.cpu) > HUD_BUDGET_MS).count();
     println!(
-        "HUD CPU time per frame over {} frames: mean {:.3} ms, median {:.3} ms, 95th percentile {:.3} ms; built \
-         again in {} of them (every {:.0} ms, or on input): {:.3} ms CPU each (wall: build {:.3}, tessellate \
-         {:.3}, upload and record {:.3})",
+        "HUD CPU time per frame over {} frames after the first: mean {:.3} ms, median {:.3} ms, 95th percentile \
+         {:.3} ms, most {:.3} ms, {over_budget} frames over {HUD_BUDGET_MS} ms (the first frame: {:.3} ms, with \
+         egui's fonts)",
         times.len(),
         cpu.mean,
         cpu.median,
         cpu.p95,
-        rebuilds.len(),
-        crate::hud::REFRESH_SECONDS * 1e3,
-        per_rebuild(&|t| t.cpu),
-        per_rebuild(&|t| t.wall[0]),
-        per_rebuild(&|t| t.wall[1]),
-        per_rebuild(&|t| t.wall[2]),
+        cpu.max,
+        ms(first.cpu),
     );
+    for (work, what) in
+        [(Work::Pass, "egui's pass"), (Work::Upload, "tessellating and uploading"), (Work::Whole, "whole builds")]
+    {
+        let frames: Vec<&HudTime> = times.iter().filter(|t| t.work == work).collect();
+        if frames.is_empty() {
+            continue;
+        }
+        let mean = |value: &dyn Fn(&HudTime) -> Duration| {
+            frames.iter().map(|t| ms(value(t))).sum::<f64>() / frames.len() as f64
+        };
+        let most = frames.iter().map(|t| ms(t.cpu)).fold(0.0, f64::max);
+        println!(
+            "  {what}: {} frames, {:.3} ms CPU each on average, most {most:.3} ms (wall: pass {:.3}, tessellate \
+             {:.3}, upload and record {:.3})",
+            frames.len(),
+            mean(&|t| t.cpu),
+            mean(&|t| t.wall[0]),
+            mean(&|t| t.wall[1]),
+            mean(&|t| t.wall[2]),
+        );
+    }
 }
 
 /// The window, its surface and the GPU pipeline drawing into it.
@@ -409,14 +428,16 @@ impl Game {
             gpu: gpu_output.clone(),
             savings,
             fps: self.fps,
-            hud_time: self.hud_times.iter().rev().find(|t| t.rebuilt).map_or(Duration::ZERO, |t| t.cpu),
+            hud_time: self.hud_times.iter().rev().take(HUD_PEAK_FRAMES).map(|t| t.cpu).max().unwrap_or_default(),
             following_path: self.autopilot.is_some(),
             buffer: (state.depth().width(), state.depth().height()),
             pyramid,
             viewport: self.size,
             light_views: kept_by_light_view(world),
         };
+        let recording = cpu_time::ThreadTime::now();
         let refreshed = self.hud.record(hud_frame, delta);
+        let record_cpu = recording.elapsed();
         let controls_before =
             Controls::of(world, self.gpu_settings, self.frozen.is_some(), self.view, self.pyramid_level);
         let mut controls = controls_before;
@@ -429,7 +450,8 @@ impl Game {
             })
         });
         if let Some(painted) = &painted {
-            self.hud_times.push(HudTime { cpu: painted.cpu_time, rebuilt: painted.rebuilt, wall: painted.wall_times });
+            let cpu = record_cpu + painted.cpu_time;
+            self.hud_times.push(HudTime { cpu, work: painted.work, wall: painted.wall_times });
         }
         context.queue.submit([encoder.finish()]);
         let frame_number = self.frames.len() - 1;

@@ -211,6 +211,16 @@ fn window_opens_draws_and_closes_after_its_frames() {
     assert!(text.contains("window opened: 640x360"), "no window:\n{text}");
     assert!(text.contains("summary over 12 frames"), "no summary:\n{text}");
     assert!(text.contains("clusters"), "the GPU passes did not run in the window:\n{text}");
+    // The HUD's builds after the first are spread over two frames each, egui's pass then the upload.
+    assert!(text.contains("HUD CPU time per frame over 11 frames after the first"), "no HUD summary:\n{text}");
+    assert!(!text.contains("whole builds"), "a HUD build after the first was done in one frame:\n{text}");
+    let frames_doing = |work: &str| {
+        text.lines()
+            .find_map(|line| line.trim().strip_prefix(work)?.split_whitespace().next()?.parse::<usize>().ok())
+            .unwrap_or(0)
+    };
+    let (passes, uploads) = (frames_doing("egui's pass:"), frames_doing("tessellating and uploading:"));
+    assert!(passes == uploads || passes == uploads + 1, "{passes} passes, {uploads} uploads:\n{text}");
 }
 
 /// Whether window tests can run: `xvfb-run` exists, or the test must fail because CI requires it.

@@ -99,7 +99,7 @@ pub struct HudFrame {
     pub savings: DrawSavings,
     /// Frames per second, smoothed.
     pub fps: f32,
-    /// CPU time the HUD took to build and record last frame.
+    /// The most CPU time the HUD took in one of the last frames.
     pub hud_time: Duration,
     /// The camera follows its path (not free flight).
     pub following_path: bool,
@@ -389,7 +389,10 @@ fn stage_table(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame) {
         rows.push(plain_row(["GPU wall".into(), source.into(), wall]));
     }
     labels.table(ui, &rows);
-    labels.text(ui, &format!("{:.0} fps    HUD {:.2} ms CPU", frame.fps, frame.hud_time.as_secs_f64() * 1e3));
+    labels.text(
+        ui,
+        &format!("{:.0} fps    HUD at most {:.2} ms CPU a frame", frame.fps, frame.hud_time.as_secs_f64() * 1e3),
+    );
 }
 
 /// What the adaptive pipeline skipped or reused this frame, and what is off or frozen.

@@ -8,12 +8,21 @@ use winit::event::WindowEvent;
 use winit::window::Window;
 
 /// egui's context, its winit input state and its wgpu renderer for one window.
+///
+/// A new build of the HUD is spread over two frames, so that no frame pays for all of it: one runs egui's pass
+/// (the widgets and their layout), the next tessellates its shapes and uploads them. Both frames draw the
+/// build before; the new one shows a frame later. A first build, or one for a new window size, is done whole
+/// in one frame, as there is nothing to draw until it is.
 pub struct HudPainter {
     context: egui::Context,
     input: egui_winit::State,
     renderer: egui_wgpu::Renderer,
-    /// The last build, drawn again while nothing changes.
+    /// The last build, uploaded: drawn every frame until the next replaces it.
     built: Option<Built>,
+    /// The last pass's output, to tessellate and upload next frame.
+    pending: Option<Pending>,
+    /// A build was asked for (its content changed, egui had input or asked to run again) and not yet begun.
+    wanted: bool,
     /// egui asked to be run again at once (an animation, a widget settling).
     run_again: bool,
     /// When the painter was made: egui's clock starts there.
@@ -28,14 +37,35 @@ struct Built {
     size: (u32, u32),
 }
 
+/// One pass of egui, not yet tessellated: its shapes and texture changes, for what frame size, and the areas
+/// it covers in pixels.
+struct Pending {
+    output: egui::FullOutput,
+    regions: Vec<[u32; 4]>,
+    size: (u32, u32),
+}
+
+/// What of the HUD's build a frame did, besides drawing the last one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Work {
+    /// Nothing: the last build was drawn again.
+    Drawn,
+    /// egui's pass for a new build.
+    Pass,
+    /// Tessellating and uploading the pass of the frame before.
+    Upload,
+    /// A whole build at once: the first, or one for a new window size.
+    Whole,
+}
+
 /// What painting the HUD recorded.
 pub struct Painted {
     /// The screen areas the HUD covers, in pixels (`[x0, y0, x1, y1]`, exclusive ends).
     pub regions: Vec<[u32; 4]>,
-    /// The UI was built this frame (not drawn again from the last build).
-    pub rebuilt: bool,
-    /// Wall time spent building the UI, tessellating it, and uploading its buffers and recording its pass
-    /// (only the last when it was not rebuilt).
+    /// The part of a build done this frame.
+    pub work: Work,
+    /// Wall time spent in egui's pass, tessellating, and uploading its buffers and recording its pass (only
+    /// the last when nothing was built).
     pub wall_times: [Duration; 3],
     /// CPU time this thread spent on the HUD this frame. Less than their wall time where other threads (a software
     /// GPU's, say) share the cores.
@@ -56,7 +86,16 @@ impl HudPainter {
             Some(max_texture_side),
         );
         let renderer = egui_wgpu::Renderer::new(&gpu.device, format, egui_wgpu::RendererOptions::default());
-        Self { context, input, renderer, built: None, run_again: false, start: Instant::now() }
+        Self {
+            context,
+            input,
+            renderer,
+            built: None,
+            pending: None,
+            wanted: true,
+            run_again: false,
+            start: Instant::now(),
+        }
     }
 
     /// Passes a window event to egui. Returns whether egui used it (a click on the HUD, a drag of one of its
@@ -65,10 +104,11 @@ impl HudPainter {
         self.input.on_window_event(window, event).consumed
     }
 
-    /// Records drawing the HUD over `target`, a view of the `size`-pixel frame, into `encoder`. The UI is
-    /// built again with `build` (which returns the areas it covers, in points) only when `changed` says its
-    /// content did, when egui has input to handle or asked to be run again, or when the size changed; otherwise
-    /// last build's triangles are drawn again, which costs next to nothing.
+    /// Records drawing the HUD over `target`, a view of the `size`-pixel frame, into `encoder`. A new build
+    /// is begun with `build` (which returns the areas it covers, in points) only when `changed` says its content
+    /// did, when egui has input to handle or asked to be run again, or when the size changed; it is spread over
+    /// this frame and the next (see [`HudPainter`]). Otherwise the last build's triangles are drawn again, which
+    /// costs next to nothing.
     #[allow(clippy::too_many_arguments)]
     pub fn paint(
         &mut self,
@@ -81,17 +121,32 @@ impl HudPainter {
         build: impl FnMut(&egui::Context) -> Vec<egui::Rect>,
     ) -> Painted {
         let thread_start = ThreadTime::now();
-        let rebuild = changed
-            || self.run_again
-            || !self.input.egui_input().events.is_empty()
-            || self.built.as_ref().is_none_or(|built| built.size != size);
+        let resized = self.built.as_ref().is_none_or(|built| built.size != size);
+        if resized && let Some(mut pending) = self.pending.take() {
+            // A pass laid out for another size is of no use, but its texture changes are: later passes build
+            // on them (the font atlas grows).
+            self.update_textures(gpu, &mut pending.output.textures_delta);
+        }
+        self.wanted |= changed || self.run_again || resized || !self.input.egui_input().events.is_empty();
         let mut wall_times = [Duration::ZERO; 3];
-        if rebuild {
+        let work = if let Some(pending) = self.pending.take() {
+            self.upload(gpu, encoder, pending, &mut wall_times);
+            Work::Upload
+        } else if std::mem::take(&mut self.wanted) {
             // Taken only for a build: taking it copies egui's per-viewport input, which other frames need not.
             let raw_input = self.take_input(window, size);
-            self.build(window, gpu, encoder, raw_input, size, build, &mut wall_times);
-        }
-        let built = self.built.as_ref().expect("built above when missing");
+            let pending = self.run_pass(window, raw_input, size, build, &mut wall_times);
+            if resized {
+                self.upload(gpu, encoder, pending, &mut wall_times);
+                Work::Whole
+            } else {
+                self.pending = Some(pending);
+                Work::Pass
+            }
+        } else {
+            Work::Drawn
+        };
+        let built = self.built.as_ref().expect("built whole above when missing or of another size");
         let recording = Instant::now();
         {
             let pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -107,7 +162,7 @@ impl HudPainter {
             self.renderer.render(&mut pass.forget_lifetime(), &built.primitives, &built.screen);
         }
         wall_times[2] += recording.elapsed();
-        Painted { regions: built.regions.clone(), rebuilt: rebuild, wall_times, cpu_time: thread_start.elapsed() }
+        Painted { regions: built.regions.clone(), work, wall_times, cpu_time: thread_start.elapsed() }
     }
 
     /// egui's input since the last build, for a `size`-pixel frame: `egui_winit::State::take_egui_input`, but
@@ -126,18 +181,15 @@ impl HudPainter {
         input.take()
     }
 
-    /// Runs egui with `build` and uploads what it drew: textures and the triangles' buffers.
-    #[allow(clippy::too_many_arguments)]
-    fn build(
+    /// Runs egui's pass with `build`, for a `size`-pixel frame.
+    fn run_pass(
         &mut self,
         window: &Window,
-        gpu: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
         raw_input: egui::RawInput,
         size: (u32, u32),
         mut build: impl FnMut(&egui::Context) -> Vec<egui::Rect>,
         wall_times: &mut [Duration; 3],
-    ) {
+    ) -> Pending {
         let start = Instant::now();
         let mut covered = Vec::new();
         let mut output = self.context.run_pass(raw_input, |ctx| covered = build(ctx));
@@ -145,29 +197,48 @@ impl HudPainter {
             .viewport_output
             .get(&egui::ViewportId::ROOT)
             .is_some_and(|viewport| viewport.repaint_delay.is_zero());
-        self.input.handle_platform_output(window, output.platform_output);
-        let built = Instant::now();
+        self.input.handle_platform_output(window, std::mem::take(&mut output.platform_output));
+        let regions = covered.into_iter().map(|rect| pixel_region(rect, output.pixels_per_point, size)).collect();
+        wall_times[0] = start.elapsed();
+        Pending { output, regions, size }
+    }
+
+    /// Tessellates `pending`'s shapes and uploads them and its textures: the build drawn from now on.
+    fn upload(
+        &mut self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        pending: Pending,
+        wall_times: &mut [Duration; 3],
+    ) {
+        let start = Instant::now();
+        let Pending { mut output, regions, size } = pending;
         let pixels_per_point = output.pixels_per_point;
-        let primitives = self.context.tessellate(output.shapes, pixels_per_point);
+        let primitives = self.context.tessellate(std::mem::take(&mut output.shapes), pixels_per_point);
         let tessellated = Instant::now();
         let screen = egui_wgpu::ScreenDescriptor { size_in_pixels: [size.0, size.1], pixels_per_point };
-        for (id, deltas) in output.textures_delta.set.drain() {
-            for delta in &deltas {
-                self.renderer.update_texture(&gpu.device, &gpu.queue, id, delta);
-            }
-        }
+        self.update_textures(gpu, &mut output.textures_delta);
         let extra = self.renderer.update_buffers(&gpu.device, &gpu.queue, encoder, &primitives, &screen);
         if !extra.is_empty() {
             // Only paint callbacks return command buffers; the HUD has none, so there is nothing to order.
             gpu.queue.submit(extra);
         }
-        // Freed textures are unused by the new triangles, so they can go before the pass that draws them.
-        for id in output.textures_delta.free.drain() {
+        wall_times[1] = tessellated - start;
+        wall_times[2] = tessellated.elapsed();
+        self.built = Some(Built { primitives, screen, regions, size });
+    }
+
+    /// Applies a pass's texture changes, in the order of the passes. Only in a frame whose drawn build is
+    /// replaced before it is drawn: a freed texture goes at once, and the build before may use it.
+    fn update_textures(&mut self, gpu: &GpuContext, delta: &mut egui::TexturesDelta) {
+        for (id, deltas) in delta.set.drain() {
+            for delta in &deltas {
+                self.renderer.update_texture(&gpu.device, &gpu.queue, id, delta);
+            }
+        }
+        for id in delta.free.drain() {
             self.renderer.free_texture(&id);
         }
-        let regions = covered.into_iter().map(|rect| pixel_region(rect, pixels_per_point, size)).collect();
-        *wall_times = [built - start, tessellated - built, tessellated.elapsed()];
-        self.built = Some(Built { primitives, screen, regions, size });
     }
 }
 
