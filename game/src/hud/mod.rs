@@ -74,8 +74,12 @@ const HISTORY_SECONDS: f64 = 5.0;
 /// Most plot points a second of history gets.
 const PLOT_POINTS_PER_SECOND: f64 = 30.0;
 /// Seconds between refreshes of the figures and plots shown: readable, and the UI is built again only then
-/// (or on input), which keeps its cost per frame low at any frame rate.
+/// (or on input).
 pub const REFRESH_SECONDS: f64 = 0.1;
+/// Frames between refreshes, at least: below 40 frames a second they come every this many frames rather than
+/// every [`REFRESH_SECONDS`], so that the HUD's cost per frame stays low at any frame rate (a build takes two
+/// frames, egui's pass then the upload: see [`painter::HudPainter`]). The plots still get every frame.
+pub const REFRESH_FRAMES: u32 = 4;
 
 /// The egui context the HUD is built in, with its style.
 pub fn context() -> egui::Context {
@@ -155,10 +159,12 @@ pub struct Hud {
     pub visible: bool,
     /// The key bindings are shown.
     pub help: bool,
-    /// The figures shown, refreshed every [`REFRESH_SECONDS`].
+    /// The figures shown, refreshed every [`REFRESH_SECONDS`] and [`REFRESH_FRAMES`], whichever is longer.
     shown: Option<HudFrame>,
     /// When `shown` was refreshed, in seconds since the HUD started.
     shown_at: f64,
+    /// Frames recorded since `shown` was refreshed.
+    frames_since_shown: u32,
     history: VecDeque<Sample>,
     seconds: f64,
 }
@@ -166,12 +172,20 @@ pub struct Hud {
 impl Hud {
     /// A HUD, shown or hidden.
     pub fn new(visible: bool) -> Self {
-        Self { visible, help: false, shown: None, shown_at: 0.0, history: VecDeque::new(), seconds: 0.0 }
+        Self {
+            visible,
+            help: false,
+            shown: None,
+            shown_at: 0.0,
+            frames_since_shown: 0,
+            history: VecDeque::new(),
+            seconds: 0.0,
+        }
     }
 
     /// Adds a frame `delta` seconds after the last to the plots' history (kept while hidden, so the plots
-    /// are full when it is shown again), and shows its figures when the last shown are old enough. Returns
-    /// whether they were: the HUD's content changed.
+    /// are full when it is shown again), and shows its figures when the last shown are old enough: at least
+    /// [`REFRESH_SECONDS`] and [`REFRESH_FRAMES`] old. Returns whether they were: the HUD's content changed.
     pub fn record(&mut self, frame: HudFrame, delta: f32) -> bool {
         self.seconds += f64::from(delta);
         let stats = &frame.stats;
@@ -205,10 +219,13 @@ impl Hud {
         while self.history.front().is_some_and(|oldest| self.seconds - oldest.seconds > HISTORY_SECONDS) {
             self.history.pop_front();
         }
-        let refresh = self.shown.is_none() || self.seconds - self.shown_at >= REFRESH_SECONDS;
+        self.frames_since_shown += 1;
+        let refresh = self.shown.is_none()
+            || (self.seconds - self.shown_at >= REFRESH_SECONDS && self.frames_since_shown >= REFRESH_FRAMES);
         if refresh {
             self.shown = Some(frame);
             self.shown_at = self.seconds;
+            self.frames_since_shown = 0;
         }
         refresh
     }
@@ -554,5 +571,42 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
     if controls.view == View::Pyramid && frame.pyramid.len() > 1 {
         let top = frame.pyramid.len() - 1;
         ui.add(egui::Slider::new(&mut controls.pyramid_level, 0..=top).text("pyramid level ([ ])"));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The frames, of `frames` at `fps` a second, that refresh the figures shown.
+    fn refreshes(fps: f32, frames: usize) -> Vec<usize> {
+        let frame = HudFrame {
+            stats: CullStats::default(),
+            gpu: None,
+            savings: DrawSavings::default(),
+            fps,
+            hud_time: Duration::ZERO,
+            following_path: true,
+            buffer: (256, 144),
+            pyramid: Vec::new(),
+            viewport: (1280, 720),
+            light_views: Vec::new(),
+        };
+        let mut hud = Hud::new(true);
+        (0..frames).filter(|_| hud.record(frame.clone(), 1.0 / fps)).collect()
+    }
+
+    #[test]
+    fn figures_refresh_every_tenth_of_a_second_and_no_more_often_than_every_fourth_frame() {
+        for (fps, gaps) in [(200.0, 20..=21), (60.0, 6..=7), (20.0, 4..=4), (8.0, 4..=4)] {
+            let shown = refreshes(fps, 400);
+            assert_eq!(shown[0], 0, "the first frame is shown");
+            for pair in shown.windows(2) {
+                // A tenth of a second, one frame more where the sum of frame times falls just short of it; below
+                // 40 frames a second, every fourth frame.
+                assert!(gaps.contains(&(pair[1] - pair[0])), "at {fps} frames a second: {shown:?}");
+            }
+            assert!(400 - shown.last().unwrap() <= *gaps.end(), "at {fps} frames a second: {shown:?}");
+        }
     }
 }
