@@ -25,15 +25,19 @@ pub struct HudPainter {
     wanted: bool,
     /// egui asked to be run again at once (an animation, a widget settling).
     run_again: bool,
+    /// The pointer was over the HUD at its last event egui was given.
+    hovering: bool,
     /// When the painter was made: egui's clock starts there.
     start: Instant,
 }
 
-/// One build of the HUD: its triangles (uploaded), for what screen, and the areas it covers.
+/// One build of the HUD: its triangles (uploaded), for what screen, and the areas it covers (in pixels, and
+/// in points as egui's input has them).
 struct Built {
     primitives: Vec<egui::ClippedPrimitive>,
     screen: egui_wgpu::ScreenDescriptor,
     regions: Vec<[u32; 4]>,
+    areas: Vec<egui::Rect>,
     size: (u32, u32),
 }
 
@@ -42,6 +46,7 @@ struct Built {
 struct Pending {
     output: egui::FullOutput,
     regions: Vec<[u32; 4]>,
+    areas: Vec<egui::Rect>,
     size: (u32, u32),
 }
 
@@ -94,6 +99,7 @@ impl HudPainter {
             pending: None,
             wanted: true,
             run_again: false,
+            hovering: false,
             start: Instant::now(),
         }
     }
@@ -106,9 +112,10 @@ impl HudPainter {
 
     /// Records drawing the HUD over `target`, a view of the `size`-pixel frame, into `encoder`. A new build
     /// is begun with `build` (which returns the areas it covers, in points) only when `changed` says its content
-    /// did, when egui has input to handle or asked to be run again, or when the size changed; it is spread over
-    /// this frame and the next (see [`HudPainter`]). Otherwise the last build's triangles are drawn again, which
-    /// costs next to nothing.
+    /// did, when there is input the HUD can react to (the pointer over it, keys while one of its widgets has
+    /// the focus) or egui asked to be run again, or when the size changed; it is spread over this frame and the
+    /// next (see [`HudPainter`]). Otherwise the last build's triangles are drawn again, which costs next to
+    /// nothing.
     #[allow(clippy::too_many_arguments)]
     pub fn paint(
         &mut self,
@@ -127,7 +134,21 @@ impl HudPainter {
             // on them (the font atlas grows).
             self.update_textures(gpu, &mut pending.output.textures_delta);
         }
-        self.wanted |= changed || self.run_again || resized || !self.input.egui_input().events.is_empty();
+        // Input the HUD cannot react to (the pointer moving over the scene, keys flying the camera) starts no
+        // build, and egui never sees it.
+        let areas = match (&self.pending, &self.built) {
+            (Some(pending), _) => &pending.areas[..],
+            (None, Some(built)) => &built.areas[..],
+            (None, None) => &[],
+        };
+        let input = keep_hud_input(
+            &mut self.input.egui_input_mut().events,
+            areas,
+            &mut self.hovering,
+            self.context.egui_is_using_pointer(),
+            self.context.egui_wants_keyboard_input(),
+        );
+        self.wanted |= changed || self.run_again || resized || input;
         let mut wall_times = [Duration::ZERO; 3];
         let work = if let Some(pending) = self.pending.take() {
             self.upload(gpu, encoder, pending, &mut wall_times);
@@ -198,9 +219,10 @@ impl HudPainter {
             .get(&egui::ViewportId::ROOT)
             .is_some_and(|viewport| viewport.repaint_delay.is_zero());
         self.input.handle_platform_output(window, std::mem::take(&mut output.platform_output));
-        let regions = covered.into_iter().map(|rect| pixel_region(rect, output.pixels_per_point, size)).collect();
+        let regions = covered.iter().map(|&rect| pixel_region(rect, output.pixels_per_point, size)).collect();
+        let areas = covered.into_iter().map(|rect| rect.expand(HOVER_MARGIN)).collect();
         wall_times[0] = start.elapsed();
-        Pending { output, regions, size }
+        Pending { output, regions, areas, size }
     }
 
     /// Tessellates `pending`'s shapes and uploads them and its textures: the build drawn from now on.
@@ -212,7 +234,7 @@ impl HudPainter {
         wall_times: &mut [Duration; 3],
     ) {
         let start = Instant::now();
-        let Pending { mut output, regions, size } = pending;
+        let Pending { mut output, regions, areas, size } = pending;
         let pixels_per_point = output.pixels_per_point;
         let primitives = self.context.tessellate(std::mem::take(&mut output.shapes), pixels_per_point);
         let tessellated = Instant::now();
@@ -225,7 +247,7 @@ impl HudPainter {
         }
         wall_times[1] = tessellated - start;
         wall_times[2] = tessellated.elapsed();
-        self.built = Some(Built { primitives, screen, regions, size });
+        self.built = Some(Built { primitives, screen, regions, areas, size });
     }
 
     /// Applies a pass's texture changes, in the order of the passes. Only in a frame whose drawn build is
@@ -242,6 +264,49 @@ impl HudPainter {
     }
 }
 
+/// Points around the HUD's windows within which the pointer still counts as over them: egui's interaction
+/// reaches a little past a window's frame.
+const HOVER_MARGIN: f32 = 8.0;
+
+/// Keeps of `events` those the HUD can react to, and returns whether any are left:
+/// - pointer events over `areas` (points), or while the pointer was over them (so that egui sees it leave), or
+///   while egui `using_pointer` (a drag begun on the HUD);
+/// - keyboard events while egui has a widget `focused`;
+/// - every other event (the window's focus, say).
+///
+/// `hovering`, whether the pointer was over `areas` at its last event kept, is updated.
+fn keep_hud_input(
+    events: &mut Vec<egui::Event>,
+    areas: &[egui::Rect],
+    hovering: &mut bool,
+    using_pointer: bool,
+    focused: bool,
+) -> bool {
+    use egui::Event;
+    let over = |pos: egui::Pos2| areas.iter().any(|area| area.contains(pos));
+    events.retain(|event| match event {
+        Event::PointerMoved(pos) | Event::PointerButton { pos, .. } | Event::Touch { pos, .. } => {
+            let was = std::mem::replace(hovering, over(*pos));
+            was || *hovering || using_pointer
+        }
+        Event::PointerGone => std::mem::replace(hovering, false) || using_pointer,
+        Event::MouseMoved(_) | Event::MouseWheel { .. } | Event::Zoom(_) | Event::Rotate(_) => {
+            *hovering || using_pointer
+        }
+        Event::Key { .. }
+        | Event::Text(_)
+        | Event::Copy
+        | Event::Cut
+        | Event::Paste(_)
+        | Event::PasteImage(_)
+        | Event::MiddleClickPaste { .. }
+        | Event::Ime(_)
+        | Event::ModifiersChanged(_) => focused,
+        _ => true,
+    });
+    !events.is_empty()
+}
+
 /// `rect` in points as whole pixels within a `size` frame, grown by one pixel for egui's anti-aliased edges.
 fn pixel_region(rect: egui::Rect, pixels_per_point: f32, size: (u32, u32)) -> [u32; 4] {
     let pixels = |points: f32, limit: u32| (points * pixels_per_point).clamp(0.0, limit as f32);
@@ -251,4 +316,47 @@ fn pixel_region(rect: egui::Rect, pixels_per_point: f32, size: (u32, u32)) -> [u
         (pixels(rect.max.x, size.0).ceil() as u32 + 1).min(size.0),
         (pixels(rect.max.y, size.1).ceil() as u32 + 1).min(size.1),
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use egui::{Event, Key, Modifiers, PointerButton, Rect, pos2, vec2};
+
+    fn pressed(key: Key) -> Event {
+        Event::Key { key, physical_key: None, pressed: true, repeat: false, modifiers: Modifiers::NONE }
+    }
+
+    fn click(pos: egui::Pos2) -> Event {
+        Event::PointerButton { pos, button: PointerButton::Primary, pressed: true, modifiers: Modifiers::NONE }
+    }
+
+    #[test]
+    fn only_input_the_hud_can_react_to_starts_a_build() {
+        let areas = [Rect::from_min_size(pos2(8.0, 8.0), vec2(300.0, 200.0))];
+        let mut hovering = false;
+        // The pointer moving over the scene and keys flying the camera: nothing kept, no build.
+        let mut events = vec![Event::PointerMoved(pos2(500.0, 400.0)), pressed(Key::W), click(pos2(600.0, 300.0))];
+        assert!(!keep_hud_input(&mut events, &areas, &mut hovering, false, false));
+        assert!(events.is_empty() && !hovering);
+        // The pointer entering the HUD and clicking it: kept.
+        let mut events = vec![Event::PointerMoved(pos2(100.0, 100.0)), click(pos2(100.0, 100.0))];
+        assert!(keep_hud_input(&mut events, &areas, &mut hovering, false, false));
+        assert_eq!(events.len(), 2);
+        assert!(hovering);
+        // Leaving it: the first move outside is kept, so egui sees it go; the next are not.
+        let mut events = vec![Event::PointerMoved(pos2(500.0, 100.0)), Event::PointerMoved(pos2(520.0, 100.0))];
+        assert!(keep_hud_input(&mut events, &areas, &mut hovering, false, false));
+        assert_eq!(events, [Event::PointerMoved(pos2(500.0, 100.0))]);
+        assert!(!hovering);
+        // A drag begun on the HUD (a slider) goes on outside it.
+        let mut events = vec![Event::PointerMoved(pos2(700.0, 100.0))];
+        assert!(keep_hud_input(&mut events, &areas, &mut hovering, true, false));
+        // Keys reach egui only while one of its widgets has the focus.
+        let mut events = vec![pressed(Key::ArrowRight)];
+        assert!(keep_hud_input(&mut events, &areas, &mut hovering, false, true));
+        // The window losing focus is kept.
+        let mut events = vec![Event::WindowFocused(false)];
+        assert!(keep_hud_input(&mut events, &areas, &mut hovering, false, false));
+    }
 }
