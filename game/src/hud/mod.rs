@@ -555,16 +555,21 @@ const BUFFER_SIZES: [(u32, u32); 4] = [(128, 72), (256, 144), (512, 288), (1024,
 
 /// The controls: each stage on or off, the occlusion buffer, its mode and budget, freezing and the view.
 fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
-    ui.checkbox(&mut controls.frustum.enabled, "frustum culling (1)");
-    ui.checkbox(&mut controls.occlusion.enabled, "occlusion culling (2)");
-    let mut clusters = controls.clusters_on();
-    if ui.checkbox(&mut clusters, "GPU cluster culling (3)").changed() {
-        controls.set_clusters(clusters);
-    }
-    let mut triangles = controls.triangles_on();
-    if ui.checkbox(&mut triangles, "GPU triangle culling (4)").changed() {
-        controls.set_triangles(triangles);
-    }
+    // Two switches a row, so that the settings fit under the figures in a 960x540 window.
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut controls.frustum.enabled, "frustum culling (1)");
+        ui.checkbox(&mut controls.occlusion.enabled, "occlusion culling (2)");
+    });
+    ui.horizontal(|ui| {
+        let mut clusters = controls.clusters_on();
+        if ui.checkbox(&mut clusters, "GPU cluster culling (3)").changed() {
+            controls.set_clusters(clusters);
+        }
+        let mut triangles = controls.triangles_on();
+        if ui.checkbox(&mut triangles, "GPU triangle culling (4)").changed() {
+            controls.set_triangles(triangles);
+        }
+    });
     ui.checkbox(&mut controls.frozen, "freeze culling (F)");
     let occlusion = &mut controls.occlusion;
     let current = (occlusion.width, occlusion.height);
@@ -584,11 +589,18 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
             }
         },
     );
-    ui.horizontal(|ui| {
-        ui.radio_value(&mut occlusion.mode, RasterMode::Conservative, "conservative");
-        ui.radio_value(&mut occlusion.mode, RasterMode::PixelCentres, "pixel centres (at the viewport's size)");
-        ui.radio_value(&mut occlusion.mode, RasterMode::Masked, "masked (at the viewport's size)");
-        ui.radio_value(&mut occlusion.mode, RasterMode::Fast, "fast (lossy)");
+    // A list rather than a row of radio buttons, which made the window as wide as two thirds of a 960-pixel one.
+    let modes = [
+        (RasterMode::Conservative, "conservative"),
+        (RasterMode::PixelCentres, "pixel centres (at the viewport's size)"),
+        (RasterMode::Masked, "masked (at the viewport's size)"),
+        (RasterMode::Fast, "fast (lossy)"),
+    ];
+    let shown = modes.iter().find(|(mode, _)| *mode == occlusion.mode).map_or("", |&(_, name)| name);
+    egui::ComboBox::from_label("occlusion mode").selected_text(shown).show_ui(ui, |ui| {
+        for (mode, name) in modes {
+            ui.selectable_value(&mut occlusion.mode, mode, name);
+        }
     });
     ui.add(egui::Slider::new(&mut occlusion.triangle_budget, 64..=65536).logarithmic(true).text("occluder triangles"));
     egui::ComboBox::from_label("view (V)").selected_text(controls.view.label()).show_ui(ui, |ui| {
