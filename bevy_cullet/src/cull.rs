@@ -195,11 +195,31 @@ const SCAN_ABOVE: usize = 8;
 type DrawableItem<'a> =
     (&'a InheritedVisibility, Mut<'a, ViewVisibility>, Option<&'a VisibilityClass>, Option<&'a RenderLayers>, bool);
 
-/// What one thread made visible: how many entities, and each with its visibility classes.
+/// What one thread made visible: how many entities, and the entities of each visibility class, in the order
+/// they were shown. The lists keep their capacity from frame to frame.
 #[derive(Default)]
 pub(crate) struct Shown {
     count: usize,
-    listed: Vec<(Entity, TypeId)>,
+    /// Each class met and its entities: a few classes at most, so a list searched from the last one used.
+    by_class: Vec<(TypeId, Vec<Entity>)>,
+    /// Where in `by_class` the last entity went: nearly every entity shares one class (meshes).
+    last: usize,
+}
+
+impl Shown {
+    /// Queues `entity` for the camera's list of `class`.
+    fn push(&mut self, entity: Entity, class: TypeId) {
+        if self.by_class.get(self.last).is_none_or(|(last, _)| *last != class) {
+            self.last = match self.by_class.iter().position(|(listed, _)| *listed == class) {
+                Some(index) => index,
+                None => {
+                    self.by_class.push((class, Vec::new()));
+                    self.by_class.len() - 1
+                }
+            };
+        }
+        self.by_class[self.last].1.push(entity);
+    }
 }
 
 /// Entities the plugin mirrors (see [`crate::mirror`]).
@@ -276,7 +296,9 @@ pub(crate) fn cull_views(
             if inherited.get() && view_layers.intersects(layers.unwrap_or_default()) && in_range(entity, has_range) {
                 view_visibility.set_visible();
                 shown.count += 1;
-                shown.listed.extend(class.into_iter().flat_map(|class| class.iter()).map(|&class| (entity, class)));
+                for &class in class.into_iter().flat_map(|class| class.iter()) {
+                    shown.push(entity, class);
+                }
             }
         };
         let kept_count = view.visible.count() + cullet.rejected.len();
@@ -324,12 +346,8 @@ pub(crate) fn cull_views(
         let mut visible = 0;
         for shown in queues.iter_mut() {
             visible += std::mem::take(&mut shown.count);
-            // Runs of one class (the usual case) go to their list without a map lookup each.
-            let mut listed = shown.listed.drain(..).peekable();
-            while let Some((entity, class)) = listed.next() {
-                let list = visible_entities.get_mut(class);
-                list.push(entity);
-                list.extend(std::iter::from_fn(|| listed.next_if(|&(_, next)| next == class)).map(|(e, _)| e));
+            for (class, entities) in &mut shown.by_class {
+                visible_entities.get_mut(*class).append(entities);
             }
         }
         for list in visible_entities.entities.values_mut() {
