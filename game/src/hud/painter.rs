@@ -21,7 +21,8 @@ pub struct HudPainter {
     built: Option<Built>,
     /// The last pass's output, to tessellate and upload next frame.
     pending: Option<Pending>,
-    /// A build was asked for (its content changed, egui had input or asked to run again) and not yet begun.
+    /// A build was asked for (its content changed, there was input the HUD can react to, egui asked to run
+    /// again) and not yet begun.
     wanted: bool,
     /// egui asked to be run again at once (an animation, a widget settling).
     run_again: bool,
@@ -42,7 +43,7 @@ struct Built {
 }
 
 /// One pass of egui, not yet tessellated: its shapes and texture changes, for what frame size, and the areas
-/// it covers in pixels.
+/// it covers (in pixels, and in points).
 struct Pending {
     output: egui::FullOutput,
     regions: Vec<[u32; 4]>,
