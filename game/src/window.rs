@@ -9,7 +9,7 @@ use crate::hud::controls::{Controls, View};
 use crate::hud::painter::{HudPainter, Work};
 use crate::hud::{FRUSTUM_TINT, HELP, Hud, HudFrame, OCCLUSION_TINT};
 use crate::present::{PresentPass, Source};
-use crate::report::{kept_by_light_view, print_gpu_summary, print_savings, print_summary};
+use crate::report::{Spread, kept_by_light_view, print_gpu_summary, print_savings, print_summary};
 use crate::validation::Validation;
 use crate::{Args, Prepared};
 use cullet::Camera;
@@ -120,7 +120,7 @@ const HUD_PEAK_FRAMES: usize = 60;
 fn print_hud_summary(times: &[HudTime]) {
     let Some((first, times)) = times.split_first() else { return };
     let ms = |duration: Duration| duration.as_secs_f64() * 1e3;
-    let cpu = crate::report::Spread::of(times.iter().map(|t| ms(t.cpu)).collect());
+    let cpu = Spread::of(times.iter().map(|t| ms(t.cpu)).collect());
     let over_budget = times.iter().filter(|t| ms(t.cpu) > HUD_BUDGET_MS).count();
     println!(
         "HUD CPU time per frame over {} frames after the first: mean {:.3} ms, median {:.3} ms, 95th percentile \
@@ -140,18 +140,17 @@ fn print_hud_summary(times: &[HudTime]) {
         if frames.is_empty() {
             continue;
         }
-        let mean = |value: &dyn Fn(&HudTime) -> Duration| {
-            frames.iter().map(|t| ms(value(t))).sum::<f64>() / frames.len() as f64
-        };
-        let most = frames.iter().map(|t| ms(t.cpu)).fold(0.0, f64::max);
+        let spread = |value: fn(&HudTime) -> Duration| Spread::of(frames.iter().map(|t| ms(value(t))).collect());
+        let cpu = spread(|t| t.cpu);
         println!(
-            "  {what}: {} frames, {:.3} ms CPU each on average, most {most:.3} ms (wall: pass {:.3}, tessellate \
+            "  {what}: {} frames, {:.3} ms CPU each on average, most {:.3} ms (wall: pass {:.3}, tessellate \
              {:.3}, upload and record {:.3})",
             frames.len(),
-            mean(&|t| t.cpu),
-            mean(&|t| t.wall[0]),
-            mean(&|t| t.wall[1]),
-            mean(&|t| t.wall[2]),
+            cpu.mean,
+            cpu.max,
+            spread(|t| t.wall[0]).mean,
+            spread(|t| t.wall[1]).mean,
+            spread(|t| t.wall[2]).mean,
         );
     }
 }

@@ -32,22 +32,19 @@ pub struct HudPainter {
     start: Instant,
 }
 
-/// One build of the HUD: its triangles (uploaded), for what screen, and the areas it covers (in pixels, and
-/// in points as egui's input has them).
+/// One build of the HUD: its triangles (uploaded), for what screen, and the areas it covers in points.
 struct Built {
     primitives: Vec<egui::ClippedPrimitive>,
     screen: egui_wgpu::ScreenDescriptor,
-    regions: Vec<[u32; 4]>,
-    areas: Vec<egui::Rect>,
+    covered: Vec<egui::Rect>,
     size: (u32, u32),
 }
 
 /// One pass of egui, not yet tessellated: its shapes and texture changes, for what frame size, and the areas
-/// it covers (in pixels, and in points).
+/// it covers in points.
 struct Pending {
     output: egui::FullOutput,
-    regions: Vec<[u32; 4]>,
-    areas: Vec<egui::Rect>,
+    covered: Vec<egui::Rect>,
     size: (u32, u32),
 }
 
@@ -137,14 +134,14 @@ impl HudPainter {
         }
         // Input the HUD cannot react to (the pointer moving over the scene, keys flying the camera) starts no
         // build, and egui never sees it.
-        let areas = match (&self.pending, &self.built) {
-            (Some(pending), _) => &pending.areas[..],
-            (None, Some(built)) => &built.areas[..],
+        let covered = match (&self.pending, &self.built) {
+            (Some(pending), _) => &pending.covered[..],
+            (None, Some(built)) => &built.covered[..],
             (None, None) => &[],
         };
         let input = keep_hud_input(
             &mut self.input.egui_input_mut().events,
-            areas,
+            covered,
             &mut self.hovering,
             self.context.egui_is_using_pointer(),
             self.context.egui_wants_keyboard_input(),
@@ -184,7 +181,9 @@ impl HudPainter {
             self.renderer.render(&mut pass.forget_lifetime(), &built.primitives, &built.screen);
         }
         wall_times[2] += recording.elapsed();
-        Painted { regions: built.regions.clone(), work, wall_times, cpu_time: thread_start.elapsed() }
+        let regions =
+            built.covered.iter().map(|&rect| pixel_region(rect, built.screen.pixels_per_point, built.size)).collect();
+        Painted { regions, work, wall_times, cpu_time: thread_start.elapsed() }
     }
 
     /// egui's input since the last build, for a `size`-pixel frame: `egui_winit::State::take_egui_input`, but
@@ -220,10 +219,8 @@ impl HudPainter {
             .get(&egui::ViewportId::ROOT)
             .is_some_and(|viewport| viewport.repaint_delay.is_zero());
         self.input.handle_platform_output(window, std::mem::take(&mut output.platform_output));
-        let regions = covered.iter().map(|&rect| pixel_region(rect, output.pixels_per_point, size)).collect();
-        let areas = covered.into_iter().map(|rect| rect.expand(HOVER_MARGIN)).collect();
         wall_times[0] = start.elapsed();
-        Pending { output, regions, areas, size }
+        Pending { output, covered, size }
     }
 
     /// Tessellates `pending`'s shapes and uploads them and its textures: the build drawn from now on.
@@ -235,7 +232,7 @@ impl HudPainter {
         wall_times: &mut [Duration; 3],
     ) {
         let start = Instant::now();
-        let Pending { mut output, regions, areas, size } = pending;
+        let Pending { mut output, covered, size } = pending;
         let pixels_per_point = output.pixels_per_point;
         let primitives = self.context.tessellate(std::mem::take(&mut output.shapes), pixels_per_point);
         let tessellated = Instant::now();
@@ -248,7 +245,7 @@ impl HudPainter {
         }
         wall_times[1] = tessellated - start;
         wall_times[2] = tessellated.elapsed();
-        self.built = Some(Built { primitives, screen, regions, areas, size });
+        self.built = Some(Built { primitives, screen, covered, size });
     }
 
     /// Applies a pass's texture changes, in the order of the passes. Only in a frame whose drawn build is
@@ -270,7 +267,7 @@ impl HudPainter {
 const HOVER_MARGIN: f32 = 8.0;
 
 /// Keeps of `events` those the HUD can react to, and returns whether any are left:
-/// - pointer events over `areas` (points), or while the pointer was over them (so that egui sees it leave), or
+/// - pointer events over `areas` (points) or within [`HOVER_MARGIN`] of them, or while the pointer was over them (so that egui sees it leave), or
 ///   while egui `using_pointer` (a drag begun on the HUD);
 /// - keyboard events while egui has a widget `focused`;
 /// - every other event (the window's focus, say).
@@ -284,7 +281,7 @@ fn keep_hud_input(
     focused: bool,
 ) -> bool {
     use egui::Event;
-    let over = |pos: egui::Pos2| areas.iter().any(|area| area.contains(pos));
+    let over = |pos: egui::Pos2| areas.iter().any(|area| area.expand(HOVER_MARGIN).contains(pos));
     events.retain(|event| match event {
         Event::PointerMoved(pos) | Event::PointerButton { pos, .. } | Event::Touch { pos, .. } => {
             let was = std::mem::replace(hovering, over(*pos));
