@@ -5,8 +5,8 @@
 //! [`crate::depth`]) from its centre and extents in clip space; a box reaching the near plane is visible.
 //! Pick the mip level of eq. 19.5 of seed 000, where the rectangle covers at most 2x2 texels; the object is
 //! occluded if its nearest depth is farther than the farthest occluder depth of those texels, refined one
-//! level finer (at most 3x3 texels), then [`FINE_LEVELS`] finer (at most 17x17 texels, read until one shows
-//! the object; see [`rect_occluded`]).
+//! level finer (at most 3x3 texels), then four levels finer (at most 17x17 texels, read until one shows the
+//! object).
 //!
 //! Projection runs in f32; the rectangle is widened and the depth moved nearer by a bound on its rounding
 //! error, so the test culls only what the pyramid provably hides.
