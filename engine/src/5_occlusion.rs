@@ -61,6 +61,15 @@ struct ScreenRect {
     always_visible: bool,
 }
 
+impl ScreenRect {
+    /// The texels under the rectangle in a level whose texels span `2^shift` pixels a side: first and last
+    /// column, first and last row (inclusive). The rectangle must not be empty.
+    #[inline(always)]
+    fn texels(&self, shift: u32) -> [u32; 4] {
+        [self.x0 >> shift, self.y0 >> shift, (self.x1 - 1) >> shift, (self.y1 - 1) >> shift]
+    }
+}
+
 /// Counts and times of one view's occluder raster and occlusion test, as [`occlude`] returns them.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ViewOcclusion {
@@ -383,11 +392,10 @@ fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
 fn every_texel_hides(rect: &ScreenRect, pyramid: &DepthPyramid, level: usize) -> bool {
     let texels = pyramid.level(level);
     let width = texels.width() as usize;
-    let shift = texels.texel_shift();
-    let (x0, x1) = ((rect.x0 >> shift) as usize, ((rect.x1 - 1) >> shift) as usize);
-    (rect.y0 >> shift..=(rect.y1 - 1) >> shift).all(|y| {
+    let [x0, y0, x1, y1] = rect.texels(texels.texel_shift());
+    (y0..=y1).all(|y| {
         let row = &texels.texels()[y as usize * width..][..width];
-        row[x0..=x1].iter().all(|&texel| rect.nearest < texel)
+        row[x0 as usize..=x1 as usize].iter().all(|&texel| rect.nearest < texel)
     })
 }
 
@@ -397,9 +405,7 @@ fn every_texel_hides(rect: &ScreenRect, pyramid: &DepthPyramid, level: usize) ->
 fn farthest_in<const WINDOW: u32>(rect: &ScreenRect, pyramid: &DepthPyramid, level: usize) -> f32 {
     let texels = pyramid.level(level);
     let width = texels.width() as usize;
-    let shift = texels.texel_shift();
-    let (x0, y0) = (rect.x0 >> shift, rect.y0 >> shift);
-    let (x1, y1) = ((rect.x1 - 1) >> shift, (rect.y1 - 1) >> shift);
+    let [x0, y0, x1, y1] = rect.texels(texels.texel_shift());
     let mut farthest = f32::INFINITY;
     for dy in 0..WINDOW {
         let start = (y0 + dy).min(y1) as usize * width;
