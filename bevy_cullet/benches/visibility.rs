@@ -13,7 +13,7 @@
 //! - **frame**: the whole `App::update`.
 //!
 //! The first 10 frames (spawning, the plugin's first mirroring of every object) are not counted. Wall times
-//! on the machine's threads. Writes `target/bevy_visibility/visibility.csv`.
+//! on the machine's threads; the main thread is one of rayon's (see the plugin's "Threads"). Writes `target/bevy_visibility/visibility.csv`.
 //!
 //! `cargo bench -p bevy_cullet --bench visibility [-- --objects N]`
 
@@ -135,6 +135,8 @@ fn median_ms(times: &[Duration]) -> f64 {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args = Args::parse();
+    // As the plugin's docs advise: the main thread, which runs the plugin's culling, is one of rayon's.
+    rayon::ThreadPoolBuilder::new().use_current_thread().build_global()?;
     let counts = if args.objects.is_empty() { vec![10_000, 100_000, 1_000_000] } else { args.objects };
     let configurations: [(&str, Option<CulletSettings>); 3] = [
         ("bevy", None),
