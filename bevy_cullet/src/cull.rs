@@ -10,7 +10,6 @@ use bevy_camera::visibility::{
     VisibilityClass, VisibilityRange, VisibleEntities, VisibleEntityRanges,
 };
 use bevy_camera::{Camera, Projection};
-use bevy_ecs::entity::UniqueEntityVec;
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::NonSendMarker;
 use bevy_transform::components::GlobalTransform;
@@ -21,6 +20,7 @@ use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_co
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::occlude;
 use cullet::visible::VisibleSet;
+use rayon::prelude::*;
 use std::any::TypeId;
 use std::time::{Duration, Instant};
 
@@ -188,6 +188,9 @@ type Drawable<'a> = (
     Has<VisibilityRange>,
 );
 
+/// Kept entities one rayon task writes.
+const WRITE_CHUNK: usize = 1024;
+
 /// [`Drawable`] as a query yields it.
 type DrawableItem<'a> =
     (&'a InheritedVisibility, Mut<'a, ViewVisibility>, Option<&'a VisibilityClass>, Option<&'a RenderLayers>, bool);
@@ -300,20 +303,24 @@ pub(crate) fn cull_views(
                 }
             }
         };
-        // Each kept entity looked up, in store order (entity order, so nearly table order). Scanning every
-        // mirrored entity for the kept ones instead was slower at any share kept, up to all of them: at 1e6
-        // objects 1.63-1.75 ms a frame against 1.33-1.46 with occlusion (6% kept), 9.3-9.5 against 6.9-7.0
-        // with the frustum only (39%), about the same keeping all (`cargo bench -p bevy_cullet --bench
-        // visibility`, interleaved).
-        // SAFETY: the list holds no entity twice, as `par_iter_many_unique_mut` requires: the store holds each
-        // entity in one slot at most, and `CulletStore::update` keeps rejected entities out of it.
-        let kept = unsafe { UniqueEntityVec::from_vec_unchecked(kept().collect()) };
-        drawables.p0().par_iter_many_unique_mut(kept).for_each_init(
+        // Each kept entity looked up, in store order (entity order, so nearly table order), on rayon's threads:
+        // Bevy's `par_iter_many_unique_mut` runs on one thread where its compute pool has one (2 cores).
+        // Scanning every mirrored entity for the kept ones instead was slower at any share kept.
+        let kept: Vec<Entity> = kept().collect();
+        let mirrored = drawables.p0();
+        kept.par_chunks(WRITE_CHUNK).for_each_init(
             || queues.borrow_local_mut(),
-            |queue, item| {
-                // Kept entities without Bevy's visibility components (a bare occluder) show nothing.
-                if let Ok((entity, drawable)) = item {
-                    show(queue, entity, drawable);
+            |queue, chunk| {
+                // SAFETY: `iter_many_unsafe` may give two items the same entity's components: no chunk, and no
+                // two chunks, hold an entity twice, as the store holds each entity in one slot at most and
+                // `CulletStore::update` keeps rejected entities out of it. `mirrored` borrows the query
+                // exclusively (the `ParamSet`) until every chunk is done, so nothing else reaches them.
+                let mut items = unsafe { mirrored.iter_many_unsafe(chunk) };
+                while let Some(item) = items.fetch_next() {
+                    // Kept entities without Bevy's visibility components (a bare occluder) show nothing.
+                    if let Ok((entity, drawable)) = item {
+                        show(queue, entity, drawable);
+                    }
                 }
             },
         );

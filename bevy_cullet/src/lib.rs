@@ -42,8 +42,8 @@
 //! a camera whose matrices give no frustum keeps everything and reports it in [`ViewStats::frustum_error`].
 //!
 //! # Threads
-//! Cullet's stages run on rayon's global pool, beside Bevy's task pools. [`CulletSystems::Cull`] runs on the
-//! main thread, which otherwise waits while rayon's threads cull. Make that thread one of rayon's, first thing
+//! Cullet's stages, and the plugin's write of what they keep, run on rayon's global pool, beside Bevy's task
+//! pools. [`CulletSystems::Cull`] runs on the main thread, which otherwise waits while rayon's threads cull. Make that thread one of rayon's, first thing
 //! in `main` (with `rayon` among your dependencies):
 //! ```no_run
 //! rayon::ThreadPoolBuilder::new().use_current_thread().build_global().expect("rayon's global pool, once");
