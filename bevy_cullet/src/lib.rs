@@ -43,8 +43,9 @@
 //!
 //! # Threads
 //! Cullet's stages, and the plugin's write of what they keep, run on rayon's global pool, beside Bevy's task
-//! pools. [`CulletSystems::Cull`] runs on the main thread, which otherwise waits while rayon's threads cull. Make that thread one of rayon's, first thing
-//! in `main` (with `rayon` among your dependencies):
+//! pools. [`CulletSystems::Cull`] runs on the main thread, which otherwise waits while rayon's threads cull.
+//! Make that thread one of rayon's, first thing in `main` (with `rayon` among your dependencies; see
+//! [Cullet's "Threads"](cullet#threads)):
 //! ```no_run
 //! rayon::ThreadPoolBuilder::new().use_current_thread().build_global().expect("rayon's global pool, once");
 //! ```
