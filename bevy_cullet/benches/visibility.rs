@@ -13,7 +13,8 @@
 //! - **frame**: the whole `App::update`.
 //!
 //! The first 10 frames (spawning, the plugin's first mirroring of every object) are not counted. Wall times
-//! on the machine's threads; the main thread is one of rayon's (see the plugin's "Threads"). Writes `target/bevy_visibility/visibility.csv`.
+//! on the machine's threads; the main thread is one of rayon's (see the plugin's "Threads"). Writes
+//! `target/bevy_visibility/visibility.csv`.
 //!
 //! `cargo bench -p bevy_cullet --bench visibility [-- --objects N]`
 

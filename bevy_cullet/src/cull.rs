@@ -188,7 +188,7 @@ type Drawable<'a> = (
     Has<VisibilityRange>,
 );
 
-/// Kept entities one rayon task writes.
+/// Kept entities one rayon task writes (not tuned: 62 tasks for the 1e6 fly-through's 63,000).
 const WRITE_CHUNK: usize = 1024;
 
 /// [`Drawable`] as a query yields it.

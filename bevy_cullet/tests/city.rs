@@ -148,3 +148,21 @@ fn with_occlusion_on_nothing_visible_is_culled_and_occlusion_pays() {
         "occlusion culls over a tenth: {after_occlusion} of {after_frustum}"
     );
 }
+
+#[test]
+fn with_every_object_kept_each_is_shown_and_listed_once() {
+    // Frustum culling off: all 3000 objects kept, which the write splits over several rayon tasks.
+    let mut plugin = fixture(3000, Some(CulletSettings { frustum: false, ..settings(false) }));
+    for t in [0.0, 10.0] {
+        plugin.frame(t);
+        assert!(plugin.visible().iter().all(|&v| v), "t = {t}: an object not shown");
+        let world = plugin.app.world();
+        let listed = world.get::<VisibleEntities>(plugin.camera).unwrap().get(TypeId::of::<Drawn>()).to_vec();
+        let mut expected = plugin.entities.clone();
+        expected.sort_unstable();
+        assert_eq!(listed, expected, "t = {t}: the camera's list");
+        let stats = *world.get::<CulletView>(plugin.camera).unwrap().stats();
+        assert_eq!((stats.after_frustum, stats.after_occlusion), (3000, 3000));
+        assert_eq!(stats.visible, visible_in_world(&mut plugin.app), "t = {t}");
+    }
+}
