@@ -19,7 +19,7 @@ use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::occlude;
-use cullet::visible::VisibleSet;
+use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
 use std::any::TypeId;
 use std::time::{Duration, Instant};
@@ -188,8 +188,9 @@ type Drawable<'a> = (
     Has<VisibilityRange>,
 );
 
-/// Kept entities one rayon task writes (not tuned: 62 tasks for the 1e6 fly-through's 63,000).
-const WRITE_CHUNK: usize = 1024;
+/// Words of the kept set (64 store slots each) in one chunk of the write, which rayon hands out in runs. Not
+/// tuned.
+const WRITE_WORDS: usize = 16;
 
 /// [`Drawable`] as a query yields it.
 type DrawableItem<'a> =
@@ -285,10 +286,6 @@ pub(crate) fn cull_views(
         });
 
         let start = Instant::now();
-        let kept = || {
-            let entities = cullet.store.entities();
-            view.visible.iter().map(|slot| entities[slot]).chain(cullet.rejected.iter().copied())
-        };
         let in_range = |entity: Entity, has_range: bool| {
             !has_range || ranges.as_ref().is_none_or(|ranges| ranges.entity_is_in_range_of_view(entity, camera_entity))
         };
@@ -305,17 +302,19 @@ pub(crate) fn cull_views(
         };
         // Each kept entity looked up, in store order (entity order, so nearly table order), on rayon's threads:
         // Bevy's `par_iter_many_unique_mut` runs on one thread where its compute pool has one (2 cores).
-        // Scanning every mirrored entity for the kept ones instead was slower at any share kept.
-        let kept: Vec<Entity> = kept().collect();
-        let mirrored = drawables.p0();
-        kept.par_chunks(WRITE_CHUNK).for_each_init(
+        // Scanning every mirrored entity for the kept ones instead was slower at any share kept. The kept set's
+        // words are split directly: collecting the kept entities first took a fifth of the write.
+        let entities = cullet.store.entities();
+        let mut mirrored = drawables.p0();
+        view.visible.words().par_chunks(WRITE_WORDS).enumerate().for_each_init(
             || queues.borrow_local_mut(),
-            |queue, chunk| {
+            |queue, (chunk, words)| {
+                let kept = set_slots(chunk * WRITE_WORDS, words).map(|slot| entities[slot]);
                 // SAFETY: `iter_many_unsafe` may give two items the same entity's components: no chunk, and no
-                // two chunks, hold an entity twice, as the store holds each entity in one slot at most and
-                // `CulletStore::update` keeps rejected entities out of it. `mirrored` borrows the query
-                // exclusively (the `ParamSet`) until every chunk is done, so nothing else reaches them.
-                let mut items = unsafe { mirrored.iter_many_unsafe(chunk) };
+                // two chunks, hold an entity twice, as chunks hold distinct slots and the store holds each
+                // entity in one slot at most. `mirrored` borrows the query exclusively (the `ParamSet`) until
+                // every chunk is done, so nothing else reaches them.
+                let mut items = unsafe { mirrored.iter_many_unsafe(kept) };
                 while let Some(item) = items.fetch_next() {
                     // Kept entities without Bevy's visibility components (a bare occluder) show nothing.
                     if let Ok((entity, drawable)) = item {
@@ -324,6 +323,13 @@ pub(crate) fn cull_views(
                 }
             },
         );
+        // Entities whose bounds Cullet refused are visible everywhere (never in the store, so none was above).
+        let mut rejected = mirrored.iter_many_mut(&cullet.rejected);
+        while let Some(item) = rejected.fetch_next() {
+            if let Ok((entity, drawable)) = item {
+                show(&mut queues.borrow_local_mut(), entity, drawable);
+            }
+        }
         // `settings.frustum` is off for a camera with `NoCpuCulling` (above).
         let frustum_culls = settings.frustum;
         drawables.p1().par_iter_mut().for_each_init(

@@ -16,7 +16,8 @@ use cullet::bounds::BoundsStore;
 pub struct CulletStore {
     pub(crate) store: BoundsStore,
     /// Entities with an `Aabb` and a `GlobalTransform` whose bounds Cullet rejected: always visible. Never
-    /// in `store` (checked in [`CulletStore::update`]), which the write in `cull` relies on.
+    /// in `store` (checked in [`CulletStore::update`]), which the write in `cull` relies on to show each entity
+    /// once.
     pub(crate) rejected: EntityHashSet,
     /// Entities to mirror again whatever changed (they lost `NoFrustumCulling` or `NoCpuCulling`).
     pending: Vec<Entity>,
@@ -45,8 +46,8 @@ impl CulletStore {
                     let _ = self.store.set_occluder(slot, has_occluder);
                 }
                 Err(error) => {
-                    // A rejected entity is never stored (`update_many` dropped it): the write's lookups rely on
-                    // the two being disjoint.
+                    // A rejected entity is never stored (`update_many` dropped it): the write relies on the two
+                    // being disjoint to list each entity once.
                     assert!(self.store.slot_of(entity).is_none(), "{entity} both stored and rejected");
                     if self.rejected.insert(entity) {
                         tracing::warn!("bevy_cullet keeps {entity} visible: {error}");

@@ -94,17 +94,23 @@ impl VisibleSet {
 
     /// The set slots in increasing order.
     pub fn iter(&self) -> impl Iterator<Item = usize> + '_ {
-        self.words.iter().enumerate().flat_map(|(word_index, &word)| {
-            let mut bits = word;
-            std::iter::from_fn(move || {
-                (bits != 0).then(|| {
-                    let bit = bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    word_index * 64 + bit
-                })
+        set_slots(0, &self.words)
+    }
+}
+
+/// The slots set in `words`, a run of a set's [`VisibleSet::words`] starting at word `first_word`, in
+/// increasing order: for stages that read a set's words in parallel chunks.
+pub fn set_slots(first_word: usize, words: &[u64]) -> impl Iterator<Item = usize> + '_ {
+    words.iter().enumerate().flat_map(move |(index, &word)| {
+        let mut bits = word;
+        std::iter::from_fn(move || {
+            (bits != 0).then(|| {
+                let bit = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                (first_word + index) * 64 + bit
             })
         })
-    }
+    })
 }
 
 #[cfg(test)]
@@ -123,5 +129,9 @@ mod tests {
         let all = VisibleSet::all(130);
         assert_eq!(all.count(), 130);
         assert_eq!(all.iter().last(), Some(129));
+        // The words read in chunks give the same slots, chunk after chunk.
+        let chunked: Vec<usize> =
+            set.words().chunks(1).enumerate().flat_map(|(chunk, words)| set_slots(chunk, words)).collect();
+        assert_eq!(chunked, set.iter().collect::<Vec<_>>());
     }
 }
