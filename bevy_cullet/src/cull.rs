@@ -16,9 +16,10 @@ use bevy_transform::components::GlobalTransform;
 use bevy_utils::Parallel;
 use cullet::Occluder;
 use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
-use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum_coherent};
+use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum, cull_frustum_coherent};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::occlude;
+use cullet::pipeline::BenefitGate;
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
 use std::any::TypeId;
@@ -44,6 +45,9 @@ pub struct ViewStats {
     pub occluder_triangles: usize,
     /// Whether this frame reused the last frame's result (same view, settings, bounds and occluders).
     pub reused: bool,
+    /// Whether the occlusion stage was skipped this frame because it had removed too little lately
+    /// ([`crate::CulletSettings::adaptive`]): everything the frustum kept stayed visible.
+    pub occlusion_gated: bool,
     /// Frustum stage time.
     pub frustum_time: Duration,
     /// Occluder selection and raster time.
@@ -68,6 +72,8 @@ pub struct CulletView {
     occluded: VisibleSet,
     /// What the last full cull was computed from: view key, store generation, settings, occlusion on.
     last: Option<([f32; 19], u64, CulletSettings, bool)>,
+    /// When occlusion is skipped for removing too little.
+    occlusion_gate: BenefitGate,
     stats: ViewStats,
 }
 
@@ -100,7 +106,8 @@ impl CulletView {
     ) {
         let store = &cullet.store;
         let key = (view.key, store.generation(), *settings, occlusion);
-        self.stats.reused = self.last == Some(key) && self.visible.len() == store.len();
+        let adaptive = &settings.adaptive;
+        self.stats.reused = adaptive.reuse_unchanged && self.last == Some(key) && self.visible.len() == store.len();
         if self.stats.reused {
             return;
         }
@@ -109,7 +116,7 @@ impl CulletView {
         self.stats.objects = store.len();
         self.stats.frustum_error = None;
         match &view.frustum {
-            Ok(frustum) if settings.frustum => {
+            Ok(frustum) if settings.frustum && adaptive.plane_coherence => {
                 cull_frustum_coherent(
                     store,
                     frustum,
@@ -117,6 +124,9 @@ impl CulletView {
                     &mut self.frustum_visible,
                     &mut self.coherence,
                 );
+            }
+            Ok(frustum) if settings.frustum => {
+                cull_frustum(store, frustum, &mut self.frustum_visible);
             }
             Ok(_) => self.frustum_visible = VisibleSet::all(store.len()),
             Err(error) => {
@@ -129,7 +139,9 @@ impl CulletView {
         self.stats.frustum_time = start.elapsed();
 
         let start = Instant::now();
-        let chosen: Vec<OccluderInstance> = match (&view.camera, occlusion && settings.occlusion.enabled) {
+        let occlusion = occlusion && settings.occlusion.enabled;
+        self.stats.occlusion_gated = occlusion && self.occlusion_gate.skip_this_frame();
+        let chosen: Vec<OccluderInstance> = match (&view.camera, occlusion && !self.stats.occlusion_gated) {
             (Some(camera), true) => select_occluders(
                 store,
                 &self.frustum_visible,
@@ -162,6 +174,13 @@ impl CulletView {
             (run.raster.triangles_rasterized, run.raster.occluders_hidden);
         stats.after_occlusion = run.test.visible;
         (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
+        // A frame that rasterized nothing says nothing of what occlusion is worth here.
+        if !chosen.is_empty() {
+            let removed = stats.after_frustum - stats.after_occlusion;
+            let (frames, reprobe) = (adaptive.low_benefit_frames, adaptive.reprobe_every);
+            let min_benefit = adaptive.min_occlusion_benefit;
+            self.occlusion_gate.record(removed, stats.after_frustum, min_benefit, frames, reprobe);
+        }
     }
 }
 

@@ -97,7 +97,7 @@ use bevy_camera::visibility::{VisibilitySystems, check_visibility_cpu_culling};
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleCleanupPolicy;
 use bevy_transform::TransformSystems;
-use cullet::pipeline::OcclusionSettings;
+use cullet::pipeline::{AdaptiveSettings, OcclusionSettings};
 use cullet::scene::auto_occluders::AutoOccluderSettings;
 
 /// Replaces Bevy's CPU visibility check with Cullet's culling; see the [crate documentation](crate).
@@ -126,11 +126,26 @@ pub struct CulletSettings {
     /// physical viewport where Bevy knows it (those modes are conservative only at the resolution drawn), and
     /// `width` x `height` elsewhere (a camera with no render target yet).
     pub occlusion: OcclusionSettings,
+    /// What each camera skips when it cannot pay off, as in Cullet's own pipeline (defaults: its
+    /// [`AdaptiveSettings::default`]). The plugin follows `reuse_unchanged` (an unchanged view over unchanged
+    /// bounds and occluders keeps its last result), `plane_coherence`, and `min_occlusion_benefit` with
+    /// `low_benefit_frames` and `reprobe_every` (a camera whose occlusion removed under 1% of its frustum
+    /// survivors for 8 frames in a row skips it for 30 frames, then tries again:
+    /// [`ViewStats::occlusion_gated`]). It has no light views and always selects hidden occluders, so
+    /// `min_light_occlusion_benefit` and `skip_hidden_occluders` do nothing here. Skipping only ever keeps more
+    /// entities visible.
+    pub adaptive: AdaptiveSettings,
 }
 
 impl Default for CulletSettings {
     fn default() -> Self {
-        Self { enabled: true, frustum: true, auto_occluders: None, occlusion: OcclusionSettings::default() }
+        Self {
+            enabled: true,
+            frustum: true,
+            auto_occluders: None,
+            occlusion: OcclusionSettings::default(),
+            adaptive: AdaptiveSettings::default(),
+        }
     }
 }
 

@@ -139,6 +139,56 @@ fn occluders_hide_what_is_behind_them_while_they_are_shown() {
     assert!(visible(&app, hidden_box));
 }
 
+/// Occlusion that hides nothing (a wall behind everything) is skipped after 8 such frames, for 30, then tried
+/// again. While it is skipped, everything the frustum keeps is visible: a box behind the wall moved in front of
+/// it too, until the next try hides it.
+#[test]
+fn occlusion_that_hides_too_little_is_skipped_for_a_while_then_tried_again() {
+    let mut app = app(Some(CulletSettings::default()));
+    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let wall = Transform::from_xyz(0.0, 0.0, -40.0).with_scale(Vec3::new(40.0, 40.0, 1.0));
+    let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+    let wall = app.world_mut().spawn((unit_box(), wall, Visibility::default(), drawn(), occluder)).id();
+    let boxed = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    let mut gated = Vec::new();
+    for frame in 0..40 {
+        // The camera drifts a little, so that no frame reuses the last one's result.
+        let eye = cullet::Camera {
+            position: glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0),
+            ..camera_looking(glam::Vec3::NEG_Z)
+        };
+        set_camera(app.world_mut(), camera, &eye, 1000.0);
+        if frame == 20 {
+            app.world_mut().get_mut::<Transform>(wall).unwrap().translation.z = -4.0;
+        }
+        app.update();
+        let stats = *app.world().get::<CulletView>(camera).unwrap().stats();
+        gated.push(stats.occlusion_gated);
+        if stats.occlusion_gated {
+            assert_eq!((stats.occluders, stats.after_occlusion), (0, stats.after_frustum), "frame {frame}");
+            assert!(visible(&app, boxed), "frame {frame}");
+        }
+    }
+    // The first 8 frames rasterized the wall and removed nothing; the next 30 skipped it; the 39th tried again
+    // and, the wall now in front, hid the box, so the 40th ran too.
+    let expected: Vec<bool> = (0..40).map(|frame| (8..38).contains(&frame)).collect();
+    assert_eq!(gated, expected);
+    assert!(!visible(&app, boxed));
+
+    // With `min_occlusion_benefit` 0 it is never skipped.
+    app.world_mut().resource_mut::<CulletSettings>().adaptive.min_occlusion_benefit = 0.0;
+    app.world_mut().get_mut::<Transform>(wall).unwrap().translation.z = -40.0;
+    for frame in 0..12 {
+        let eye = cullet::Camera {
+            position: glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0),
+            ..camera_looking(glam::Vec3::NEG_Z)
+        };
+        set_camera(app.world_mut(), camera, &eye, 1000.0);
+        app.update();
+        assert!(!app.world().get::<CulletView>(camera).unwrap().stats().occlusion_gated, "frame {frame}");
+    }
+}
+
 #[test]
 fn pixel_centre_and_masked_buffers_take_the_cameras_viewport_size() {
     let (mut app, camera, _, hidden_box) = walled();
