@@ -128,7 +128,9 @@ pub struct CulletSettings {
     pub occlusion: OcclusionSettings,
     /// What each camera skips when it cannot pay off, as in Cullet's own pipeline (defaults: its
     /// [`AdaptiveSettings::default`]). The plugin follows `reuse_unchanged` (an unchanged view over unchanged
-    /// bounds and occluders keeps its last result), `plane_coherence`, and `min_occlusion_benefit` with
+    /// bounds and occluders keeps its last result; where only entities without occluders moved, their
+    /// occlusion alone is re-tested against the last depth buffer: [`ViewStats::retested`]),
+    /// `plane_coherence`, and `min_occlusion_benefit` with
     /// `low_benefit_frames` and `reprobe_every` (a camera whose occlusion removed under 1% of its frustum
     /// survivors for 8 frames in a row skips it for 30 frames, then tries again:
     /// [`ViewStats::occlusion_gated`]). It has no light views and always selects hidden occluders, so

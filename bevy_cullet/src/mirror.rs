@@ -21,6 +21,20 @@ pub struct CulletStore {
     pub(crate) rejected: EntityHashSet,
     /// Entities to mirror again whatever changed (they lost `NoFrustumCulling` or `NoCpuCulling`).
     pending: Vec<Entity>,
+    /// What the last mirroring changed in place; `None` when too many slots changed to list.
+    pub(crate) moves: Option<Moves>,
+    /// The store's generation when the mirroring last ended.
+    mirrored_generation: u64,
+}
+
+/// The slots whose bounds one mirroring overwrote in place (increasing), with the store's generation before
+/// and after it. A camera that culled at `from` and sees the store at `to`, with the same layout, needs to
+/// re-test only these slots: every other slot holds the bounds it culled.
+#[derive(Debug, Default)]
+pub(crate) struct Moves {
+    pub(crate) from: u64,
+    pub(crate) to: u64,
+    pub(crate) slots: Vec<u32>,
 }
 
 impl CulletStore {
@@ -86,16 +100,21 @@ pub(crate) fn mirror_bounds(
     let mut changed: Vec<Mirror> = queues.iter_mut().flat_map(|queue| queue.drain(..)).collect();
     let pending = std::mem::take(&mut cullet.pending);
     changed.extend(pending.into_iter().filter_map(|entity| all.get(entity).ok()).map(mirror));
-    if changed.is_empty() {
-        return;
+    if !changed.is_empty() {
+        // In entity order, whatever the threads did: new objects take slots in the order they were spawned,
+        // which keeps a scene spawned in spatial order grouped for the frustum's hierarchy. An entity pending
+        // and changed is stored once.
+        changed.sort_unstable_by_key(|((entity, ..), _)| *entity);
+        changed.dedup_by_key(|((entity, ..), _)| *entity);
+        let (objects, occluders): (Vec<_>, Vec<_>) = changed.into_iter().unzip();
+        cullet.update(&objects, &occluders);
     }
-    // In entity order, whatever the threads did: new objects take slots in the order they were spawned, which
-    // keeps a scene spawned in spatial order grouped for the frustum's hierarchy. An entity pending and
-    // changed is stored once.
-    changed.sort_unstable_by_key(|((entity, ..), _)| *entity);
-    changed.dedup_by_key(|((entity, ..), _)| *entity);
-    let (objects, occluders): (Vec<_>, Vec<_>) = changed.into_iter().unzip();
-    cullet.update(&objects, &occluders);
+    // Taken every frame, so that the list covers exactly the changes since the last mirroring (removals in
+    // between change the layout, which the cameras compare too).
+    let from = cullet.mirrored_generation;
+    let (to, slots) = (cullet.store.generation(), cullet.store.take_moved_slots());
+    cullet.moves = slots.map(|slots| Moves { from, to, slots });
+    cullet.mirrored_generation = to;
 }
 
 /// One entity to mirror: entity, local bounds, transform; and whether it carries an occluder.

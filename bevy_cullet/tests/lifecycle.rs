@@ -189,6 +189,72 @@ fn occlusion_that_hides_too_little_is_skipped_for_a_while_then_tried_again() {
     }
 }
 
+/// A still camera over moving boxes: each frame only the boxes that moved are re-tested, and every entity ends
+/// up exactly as in an app that culls everything each frame. A moved occluder, or a moved camera, runs the
+/// frame in full.
+#[test]
+fn with_the_camera_still_only_the_entities_that_moved_are_re_tested() {
+    let full = CulletSettings {
+        adaptive: cullet::pipeline::AdaptiveSettings { reuse_unchanged: false, ..Default::default() },
+        ..Default::default()
+    };
+    let mut apps = [app(Some(CulletSettings::default())), app(Some(full))];
+    let mut spawned = Vec::new();
+    for app in &mut apps {
+        let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+        let wall = Transform::from_xyz(-3.0, 0.0, -6.0).with_scale(Vec3::new(6.0, 6.0, 1.0));
+        let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+        let wall = app.world_mut().spawn((unit_box(), wall, Visibility::default(), drawn(), occluder)).id();
+        let boxes: Vec<Entity> = (0..12).map(|i| spawn_box(app, Vec3::new(i as f32 - 6.0, 0.0, -12.0))).collect();
+        // Still boxes around them, so that the few moving ones are under an eighth of the store (past that the
+        // store stops listing them: re-culling everything costs as much).
+        for i in 0..100 {
+            spawn_box(app, Vec3::new((i % 20) as f32 * 3.0 - 30.0, (i / 20) as f32 * 3.0 - 6.0, -30.0));
+        }
+        app.update();
+        spawned.push((camera, wall, boxes));
+    }
+    assert_eq!(spawned[0], spawned[1], "both apps spawn the same entities");
+    let (camera, wall, boxes) = spawned.pop().unwrap();
+    let (mut hidden_in_view, mut out_of_view) = (false, false);
+    for frame in 1..40 {
+        for app in &mut apps {
+            // Every third box sweeps across the view, behind the wall and out of the frustum at times.
+            for (i, &entity) in boxes.iter().enumerate().filter(|(i, _)| i % 3 == 0) {
+                let x = ((frame as f32 * 0.7 + i as f32) % 30.0) - 15.0;
+                app.world_mut().get_mut::<Transform>(entity).unwrap().translation = Vec3::new(x, 0.0, -12.0);
+            }
+            if frame == 20 {
+                app.world_mut().get_mut::<Transform>(wall).unwrap().translation.x = 3.0;
+            }
+            if frame == 30 {
+                let eye =
+                    cullet::Camera { position: glam::Vec3::new(0.5, 0.0, 0.0), ..camera_looking(glam::Vec3::NEG_Z) };
+                set_camera(app.world_mut(), camera, &eye, 1000.0);
+            }
+            app.update();
+        }
+        let [retesting, full] = &apps;
+        let all: Vec<Entity> = boxes.iter().copied().chain([wall]).collect();
+        assert_eq!(view_visible(retesting.world(), &all), view_visible(full.world(), &all), "frame {frame}");
+        assert_eq!(listed(retesting, camera), listed(full, camera), "frame {frame}");
+        let stats = *retesting.world().get::<CulletView>(camera).unwrap().stats();
+        let expected = if frame == 20 || frame == 30 { 0 } else { 4 };
+        assert_eq!(stats.retested, expected, "frame {frame}");
+        assert_eq!(full.world().get::<CulletView>(camera).unwrap().stats().retested, 0);
+        for &entity in boxes.iter().step_by(3) {
+            let x = retesting.world().get::<Transform>(entity).unwrap().translation.x;
+            if !visible(retesting, entity) {
+                // The view's edges at the boxes' depth are at x = -12 and 12.
+                hidden_in_view |= x.abs() < 11.0;
+                out_of_view |= x.abs() > 13.0;
+            }
+        }
+    }
+    // Along the way moving boxes were hidden behind the wall and left the view: the re-tests met both.
+    assert!(hidden_in_view && out_of_view);
+}
+
 #[test]
 fn pixel_centre_and_masked_buffers_take_the_cameras_viewport_size() {
     let (mut app, camera, _, hidden_box) = walled();
