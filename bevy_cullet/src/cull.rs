@@ -17,10 +17,10 @@ use bevy_utils::Parallel;
 use cullet::Occluder;
 use cullet::bounds::BoundsStore;
 use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
-use cullet::frustum::{FrustumError, PlaneCoherence, SimdBackend, cull_frustum, cull_frustum_coherent};
+use cullet::frustum::{FrustumError, PlaneCoherence, cull_frustum_with_coherence, retest_frustum};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::{occlude, retest_occlusion};
-use cullet::pipeline::BenefitGate;
+use cullet::pipeline::{BenefitGate, RetestCost};
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
 use std::any::TypeId;
@@ -46,10 +46,11 @@ pub struct ViewStats {
     pub occluder_triangles: usize,
     /// Whether this frame reused the last frame's result (same view, settings, bounds and occluders).
     pub reused: bool,
-    /// Mirrored entities whose occlusion was re-tested alone this frame because only they moved: the view,
-    /// the settings, which entities are stored where and every occluder were unchanged, so the occlusion test
-    /// re-tested just these against last frame's depth buffer (whose occluder counts stand); the frustum stage
-    /// ran as every frame. 0 when the frame ran in full or was reused.
+    /// Mirrored entities re-tested alone this frame because only they moved: the view, the settings, which
+    /// entities are stored where and every occluder were unchanged, so the occlusion test re-tested just these
+    /// against last frame's depth buffer (whose occluder counts stand), and the frustum stage either them too
+    /// or every entity, whichever last cost less ([`cullet::pipeline::RetestCost`]). 0 when the frame ran in
+    /// full or was reused.
     pub retested: usize,
     /// Whether the occlusion stage was skipped this frame because it had removed too little lately
     /// ([`crate::CulletSettings::adaptive`]): everything the frustum kept stayed visible.
@@ -83,6 +84,8 @@ pub struct CulletView {
     last: Option<(ViewKey, u64, u64)>,
     /// When occlusion is skipped for removing too little.
     occlusion_gate: BenefitGate,
+    /// Whether the frustum stage re-tests moved entities one by one or in a full pass.
+    retest_cost: RetestCost,
     stats: ViewStats,
 }
 
@@ -130,13 +133,26 @@ impl CulletView {
         let occlusion = occlusion && settings.occlusion.enabled;
         let was_gated = self.stats.occlusion_gated;
         self.stats.occlusion_gated = occlusion && self.occlusion_gate.skip_this_frame();
-        self.frustum_stage(store, view, settings);
-        // Only entities without occluders moved since the last cull: the depth buffer stands.
-        if let (true, Some(moves), Some((_, last_generation, _))) =
-            (same_view && was_gated == self.stats.occlusion_gated, &cullet.moves, last)
-            && (moves.from, moves.to) == (last_generation, generation)
-            && moves.slots.iter().all(|&slot| !store.occluders().contains(slot as usize))
-        {
+        // Only entities without occluders moved since the last cull: the planes and the depth buffer stand.
+        let gate_unchanged = was_gated == self.stats.occlusion_gated;
+        let moved = cullet.moves.as_ref().filter(|moves| {
+            same_view
+                && gate_unchanged
+                && last.is_some_and(|(_, last_generation, _)| (moves.from, moves.to) == (last_generation, generation))
+                && moves.slots.iter().all(|&slot| !store.occluders().contains(slot as usize))
+        });
+        match (moved, &view.frustum) {
+            (Some(moves), Ok(frustum))
+                if settings.frustum && self.retest_cost.alone_pays(moves.slots.len(), store.len()) =>
+            {
+                let start = Instant::now();
+                retest_frustum(store, frustum, &moves.slots, &mut self.frustum_visible);
+                self.retest_cost.record_alone(start.elapsed(), moves.slots.len());
+                (self.stats.after_frustum, self.stats.frustum_time) = (self.frustum_visible.count(), start.elapsed());
+            }
+            _ => self.frustum_stage(store, view, settings),
+        }
+        if let Some(moves) = moved {
             self.retest_occlusion(store, view, settings, &moves.slots);
             return;
         }
@@ -185,26 +201,16 @@ impl CulletView {
 }
 
 impl CulletView {
-    /// The frustum stage for `view`, over the whole store. Also where only a few entities moved: testing the
-    /// scattered moved ones alone cost more than the SIMD pass over every object (at 1e6 objects with 4,800
-    /// cars moving, 0.27-0.38 against 0.19 ms a frame, `--still-camera` in the plugin's bench), which gives the
-    /// others the same results again.
+    /// The frustum stage for `view`, over the whole store.
     fn frustum_stage(&mut self, store: &BoundsStore, view: &View, settings: &CulletSettings) {
         let start = Instant::now();
         self.stats.objects = store.len();
         self.stats.frustum_error = None;
         match &view.frustum {
-            Ok(frustum) if settings.frustum && settings.adaptive.plane_coherence => {
-                cull_frustum_coherent(
-                    store,
-                    frustum,
-                    SimdBackend::Auto,
-                    &mut self.frustum_visible,
-                    &mut self.coherence,
-                );
-            }
             Ok(frustum) if settings.frustum => {
-                cull_frustum(store, frustum, &mut self.frustum_visible);
+                let coherence = settings.adaptive.plane_coherence.then_some(&mut self.coherence);
+                cull_frustum_with_coherence(store, frustum, coherence, &mut self.frustum_visible);
+                self.retest_cost.record_full(start.elapsed(), store.len());
             }
             Ok(_) => self.frustum_visible = VisibleSet::all(store.len()),
             Err(error) => {

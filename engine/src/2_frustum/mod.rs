@@ -372,6 +372,33 @@ fn normalize_plane(plane: DVec4, index: usize) -> Result<Option<Plane>, FrustumE
     Ok(Some(Plane { normal: plane.truncate().as_vec3(), d: plane.w as f32 }))
 }
 
+/// Re-tests the store slots `moved` against `frustum` one by one, into `visible`, whose other slots keep their
+/// bits: for a frame where only they moved since `visible` was culled with the same frustum. Each gets the bit
+/// [`cull_frustum`] would give it; a slot the store does not hold is set visible.
+///
+/// # Panics
+/// Where a slot of `moved` is past `visible`'s words.
+pub fn retest_frustum(store: &BoundsStore, frustum: &Frustum, moved: &[u32], visible: &mut VisibleSet) {
+    for &slot in moved {
+        let visible_now = store.get(slot as usize).is_none_or(|bounds| frustum.intersects(&bounds));
+        visible.set(slot as usize, visible_now);
+    }
+}
+
+/// [`cull_frustum`], or with `coherence` [`cull_frustum_coherent`] (the fastest backend either way): the same
+/// bits. Returns the number of visible objects.
+pub fn cull_frustum_with_coherence(
+    store: &BoundsStore,
+    frustum: &Frustum,
+    coherence: Option<&mut PlaneCoherence>,
+    visible: &mut VisibleSet,
+) -> usize {
+    match coherence {
+        Some(coherence) => cull_frustum_coherent(store, frustum, SimdBackend::Auto, visible, coherence),
+        None => cull_frustum(store, frustum, visible),
+    }
+}
+
 /// Frustum-culls every object of `store` into `visible` (resized to the store), in parallel over blocks of
 /// 4096 objects, with the fastest SIMD backend of this processor. Returns the number of visible objects.
 pub fn cull_frustum(store: &BoundsStore, frustum: &Frustum, visible: &mut VisibleSet) -> usize {
