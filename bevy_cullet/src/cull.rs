@@ -143,7 +143,7 @@ impl CulletView {
         });
         match (moved, &view.frustum) {
             (Some(moves), Ok(frustum))
-                if settings.frustum && self.retest_cost.alone_pays(moves.slots.len(), store.len()) =>
+                if settings.frustum && self.retest_cost.choose_alone(moves.slots.len(), store.len()) =>
             {
                 let start = Instant::now();
                 retest_frustum(store, frustum, &moves.slots, &mut self.frustum_visible);

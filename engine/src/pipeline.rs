@@ -301,11 +301,11 @@ impl WayCost {
 const RETEST_PROBE_EVERY: u32 = 32;
 
 impl RetestCost {
-    /// Whether to test `moved` objects one by one this frame rather than make the full pass over `objects`.
-    /// Until each way has a cost, the one without (one by one first); then the way that cost less, except every
-    /// 32nd call, which takes the other. Call once a frame that re-tests, then record what
+    /// Chooses, for a frame that re-tests `moved` of `objects` objects, between testing them one by one (`true`)
+    /// and the full pass. Until each way has a cost, the one without (one by one first); then the way that cost
+    /// less, except every 32nd call, which takes the other. Call once a frame that re-tests, then record what
     /// the way taken cost.
-    pub fn alone_pays(&mut self, moved: usize, objects: usize) -> bool {
+    pub fn choose_alone(&mut self, moved: usize, objects: usize) -> bool {
         self.choices = self.choices.wrapping_add(1);
         match (self.alone.per_object, self.full.per_object) {
             (None, _) => true,
@@ -586,7 +586,7 @@ pub fn frustum_stage(
         && moved.iter().all(|&slot| !store.occluders().contains(slot as usize))
     {
         let pass = Instant::now();
-        if gate.retest_cost.alone_pays(moved.len(), store.len()) {
+        if gate.retest_cost.choose_alone(moved.len(), store.len()) {
             retest_frustum(&store, &frustum, &moved, &mut visible.0);
             gate.retest_cost.record_alone(pass.elapsed(), moved.len());
         } else {
@@ -867,9 +867,9 @@ mod tests {
         // Asks `cost` for `moved` of 1000 objects, past any probe, and says whether one by one was chosen.
         let choose = |cost: &mut RetestCost, moved: usize| {
             if (cost.choices + 1).is_multiple_of(RETEST_PROBE_EVERY) {
-                cost.alone_pays(moved, 1000);
+                cost.choose_alone(moved, 1000);
             }
-            cost.alone_pays(moved, 1000)
+            cost.choose_alone(moved, 1000)
         };
         cost.record_full(Duration::from_millis(1), 1000); // cold: dropped
         cost.record_full(Duration::from_micros(1), 1000); // 1 ns an object
@@ -883,12 +883,12 @@ mod tests {
         cost.record_alone(Duration::ZERO, 0); // nothing moved: nothing learnt
         assert!(choose(&mut cost, 350) && !choose(&mut cost, 400));
         // The probes: every 32nd choice goes the other way.
-        let picks: Vec<bool> = (0..64).map(|_| cost.alone_pays(100, 1000)).collect();
+        let picks: Vec<bool> = (0..64).map(|_| cost.choose_alone(100, 1000)).collect();
         assert_eq!(picks.iter().filter(|&&alone| !alone).count(), 2);
         // The full pass is measured first where one by one already is.
         let mut fresh = RetestCost::default();
         fresh.record_alone(Duration::from_nanos(400), 50);
         fresh.record_alone(Duration::from_nanos(400), 50);
-        assert!(!fresh.alone_pays(1, 1000));
+        assert!(!fresh.choose_alone(1, 1000));
     }
 }
