@@ -189,6 +189,39 @@ fn occlusion_that_hides_too_little_is_skipped_for_a_while_then_tried_again() {
     }
 }
 
+/// The occlusion gate counts only the frames where occlusion would run: a camera that opts out while the
+/// stage is skipped finds it still skipped when it opts back in, for what was left of the 30 frames.
+#[test]
+fn frames_without_occlusion_leave_the_skipped_stage_as_it_was() {
+    let mut app = app(Some(CulletSettings::default()));
+    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
+    let wall = Transform::from_xyz(0.0, 0.0, -40.0).with_scale(Vec3::new(40.0, 40.0, 1.0));
+    let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
+    app.world_mut().spawn((unit_box(), wall, Visibility::default(), drawn(), occluder));
+    spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    let mut frame = 0;
+    let mut step = |app: &mut bevy_app::App| {
+        // The camera drifts a little, so that no frame reuses the last one's result.
+        frame += 1;
+        let at = glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0);
+        set_camera(
+            app.world_mut(),
+            camera,
+            &cullet::Camera { position: at, ..camera_looking(glam::Vec3::NEG_Z) },
+            1000.0,
+        );
+        app.update();
+        app.world().get::<CulletView>(camera).unwrap().stats().occlusion_gated
+    };
+    // 8 frames removing nothing close the gate; 10 of its 30 frames pass.
+    assert!((0..8).all(|_| !step(&mut app)) && (0..10).all(|_| step(&mut app)));
+    app.world_mut().entity_mut(camera).insert(NoCulletOcclusion);
+    assert!((0..40).all(|_| !step(&mut app)), "no occlusion, so nothing skipped");
+    app.world_mut().entity_mut(camera).remove::<NoCulletOcclusion>();
+    // The 20 frames left, then the stage runs again.
+    assert!((0..20).all(|_| step(&mut app)) && !step(&mut app));
+}
+
 /// A still camera over moving boxes: each frame only the boxes that moved are re-tested, and every entity ends
 /// up exactly as in an app that culls everything each frame. A moved occluder, or a moved camera, runs the
 /// frame in full.
