@@ -17,7 +17,7 @@ use bevy_utils::Parallel;
 use cullet::Occluder;
 use cullet::bounds::BoundsStore;
 use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
-use cullet::frustum::{FrustumError, PlaneCoherence, cull_frustum_with_coherence, retest_frustum};
+use cullet::frustum::{FrustumError, PlaneCoherence, cull_frustum_with_coherence};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::{occlude, retest_occlusion};
 use cullet::pipeline::{BenefitGate, RetestCost};
@@ -142,12 +142,10 @@ impl CulletView {
                 && moves.slots.iter().all(|&slot| !store.occluders().contains(slot as usize))
         });
         match (moved, &view.frustum) {
-            (Some(moves), Ok(frustum))
-                if settings.frustum && self.retest_cost.choose_alone(moves.slots.len(), store.len()) =>
-            {
+            (Some(moves), Ok(frustum)) if settings.frustum => {
                 let start = Instant::now();
-                retest_frustum(store, frustum, &moves.slots, &mut self.frustum_visible);
-                self.retest_cost.record_alone(start.elapsed(), moves.slots.len());
+                let coherence = adaptive.plane_coherence.then_some(&mut self.coherence);
+                self.retest_cost.retest_frustum(store, frustum, &moves.slots, coherence, &mut self.frustum_visible);
                 (self.stats.after_frustum, self.stats.frustum_time) = (self.frustum_visible.count(), start.elapsed());
             }
             _ => self.frustum_stage(store, view, settings),
@@ -198,9 +196,7 @@ impl CulletView {
             self.occlusion_gate.record(removed, stats.after_frustum, min_benefit, frames, reprobe);
         }
     }
-}
 
-impl CulletView {
     /// The frustum stage for `view`, over the whole store.
     fn frustum_stage(&mut self, store: &BoundsStore, view: &View, settings: &CulletSettings) {
         let start = Instant::now();

@@ -98,24 +98,32 @@ fn render_layers_and_two_cameras_each_get_their_own_view() {
     assert!(!visible(&app, ahead) && visible(&app, behind));
 }
 
-/// A wall (with an occluder) between the camera and a box.
+/// A wall (with an occluder) between the camera and a box, after one frame.
 fn walled() -> (bevy_app::App, Entity, Entity, Entity) {
+    let (mut app, camera, wall, hidden_box) = wall_and_box(-4.0);
+    app.update();
+    (app, camera, wall, hidden_box)
+}
+
+/// A camera at the origin looking down -Z, a wide wall (with an occluder) at `wall_z` and a box at z = -20, not
+/// yet updated: the app, the camera, the wall, the box.
+fn wall_and_box(wall_z: f32) -> (bevy_app::App, Entity, Entity, Entity) {
     let mut app = app(Some(CulletSettings::default()));
     let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
     let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
-    let wall = app
-        .world_mut()
-        .spawn((
-            unit_box(),
-            Transform::from_xyz(0.0, 0.0, -4.0).with_scale(Vec3::new(40.0, 40.0, 1.0)),
-            Visibility::default(),
-            drawn(),
-            occluder,
-        ))
-        .id();
-    let hidden_box = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    let wall = Transform::from_xyz(0.0, 0.0, wall_z).with_scale(Vec3::new(40.0, 40.0, 1.0));
+    let wall = app.world_mut().spawn((unit_box(), wall, Visibility::default(), drawn(), occluder)).id();
+    let boxed = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    (app, camera, wall, boxed)
+}
+
+/// Moves `camera` (of [`wall_and_box`]) `frame` thousandths along x and runs a frame: a camera that drifts a
+/// little, so that no frame reuses the last one's result. Returns its stats.
+fn drifted_frame(app: &mut bevy_app::App, camera: Entity, frame: u32) -> bevy_cullet::ViewStats {
+    let at = glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0);
+    set_camera(app.world_mut(), camera, &cullet::Camera { position: at, ..camera_looking(glam::Vec3::NEG_Z) }, 1000.0);
     app.update();
-    (app, camera, wall, hidden_box)
+    *app.world().get::<CulletView>(camera).unwrap().stats()
 }
 
 #[test]
@@ -144,25 +152,13 @@ fn occluders_hide_what_is_behind_them_while_they_are_shown() {
 /// it too, until the next try hides it.
 #[test]
 fn occlusion_that_hides_too_little_is_skipped_for_a_while_then_tried_again() {
-    let mut app = app(Some(CulletSettings::default()));
-    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
-    let wall = Transform::from_xyz(0.0, 0.0, -40.0).with_scale(Vec3::new(40.0, 40.0, 1.0));
-    let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
-    let wall = app.world_mut().spawn((unit_box(), wall, Visibility::default(), drawn(), occluder)).id();
-    let boxed = spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    let (mut app, camera, wall, boxed) = wall_and_box(-40.0);
     let mut gated = Vec::new();
     for frame in 0..40 {
-        // The camera drifts a little, so that no frame reuses the last one's result.
-        let eye = cullet::Camera {
-            position: glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0),
-            ..camera_looking(glam::Vec3::NEG_Z)
-        };
-        set_camera(app.world_mut(), camera, &eye, 1000.0);
         if frame == 20 {
             app.world_mut().get_mut::<Transform>(wall).unwrap().translation.z = -4.0;
         }
-        app.update();
-        let stats = *app.world().get::<CulletView>(camera).unwrap().stats();
+        let stats = drifted_frame(&mut app, camera, frame);
         gated.push(stats.occlusion_gated);
         if stats.occlusion_gated {
             assert_eq!((stats.occluders, stats.after_occlusion), (0, stats.after_frustum), "frame {frame}");
@@ -179,13 +175,7 @@ fn occlusion_that_hides_too_little_is_skipped_for_a_while_then_tried_again() {
     app.world_mut().resource_mut::<CulletSettings>().adaptive.min_occlusion_benefit = 0.0;
     app.world_mut().get_mut::<Transform>(wall).unwrap().translation.z = -40.0;
     for frame in 0..12 {
-        let eye = cullet::Camera {
-            position: glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0),
-            ..camera_looking(glam::Vec3::NEG_Z)
-        };
-        set_camera(app.world_mut(), camera, &eye, 1000.0);
-        app.update();
-        assert!(!app.world().get::<CulletView>(camera).unwrap().stats().occlusion_gated, "frame {frame}");
+        assert!(!drifted_frame(&mut app, camera, frame).occlusion_gated, "frame {frame}");
     }
 }
 
@@ -193,25 +183,11 @@ fn occlusion_that_hides_too_little_is_skipped_for_a_while_then_tried_again() {
 /// stage is skipped finds it still skipped when it opts back in, for what was left of the 30 frames.
 #[test]
 fn frames_without_occlusion_leave_the_skipped_stage_as_it_was() {
-    let mut app = app(Some(CulletSettings::default()));
-    let camera = spawn_camera(app.world_mut(), &camera_looking(glam::Vec3::NEG_Z), 1000.0);
-    let wall = Transform::from_xyz(0.0, 0.0, -40.0).with_scale(Vec3::new(40.0, 40.0, 1.0));
-    let occluder = Occluder::new(Mesh::unit_cube(1).triangle_soup());
-    app.world_mut().spawn((unit_box(), wall, Visibility::default(), drawn(), occluder));
-    spawn_box(&mut app, Vec3::new(0.0, 0.0, -20.0));
+    let (mut app, camera, ..) = wall_and_box(-40.0);
     let mut frame = 0;
     let mut step = |app: &mut bevy_app::App| {
-        // The camera drifts a little, so that no frame reuses the last one's result.
         frame += 1;
-        let at = glam::Vec3::new(frame as f32 * 1e-3, 0.0, 0.0);
-        set_camera(
-            app.world_mut(),
-            camera,
-            &cullet::Camera { position: at, ..camera_looking(glam::Vec3::NEG_Z) },
-            1000.0,
-        );
-        app.update();
-        app.world().get::<CulletView>(camera).unwrap().stats().occlusion_gated
+        drifted_frame(app, camera, frame).occlusion_gated
     };
     // 8 frames removing nothing close the gate; 10 of its 30 frames pass.
     assert!((0..8).all(|_| !step(&mut app)) && (0..10).all(|_| step(&mut app)));

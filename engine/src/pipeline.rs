@@ -8,8 +8,8 @@ use crate::bounds::{
 use crate::camera::Camera;
 use crate::depth::{DepthBuffer, DepthPyramid, ScreenView};
 use crate::frustum::{
-    FrustumError, LightSource, LightView, PlaneCoherence, View, ViewError, cull_frustum_with_coherence, cull_views,
-    retest_frustum,
+    Frustum, FrustumError, LightSource, LightView, PlaneCoherence, View, ViewError, cull_frustum_with_coherence,
+    cull_views, retest_frustum,
 };
 use crate::occluder::{Occluder, OccluderInstance, select_occluders, select_occluders_for_view};
 use crate::occlusion::{occlude, retest_occlusion};
@@ -257,8 +257,8 @@ impl BenefitGate {
 }
 
 /// How the frustum stage re-tests a frame where only some objects moved: each moved object alone
-/// ([`crate::frustum::retest_frustum`]), or the full pass over the store, which gives the others their results again. Each
-/// costs what it last cost. One by one, a moved object's bounds come from scattered slots, which costs more
+/// ([`crate::frustum::retest_frustum`]), or the full pass over the store, which gives the others their results
+/// again. Each costs what it last cost. One by one, a moved object's bounds come from scattered slots, which costs more
 /// per object once the store outgrows the caches; the full pass reads the store in order and skips whole
 /// groups outside the view. In the game with a still camera over the city's moving cars (`cullet-game
 /// --headless --cpu-only --static-camera`), one by one took 19.5 us against 61-63 us for the full pass at 1e5
@@ -325,6 +325,27 @@ impl RetestCost {
     /// Records a full pass over `objects` that took `time`.
     pub fn record_full(&mut self, time: Duration, objects: usize) {
         self.full.record(time, objects);
+    }
+
+    /// Re-tests the store slots `moved` against `frustum` into `visible`, which holds the result of the same
+    /// frustum before they moved: one by one or in a full pass (with `coherence` where given), as
+    /// [`RetestCost::choose_alone`] chooses, recording what it cost. Both give the same bits.
+    pub fn retest_frustum(
+        &mut self,
+        store: &BoundsStore,
+        frustum: &Frustum,
+        moved: &[u32],
+        coherence: Option<&mut PlaneCoherence>,
+        visible: &mut VisibleSet,
+    ) {
+        let start = Instant::now();
+        if self.choose_alone(moved.len(), store.len()) {
+            retest_frustum(store, frustum, moved, visible);
+            self.record_alone(start.elapsed(), moved.len());
+        } else {
+            cull_frustum_with_coherence(store, frustum, coherence, visible);
+            self.record_full(start.elapsed(), store.len());
+        }
     }
 }
 
@@ -585,16 +606,8 @@ pub fn frustum_stage(
         (same_view, settings.enabled, lights.0.is_empty(), moved, camera.frustum())
         && moved.iter().all(|&slot| !store.occluders().contains(slot as usize))
     {
-        let pass = Instant::now();
-        if gate.retest_cost.choose_alone(moved.len(), store.len()) {
-            retest_frustum(&store, &frustum, &moved, &mut visible.0);
-            gate.retest_cost.record_alone(pass.elapsed(), moved.len());
-        } else {
-            // The same bits for the objects that did not move.
-            let coherence = adaptive.plane_coherence.then_some(&mut *coherence);
-            cull_frustum_with_coherence(&store, &frustum, coherence, &mut visible.0);
-            gate.retest_cost.record_full(pass.elapsed(), store.len());
-        }
+        let coherence = adaptive.plane_coherence.then_some(&mut *coherence);
+        gate.retest_cost.retest_frustum(&store, &frustum, &moved, coherence, &mut visible.0);
         stats.after_frustum = visible.0.count();
         stats.retested = moved.len();
         gate.retest = Some(moved);
