@@ -270,6 +270,56 @@ fn tightened_group_boxes_equal_their_members_box() {
     assert_eq!(store.supergroups()[0], union);
 }
 
+/// Each group's occluder radius stays at least the radius of every occluder in it through inserts, moves,
+/// removals (which move the last object into the hole) and occluder marks set and cleared; tightening makes it
+/// exactly the largest, or 0 for a group without an occluder.
+#[test]
+fn group_occluder_radii_bound_their_occluders_and_tighten_to_the_largest() {
+    let entity = |i: u32| Entity::from_raw_u32(i + 1).unwrap();
+    let bounds = |i: u32, size: f32| WorldBounds::new(entity(i), Vec3::new(i as f32, 0.0, 0.0), Vec3::splat(size));
+    let check = |store: &BoundsStore, tight: bool| {
+        for (group, &radius) in store.occluder_radii().iter().enumerate() {
+            let slots = group * 64..((group + 1) * 64).min(store.len());
+            let occluders = slots.filter(|&slot| store.occluders().contains(slot));
+            let largest = occluders.map(|slot| store.get(slot).unwrap().radius).fold(0.0, f32::max);
+            if tight {
+                assert_eq!(radius, largest, "group {group}, tightened");
+            } else {
+                assert!(radius >= largest, "group {group}: {radius} under its occluders' {largest}");
+            }
+        }
+    };
+    let mut store = BoundsStore::default();
+    for i in 0..300 {
+        let slot = store.insert(entity(i), &bounds(i, 1.0 + (i % 5) as f32).unwrap()).unwrap();
+        store.set_occluder(slot, i % 3 == 0).unwrap();
+    }
+    check(&store, false);
+    // Clearing marks alone (the largest occluders' here) leaves the groups to tighten.
+    store.tighten_groups();
+    for i in (0..300).filter(|i| i % 3 == 0 && i % 5 == 4) {
+        store.set_occluder(store.slot_of(entity(i)).unwrap(), false).unwrap();
+    }
+    store.tighten_groups();
+    check(&store, true);
+    for i in (0..300).step_by(7) {
+        let slot = store.slot_of(entity(i)).unwrap();
+        store.set(slot, &bounds(i, 9.0 - (i % 4) as f32).unwrap()).unwrap();
+        check(&store, false);
+    }
+    for i in (0..300).step_by(11) {
+        let slot = store.slot_of(entity(i)).unwrap();
+        store.set_occluder(slot, i % 2 == 0).unwrap();
+        check(&store, false);
+    }
+    for i in (0..300).step_by(5) {
+        store.remove(entity(i));
+        check(&store, false);
+    }
+    store.tighten_groups();
+    check(&store, true);
+}
+
 /// Every write path of the store validates what it writes: `insert`, `set`, `set_occluder` and the component
 /// path (`update`) refuse NaN, infinite and negative extents, radii too small for their box and slots out of
 /// range with a `BoundsError`, and leave the store exactly as it was.

@@ -10,11 +10,13 @@
 //!    object's bounding sphere as `radius^2 / distance^2` (distance to the box centre). In an orthographic
 //!    view (a sun's cascade, [`select_occluders_for_view`]) every occluder is seen from one direction, so the
 //!    rank is `radius^2` and nothing contains the eye.
+//!    Only the groups of 64 slots whose bound (their largest occluder radius over the distance to their box)
+//!    ranks best have their candidates ranked first; at 1e6 objects that is about 2,400 of 46,500.
 //! 4. Budget: occluders are taken best-first while their triangles fit in the budget; one that does not fit
 //!    is skipped and smaller ones after it may still fill the budget, until less room is left than the
 //!    smallest occluder taken (see [`select_occluders`]).
 
-use crate::bounds::BoundsStore;
+use crate::bounds::{BoundsStore, GroupBounds};
 use crate::depth::ScreenView;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
@@ -139,14 +141,20 @@ const RANK_WORDS_PER_TASK: usize = 256;
 /// frames, three runs each): at 1e6 objects ranking took 0.44-0.47 ms in parallel against 0.51-0.58 ms in one
 /// pass; at 1e5, 45-51 us against 22-45 us.
 const RANK_IN_PARALLEL_ABOVE: usize = 4096;
+/// Candidates ranked first, from the groups that can rank best (see [`select_occluders`]): two rounds.
+const FIRST_CANDIDATES: usize = 2 * ROUND;
+/// Relative room for f32 rounding in a group's bound on its occluders' ranks: each of the distances and the
+/// radius is within a few ulps of its exact value.
+const BOUND_SLACK: f32 = 1.0 + 1e-5;
 
 /// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluders`])
 /// that the frustum kept and whose box does not contain the camera, best-first while their triangles fit in
 /// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform. Returns the chosen slots with
 /// their occluders, best first.
 ///
-/// Candidates are found with a bitwise AND and ranked from the store's arrays; only the best are ordered, a
-/// round of `ROUND` (1024) at a time, until the budget is full, it has less room left than the smallest
+/// Candidates are found with a bitwise AND and ranked from the store's arrays, first only those of the groups
+/// whose bounds rank best (the others are ranked only where those cannot settle the choice, which is the same
+/// either way; equal ranks go in slot order). Only the best are ordered, a round of `ROUND` (1024) at a time, until the budget is full, it has less room left than the smallest
 /// occluder chosen, a whole round fits nothing more, or a round leaves less room than the smallest occluder it
 /// met (so at most that many triangles of the budget go unused).
 pub fn select_occluders<'a>(
@@ -183,6 +191,12 @@ enum Viewpoint {
 }
 
 /// [`select_occluders`] with occluders ranked as seen from `viewpoint`.
+///
+/// A budget takes a few hundred of tens of thousands of candidates, and ranking them all streams much of the
+/// store. So the groups' bounds ([`group_bound`]) are ranked first, and only the candidates of the best groups
+/// (at least [`FIRST_CANDIDATES`], or a quarter of the budget's triangles) are ranked and chosen from. Every
+/// candidate left out ranks below the threshold those groups reach; a choice that looked at none below it is the
+/// one all candidates give. Otherwise every candidate is ranked and the choice made again.
 fn select_ranked<'a>(
     store: &BoundsStore,
     visible: &VisibleSet,
@@ -190,6 +204,17 @@ fn select_ranked<'a>(
     triangle_budget: usize,
     occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
+    let wanted = FIRST_CANDIDATES.max(triangle_budget / 4);
+    let (mut best, threshold) = rank_best_groups(store, visible, viewpoint, wanted);
+    if let Some(chosen) = choose(&mut best, threshold, triangle_budget, &occluder_of) {
+        return chosen;
+    }
+    let mut ranked = rank_all(store, visible, viewpoint);
+    choose(&mut ranked, None, triangle_budget, &occluder_of).expect("a choice from every candidate always stands")
+}
+
+/// Every candidate (an occluder set in `visible`) with its rank, in slot order.
+fn rank_all(store: &BoundsStore, visible: &VisibleSet, viewpoint: Viewpoint) -> Vec<(f32, u32)> {
     // Ranking reads the bounds of every candidate: at 1e6 objects that streams much of the store, which two
     // threads do faster than one; below, waking the pool costs more than it saves. Chunks are joined in order,
     // so ties fall as they would in one pass.
@@ -204,18 +229,84 @@ fn select_ranked<'a>(
         ranked
     };
     let (visible, occluders) = (visible.words(), store.occluders().words());
-    let mut ranked: Vec<(f32, u32)> = if visible.len() < RANK_IN_PARALLEL_ABOVE {
+    if visible.len() < RANK_IN_PARALLEL_ABOVE {
         rank_chunk((0, (visible, occluders)))
     } else {
         let chunks = visible.par_chunks(RANK_WORDS_PER_TASK).zip(occluders.par_chunks(RANK_WORDS_PER_TASK));
         chunks.enumerate().map(rank_chunk).collect::<Vec<_>>().concat()
-    };
-    let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0);
+    }
+}
+
+/// The candidates of the groups with the best bounds, ranked, in slot order: whole groups, best bound first,
+/// until they hold at least `wanted` candidates. Also the threshold that every candidate left out ranks below;
+/// `None` where none was left out.
+///
+/// Groups are taken by the binary exponent of their bound (a histogram, not a sort), so those taken reach up
+/// to twice the bound needed.
+fn rank_best_groups(
+    store: &BoundsStore,
+    visible: &VisibleSet,
+    viewpoint: Viewpoint,
+    wanted: usize,
+) -> (Vec<(f32, u32)>, Option<f32>) {
+    let (visible, occluders) = (visible.words(), store.occluders().words());
+    let groups: Vec<(f32, u32)> = (visible.iter().zip(occluders).enumerate())
+        .filter(|(_, (v, o))| *v & *o != 0)
+        .map(|(group, _)| (group_bound(store, group, viewpoint), group as u32))
+        .collect();
+    // Bounds are never negative, so their bits order as they do, and bits >> 23 is the exponent.
+    let exponent = |bound: f32| (bound.to_bits() >> 23) as usize;
+    let mut candidates_by_exponent = [0usize; 256];
+    for &(bound, group) in &groups {
+        let group = group as usize;
+        candidates_by_exponent[exponent(bound)] += (visible[group] & occluders[group]).count_ones() as usize;
+    }
+    let mut taken = 0;
+    let lowest = (0..256).rev().find(|&e| {
+        taken += candidates_by_exponent[e];
+        taken >= wanted
+    });
+    // Below the lowest exponent taken, every bound (and so every rank) is under its least value.
+    let threshold = lowest.filter(|&e| e > 0 && candidates_by_exponent[..e].iter().any(|&n| n > 0));
+    let least_taken = threshold.unwrap_or(0);
+    let mut ranked = Vec::with_capacity(taken);
+    for &(_, group) in groups.iter().filter(|(bound, _)| exponent(*bound) >= least_taken) {
+        let group = group as usize;
+        rank_word(store, group * 64, visible[group] & occluders[group], viewpoint, &mut ranked);
+    }
+    (ranked, threshold.map(|e| f32::from_bits((e as u32) << 23)))
+}
+
+/// A rank no occluder of `group` (the slots of one bitset word) can exceed, seen from `viewpoint`: the largest
+/// occluder radius of the group squared, over the squared distance from the eye to the group's box (which holds
+/// every member's centre), widened for rounding. Infinite for an eye inside the box.
+fn group_bound(store: &BoundsStore, group: usize, viewpoint: Viewpoint) -> f32 {
+    let radius = store.occluder_radii()[group];
+    let Viewpoint::Position(eye) = viewpoint else { return radius * radius * BOUND_SLACK };
+    let GroupBounds { min, max } = store.groups()[group];
+    let distance_squared = (min - eye).max(eye - max).max(Vec3::ZERO).length_squared();
+    if distance_squared > 0.0 { radius * radius / distance_squared * BOUND_SLACK } else { f32::INFINITY }
+}
+
+/// Chooses from `ranked` (reordered in place) as [`select_occluders`] documents. Where `threshold` says that
+/// candidates ranked below it were left out, gives up (`None`) as soon as the choice would look at a candidate
+/// below it, or would look past the last: the candidates left out might have changed the choice there.
+fn choose<'a>(
+    ranked: &mut [(f32, u32)],
+    threshold: Option<f32>,
+    triangle_budget: usize,
+    occluder_of: &impl Fn(usize) -> Option<OccluderInstance<'a>>,
+) -> Option<Vec<(u32, OccluderInstance<'a>)>> {
+    // Equal ranks in slot order, so that the choice does not depend on which candidates were ranked.
+    let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
     let mut remaining = triangle_budget;
     let mut chosen = Vec::new();
     let mut smallest_chosen = usize::MAX;
-    let mut rest = &mut ranked[..];
-    while remaining > 0 && !rest.is_empty() {
+    let mut rest = ranked;
+    while remaining > 0 {
+        if rest.is_empty() {
+            return threshold.is_none().then_some(chosen);
+        }
         let round = ROUND.min(rest.len());
         if round < rest.len() {
             rest.select_nth_unstable_by(round, best_first);
@@ -224,7 +315,10 @@ fn select_ranked<'a>(
         head.sort_unstable_by(best_first);
         let before = chosen.len();
         let mut smallest = usize::MAX;
-        for &(_, slot) in head.iter() {
+        for &(rank, slot) in head.iter() {
+            if threshold.is_some_and(|threshold| rank < threshold) {
+                return None;
+            }
             let Some(instance) = occluder_of(slot as usize) else { continue };
             let triangles = instance.occluder.triangle_count();
             smallest = smallest.min(triangles);
@@ -246,7 +340,7 @@ fn select_ranked<'a>(
         }
         rest = tail;
     }
-    chosen
+    Some(chosen)
 }
 
 /// Appends the rank (larger is better) of each occluder candidate set in `bits` (slots from `base`) to `ranked`,
@@ -353,6 +447,58 @@ mod tests {
         let mut nearest: Vec<u32> = (0..count as u32).collect();
         nearest.sort_by(|&a, &b| centres[a as usize].x.total_cmp(&centres[b as usize].x));
         assert_eq!(select(&store, Vec3::ZERO, 12 * 2000), nearest[..2000]);
+    }
+
+    /// Choosing from the candidates of the groups that can rank best gives what ranking every candidate gives:
+    /// from an eye far off, one among the objects, and a direction; for budgets that take a few occluders, and
+    /// nearly all (where the first candidates cannot do, and every candidate is ranked).
+    #[test]
+    fn choosing_from_the_best_groups_chooses_as_ranking_every_candidate_does() {
+        // 20,000 boxes of scattered places and sizes, three in four of them occluders, of 12 or 2 triangles.
+        // Each run of 64 slots lies in its own cell of a grid, as spawning a world place by place leaves it.
+        let mut store = BoundsStore::default();
+        let scatter = |i: usize, salt: usize| ((i * 7919 + salt * 104_729) % 10_007) as f32 / 10_007.0;
+        for i in 0..20_000 {
+            let entity = Entity::from_raw_u32(i as u32 + 1).unwrap();
+            let cell = Vec3::new((i / 64 % 18) as f32, 0.0, (i / 64 / 18) as f32) * 100.0;
+            let centre = cell + Vec3::new(scatter(i, 1), scatter(i, 2) * 0.5, scatter(i, 3)) * 10.0;
+            // Sizes vary more from group to group than within one, so bounds are nearly reached.
+            let half = Vec3::splat(1.0 + scatter(i / 64, 4) * 20.0) + Vec3::splat(scatter(i, 5));
+            let slot = store.insert(entity, &crate::WorldBounds::new(entity, centre, half).unwrap()).unwrap();
+            store.set_occluder(slot, i % 4 != 0).unwrap();
+        }
+        let visible = VisibleSet::all(store.len());
+        let meshes = [12, 2].map(|n| Occluder::new(vec![Vec3::ZERO; 3 * n]));
+        let occluder_of = |slot: usize| {
+            let occluder = &meshes[slot.is_multiple_of(3) as usize];
+            Some(OccluderInstance { occluder, transform: Default::default() })
+        };
+        let among_objects = store.get(5).unwrap().center + Vec3::new(0.0, 0.0, 1.0);
+        let viewpoints = [
+            Viewpoint::Position(Vec3::new(-300.0, 10.0, -100.0)),
+            Viewpoint::Position(among_objects),
+            Viewpoint::Direction,
+        ];
+        for (v, viewpoint) in viewpoints.into_iter().enumerate() {
+            for budget in [600, 4096, 200_000] {
+                let slots = |chosen: Vec<(u32, OccluderInstance)>| chosen.into_iter().map(|(s, _)| s).collect();
+                let mut ranked = rank_all(&store, &visible, viewpoint);
+                for &(rank, slot) in &ranked {
+                    let bound = group_bound(&store, slot as usize / 64, viewpoint);
+                    assert!(rank <= bound, "viewpoint {v}: slot {slot} ranks {rank}, above its group's {bound}");
+                }
+                let all: Vec<u32> = slots(choose(&mut ranked, None, budget, &occluder_of).unwrap());
+                // A budget for nearly all: the first candidates, here the fewest, cannot do.
+                let wanted = if budget < 200_000 { FIRST_CANDIDATES.max(budget / 4) } else { 64 };
+                let (mut best, threshold) = rank_best_groups(&store, &visible, viewpoint, wanted);
+                assert!(threshold.is_some() && best.len() < 15_000 / 2, "viewpoint {v}: {} ranked first", best.len());
+                let from_best = choose(&mut best, threshold, budget, &occluder_of).map(slots);
+                let stands = budget < 200_000;
+                assert_eq!(from_best.as_ref(), stands.then_some(&all), "viewpoint {v}, budget {budget}");
+                let selected: Vec<u32> = slots(select_ranked(&store, &visible, viewpoint, budget, occluder_of));
+                assert_eq!(selected, all, "viewpoint {v}, budget {budget}");
+            }
+        }
     }
 
     #[test]

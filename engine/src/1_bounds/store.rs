@@ -93,6 +93,9 @@ pub struct BoundsStore {
     groups: Vec<GroupBounds>,
     /// Per run of [`GROUPS_PER_SUPERGROUP`] groups, a box containing them all: the level above the groups.
     supergroups: Vec<GroupBounds>,
+    /// Per group, at least the largest radius among its occluders (0 without one): grown at once, tightened
+    /// with the group's box. With the group's box it bounds how well any of its occluders can rank.
+    occluder_radii: Vec<f32>,
     /// Groups whose box may be looser than needed since an object moved or left; tightened by
     /// [`BoundsStore::tighten_groups`].
     loose_groups: std::collections::VecDeque<u32>,
@@ -205,8 +208,14 @@ impl BoundsStore {
         self.generation += 1;
         if self.occluders.contains(slot) != has_occluder {
             self.layout_generation += 1;
+            // One fewer occluder may leave the group's radius larger than needed.
+            self.mark_loose(slot / SOA_PADDING);
         }
         self.occluders.set(slot, has_occluder);
+        if has_occluder {
+            let radius = &mut self.occluder_radii[slot / SOA_PADDING];
+            *radius = radius.max(self.radius[slot]);
+        }
     }
 
     /// The slots whose object carries an occluder.
@@ -217,6 +226,12 @@ impl BoundsStore {
     /// The box around each group of [`SOA_PADDING`] consecutive slots.
     pub fn groups(&self) -> &[GroupBounds] {
         &self.groups
+    }
+
+    /// Per group, a radius no smaller than any of its occluders' ([`BoundsStore::occluders`]); 0 where it has
+    /// none. It may exceed the largest until the group is tightened ([`BoundsStore::tighten_groups`]).
+    pub fn occluder_radii(&self) -> &[f32] {
+        &self.occluder_radii
     }
 
     /// The box around each run of [`GROUPS_PER_SUPERGROUP`] consecutive groups.
@@ -249,6 +264,9 @@ impl BoundsStore {
                 min: Vec3::new(axes[0].0, axes[1].0, axes[2].0),
                 max: Vec3::new(axes[0].1, axes[1].1, axes[2].1),
             };
+            let occluders = self.occluders.words()[group];
+            self.occluder_radii[group] = crate::visible::set_slots(group, &[occluders])
+                .fold(0.0, |largest: f32, slot| largest.max(self.radius[slot]));
             supergroups.push(group / GROUPS_PER_SUPERGROUP);
         }
         supergroups.sort_unstable();
@@ -301,6 +319,10 @@ impl BoundsStore {
             self.written.resize(self.padded_len());
         }
         self.written.set(slot, true);
+        if self.occluders.contains(slot) {
+            let radius = &mut self.occluder_radii[slot / SOA_PADDING];
+            *radius = radius.max(bounds.radius);
+        }
         let group = &mut self.groups[slot / SOA_PADDING];
         if !group.contains(bounds) {
             group.grow(bounds);
@@ -338,6 +360,7 @@ impl BoundsStore {
                 array.resize(padded, 0.0);
             }
             self.groups.push(GroupBounds::EMPTY);
+            self.occluder_radii.push(0.0);
             self.loose_flags.push(false);
             self.occluders.resize(padded);
             if self.groups.len() > self.supergroups.len() * GROUPS_PER_SUPERGROUP {
@@ -380,6 +403,7 @@ impl BoundsStore {
                 array.truncate(padded);
             }
             self.groups.truncate(padded / SOA_PADDING);
+            self.occluder_radii.truncate(padded / SOA_PADDING);
             self.loose_flags.truncate(padded / SOA_PADDING);
             self.occluders.resize(padded);
             self.supergroups.truncate(self.groups.len().div_ceil(GROUPS_PER_SUPERGROUP));
@@ -397,6 +421,7 @@ impl BoundsStore {
                 && padded == self.len().div_ceil(SOA_PADDING) * SOA_PADDING
                 && self.groups.len() * SOA_PADDING == padded
                 && self.loose_flags.len() == self.groups.len()
+                && self.occluder_radii.len() == self.groups.len()
                 && self.occluders.len() == padded,
             "BoundsStore SoA layout broken: {} objects, arrays {:?} long",
             self.len(),
