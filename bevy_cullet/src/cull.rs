@@ -327,7 +327,10 @@ pub(crate) fn cull_views(
     // there at once.
     _main_thread: NonSendMarker,
 ) {
-    let occluders_changed = !changed_occluders.is_empty();
+    // Whether an occluder's mesh, visibility or layers changed: a scan of every occluder's change ticks (0.12 ms a
+    // frame with the 1e6 city's 120,000 occluders), so asked only for a camera whose view is the one it last
+    // culled: any other camera culls in full anyway.
+    let mut occluders_changed = None;
     for (
         camera_entity,
         camera,
@@ -346,7 +349,8 @@ pub(crate) fn cull_views(
         }
         let view_layers = layers.unwrap_or_default();
         let culled = convert::view_of(transform, projection);
-        if occluders_changed {
+        let same_view = view.last.as_ref().is_some_and(|((key, ..), ..)| *key == culled.key);
+        if same_view && *occluders_changed.get_or_insert_with(|| !changed_occluders.is_empty()) {
             view.last = None;
         }
         let mut settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };

@@ -141,6 +141,18 @@ fn occluders_hide_what_is_behind_them_while_they_are_shown() {
     app.update();
     assert!(!visible(&app, hidden_box));
 
+    // Hidden on a frame the camera moved (culled in full, so the change is not looked for), then with the
+    // camera still (the last result reused): the box stays visible; shown again, the still camera sees that.
+    *app.world_mut().get_mut::<Visibility>(wall).unwrap() = Visibility::Hidden;
+    app.world_mut().get_mut::<Transform>(camera).unwrap().translation.x += 0.01;
+    app.update();
+    assert!(visible(&app, hidden_box));
+    app.update();
+    assert!(visible(&app, hidden_box) && app.world().get::<CulletView>(camera).unwrap().stats().reused);
+    *app.world_mut().get_mut::<Visibility>(wall).unwrap() = Visibility::Inherited;
+    app.update();
+    assert!(!visible(&app, hidden_box));
+
     // Without its occluder, neither.
     app.world_mut().entity_mut(wall).remove::<Occluder>();
     app.update();
