@@ -4,7 +4,7 @@
 mod support;
 
 use bevy_camera::primitives::{Aabb, Frustum};
-use bevy_camera::visibility::{ViewVisibility, VisibleEntities};
+use bevy_camera::visibility::{NoFrustumCulling, ViewVisibility, VisibleEntities};
 use bevy_cullet::{CulletSettings, CulletStore, CulletView, spawn_scene};
 use bevy_ecs::prelude::*;
 use cullet::pipeline::OcclusionSettings;
@@ -165,4 +165,21 @@ fn with_every_object_kept_each_is_shown_and_listed_once() {
         assert_eq!((stats.after_frustum, stats.after_occlusion), (3000, 3000));
         assert_eq!(stats.visible, visible_in_world(&mut plugin.app), "t = {t}");
     }
+    // Despawning moves the store's last entities into the holes, out of the entities' order, and an entity
+    // Cullet does not cull (`NoFrustumCulling`) is listed after the kept ones: the list is sorted all the same.
+    let first_stored = plugin.app.world().resource::<CulletStore>().store().entities()[..3].to_vec();
+    for entity in first_stored {
+        plugin.entities.retain(|&e| e != entity);
+        plugin.app.world_mut().despawn(entity);
+    }
+    let aabb = Aabb::from_min_max(bevy_math::Vec3::splat(-0.5), bevy_math::Vec3::splat(0.5));
+    let other = (aabb, bevy_transform::components::Transform::default(), drawn(), NoFrustumCulling);
+    let other = plugin.app.world_mut().spawn((other, bevy_camera::visibility::Visibility::default())).id();
+    plugin.frame(20.0);
+    assert!(!plugin.app.world().resource::<CulletStore>().store().entities().is_sorted());
+    let world = plugin.app.world();
+    let listed = world.get::<VisibleEntities>(plugin.camera).unwrap().get(TypeId::of::<Drawn>()).to_vec();
+    let mut expected: Vec<Entity> = plugin.entities.iter().copied().chain([other]).collect();
+    expected.sort_unstable();
+    assert_eq!(listed, expected, "after despawns, with an entity Cullet does not cull");
 }
