@@ -322,12 +322,19 @@ impl Shown {
         self.chunk_start.extend(self.by_class.iter().map(|(_, list)| list.len()));
     }
 
-    /// Records what was queued since [`Shown::begin_chunk`] as chunk `chunk`.
+    /// Records what was queued since [`Shown::begin_chunk`] as chunk `chunk`. A stretch that continues one of
+    /// the same chunk and class recorded last extends it: the entities shown one by one outside the kept set
+    /// ([`OTHER_ENTITIES`]) make one stretch per thread and class, however many they are.
     fn end_chunk(&mut self, chunk: usize) {
         for (class, (_, list)) in self.by_class.iter().enumerate() {
-            let start = self.chunk_start.get(class).copied().unwrap_or(0);
-            if list.len() > start {
-                self.stretches.push(Stretch { chunk, class, start, end: list.len() });
+            let (start, end) = (self.chunk_start.get(class).copied().unwrap_or(0), list.len());
+            if end == start {
+                continue;
+            }
+            let mut same_chunk = self.stretches.iter_mut().rev().take_while(|stretch| stretch.chunk == chunk);
+            match same_chunk.find(|stretch| (stretch.class, stretch.end) == (class, start)) {
+                Some(stretch) => stretch.end = end,
+                None => self.stretches.push(Stretch { chunk, class, start, end }),
             }
         }
     }
@@ -485,8 +492,8 @@ pub(crate) fn cull_views(
             queue.by_class.iter_mut().for_each(|(_, list)| list.clear());
         }
         // Bevy's renderer diffs these lists in O(n), which needs them sorted. In store order they already are
-        // where the store holds its entities in their order, as mirroring entities in the order they were
-        // spawned leaves it until one is despawned; telling costs a read of each list. Sorting them anyway took
+        // where the store holds its entities in their order (as the mirror leaves entities spawned together,
+        // until a despawn moves the last one into a hole); telling costs a read of each list. Sorting them anyway took
         // 0.14 ms a frame for 63,000 entities at 1e6, 0.7 ms for 391,000 (the stable sort merging the threads'
         // runs). Otherwise they are long sorted runs, which the stable sort merges.
         for list in visible_entities.entities.values_mut().filter(|list| !list.is_sorted()) {
@@ -494,5 +501,32 @@ pub(crate) fn cull_views(
         }
         view.stats.visible = visible;
         view.stats.write_time = start.elapsed();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Chunks of the kept set make a stretch each; entities shown one by one outside it, of two classes in
+    /// turn, make one per class.
+    #[test]
+    fn stretches_of_one_chunk_and_class_are_joined() {
+        let (meshes, sprites) = (TypeId::of::<u8>(), TypeId::of::<u16>());
+        let entity = |i: u32| Entity::from_raw_u32(i).unwrap();
+        let mut shown = Shown::default();
+        for chunk in 0..2 {
+            shown.begin_chunk();
+            shown.push(entity(chunk + 1), meshes);
+            shown.push(entity(chunk + 10), meshes);
+            shown.end_chunk(chunk as usize);
+        }
+        for i in 20..30 {
+            shown.begin_chunk();
+            shown.push(entity(i), if i % 2 == 0 { meshes } else { sprites });
+            shown.end_chunk(OTHER_ENTITIES);
+        }
+        let stretches: Vec<_> = shown.stretches.iter().map(|s| (s.chunk, s.class, s.start, s.end)).collect();
+        assert_eq!(stretches, [(0, 0, 0, 2), (1, 0, 2, 4), (OTHER_ENTITIES, 0, 4, 9), (OTHER_ENTITIES, 1, 0, 5)]);
     }
 }

@@ -154,9 +154,10 @@ const BOUND_SLACK: f32 = 1.0 + 1e-5;
 ///
 /// Candidates are found with a bitwise AND and ranked from the store's arrays, first only those of the groups
 /// whose bounds rank best (the others are ranked only where those cannot settle the choice, which is the same
-/// either way; equal ranks go in slot order). Only the best are ordered, a round of `ROUND` (1024) at a time, until the budget is full, it has less room left than the smallest
-/// occluder chosen, a whole round fits nothing more, or a round leaves less room than the smallest occluder it
-/// met (so at most that many triangles of the budget go unused).
+/// either way; equal ranks go in slot order). Only the best are ordered, a round of `ROUND` (1024) at a time,
+/// until the budget is full, it has less room left than the smallest occluder chosen, a whole round fits
+/// nothing more, or a round leaves less room than the smallest occluder it met (so at most that many triangles
+/// of the budget go unused).
 pub fn select_occluders<'a>(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,

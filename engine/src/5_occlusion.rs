@@ -367,10 +367,11 @@ fn project<const N: usize>(view: &ScreenView, c: &[[f32; N]; 3], e: &[[f32; N]; 
 /// finer texels under it, so whatever level `l` hides `l - 1` hides too: reading `l` first only cost the
 /// objects it did not hide four more reads (the street view's 1e5 test took 142 us with it, 125 us without,
 /// keeping the same objects: `cargo bench -p cullet-benches --bench occlusion -- occlusion/test`). Fixed
-/// windows (edge texels repeated) keep those reads free of data-dependent loops. Against a masked buffer, a small rectangle is then tested pixel by pixel
-/// ([`DepthPyramid::blocks_hide`]). Last, the texels it spans [`FINE_LEVELS`] below `l` (or level 0's) are
-/// read until one shows it: a rectangle whose edges only graze a coarse texel that is not hidden is hidden
-/// there if the finer texels under it are. A visible object usually stops at its first texels.
+/// windows (edge texels repeated) keep those reads free of data-dependent loops. Against a masked buffer, a
+/// small rectangle is then tested pixel by pixel ([`DepthPyramid::blocks_hide`]). Last, the texels it spans
+/// [`FINE_LEVELS`] below `l` (or level 0's) are read until one shows it: a rectangle whose edges only graze a
+/// coarse texel that is not hidden is hidden there if the finer texels under it are. A visible object usually
+/// stops at its first texels.
 #[inline(always)]
 fn rect_occluded(rect: &ScreenRect, pyramid: &DepthPyramid) -> bool {
     if rect.always_visible {
