@@ -213,8 +213,7 @@ impl BoundsStore {
         }
         self.occluders.set(slot, has_occluder);
         if has_occluder {
-            let radius = &mut self.occluder_radii[slot / SOA_PADDING];
-            *radius = radius.max(self.radius[slot]);
+            self.grow_occluder_radius(slot, self.radius[slot]);
         }
     }
 
@@ -279,6 +278,12 @@ impl BoundsStore {
         }
     }
 
+    /// Grows the occluder radius of `slot`'s group to at least `radius`.
+    fn grow_occluder_radius(&mut self, slot: usize, radius: f32) {
+        let group = &mut self.occluder_radii[slot / SOA_PADDING];
+        *group = group.max(radius);
+    }
+
     /// Queues `group` for tightening, once.
     fn mark_loose(&mut self, group: usize) {
         if !self.loose_flags[group] {
@@ -320,8 +325,7 @@ impl BoundsStore {
         }
         self.written.set(slot, true);
         if self.occluders.contains(slot) {
-            let radius = &mut self.occluder_radii[slot / SOA_PADDING];
-            *radius = radius.max(bounds.radius);
+            self.grow_occluder_radius(slot, bounds.radius);
         }
         let group = &mut self.groups[slot / SOA_PADDING];
         if !group.contains(bounds) {
