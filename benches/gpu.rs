@@ -1,19 +1,182 @@
 //! GPU passes over the city's fly-through: time per pass (timestamp queries where the adapter has them, else
 //! only the wall time of a finished queue), what each test removes, and draws per frame.
 //!
-//! `cargo bench -p cullet-benches --bench gpu`; `CULLET_GPU_OBJECTS` (default 100000) and `CULLET_GPU_FRAMES`
-//! (default 100) size the run. On a software adapter (lavapipe) times mean little: read the counts and ratios.
-
+//! `cargo bench -p cullet-benches --bench gpu`; `CULLET_GPU_OBJECTS` (default 100000), `CULLET_GPU_FRAMES`
+//! (default 100) and `CULLET_GPU_RESOLUTIONS` (default `1920x1080`, a comma-separated list) size the run. On a
+//! software adapter (lavapipe) times mean little: read the counts and ratios.
+//!
+//! `CULLET_GPU_GATES=1` adds what tunes [`GpuGating`]: on the city, the field and the CAD scene, every pass
+//! against the triangle pass skipped (its cost against the draw time it saves, and the share of triangles it
+//! must remove to pay); and on cities of 10 to 100 000 objects, the cluster pass against none (the candidate
+//! clusters under which it cannot pay).
+use cullet::CameraPath;
 use cullet::gpu::cluster_cull::ClusterVerdict;
 use cullet::gpu::triangle_cull::TriangleVerdict;
-use cullet::gpu::{GpuContext, GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuPassTimes};
+use cullet::gpu::{GpuContext, GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, GpuPassTimes};
 use cullet::pipeline::OcclusionSettings;
+use cullet::scene::Scene;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use std::time::Duration;
 
 fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// `CULLET_GPU_RESOLUTIONS`: `WIDTHxHEIGHT` sizes, comma-separated.
+fn resolutions() -> Vec<(u32, u32)> {
+    let list = std::env::var("CULLET_GPU_RESOLUTIONS").unwrap_or_else(|_| "1920x1080".into());
+    list.split(',')
+        .filter_map(|size| {
+            let (width, height) = size.trim().split_once('x')?;
+            Some((width.parse().ok()?, height.parse().ok()?))
+        })
+        .collect()
+}
+
+fn city(objects: usize) -> (Scene, CameraPath) {
+    let city = CityScene::generate(CityParams::with_objects(objects));
+    let path = city.flythrough();
+    (city.scene, path)
+}
+
+/// Flies `frames` frames of `path` over `scene` at `size`, the CPU stages then the GPU passes with `gating`;
+/// the outputs of every frame, and the mesh library's clusters and triangles.
+fn fly(
+    context: &GpuContext,
+    (scene, path): &(Scene, CameraPath),
+    frames: u32,
+    size: (u32, u32),
+    gating: GpuGating,
+) -> (Vec<GpuFrameOutput>, (usize, usize)) {
+    let aspect = size.0 as f32 / size.1 as f32;
+    let mut flight = Flight::new(path.clone(), aspect, frames, OcclusionSettings::default(), |world| {
+        scene.spawn(world);
+    });
+    let mut culler = GpuCuller::for_world(context, &flight.world, &scene.meshes, size);
+    culler.set_gating(gating);
+    let library = &culler.scene().library;
+    let library = (library.clusters.len(), library.indices.len() / 3);
+    let settings = GpuCullSettings::default();
+    let outputs = (0..frames)
+        .map(|frame| {
+            flight.run_frame(frame);
+            culler.run_world(context, &mut flight.world, &settings).expect("GPU frame")
+        })
+        .collect();
+    (outputs, library)
+}
+
+fn mean_of(outputs: &[GpuFrameOutput], f: impl Fn(&GpuFrameOutput) -> f64) -> f64 {
+    outputs.iter().map(f).sum::<f64>() / outputs.len().max(1) as f64
+}
+
+fn us(duration: Duration) -> f64 {
+    duration.as_secs_f64() * 1e6
+}
+
+/// Counts, ratios and pass times of the default pipeline on the city at `size`.
+fn report(context: &GpuContext, scene: &(Scene, CameraPath), objects: usize, frames: u32, size: (u32, u32)) {
+    let (outputs, (clusters, triangles)) = fly(context, scene, frames, size, GpuGating::default());
+    println!(
+        "\n{objects}-object city, {frames} frames at {}x{}; clusters of at most 64 vertices / 124 triangles: \
+         {clusters} clusters for {triangles} triangles in the mesh library",
+        size.0, size.1
+    );
+    let sum = |f: fn(&GpuCounters) -> u32| mean_of(&outputs, |o| f64::from(f(&o.counters)));
+    let pct = |part: f64, whole: f64| if whole > 0.0 { 100.0 * part / whole } else { 0.0 };
+    let (clusters_in, triangles_in) = (sum(|c| c.clusters_in), sum(|c| c.triangles_in));
+    println!("per frame, mean over {frames} frames");
+    println!("instances from the CPU stages  {:>10.0}", sum(|c| c.instances));
+    println!("clusters in                    {clusters_in:>10.0}");
+    let culled = |name: &str, count: f64, whole: f64| println!("  {name:<29}{count:>10.0} ({:.1}%)", pct(count, whole));
+    for (name, verdict) in [
+        ("culled by frustum", ClusterVerdict::Frustum),
+        ("culled by normal cone", ClusterVerdict::Cone),
+        ("culled by HZB", ClusterVerdict::Hzb),
+        ("culled as small", ClusterVerdict::Small),
+    ] {
+        culled(name, mean_of(&outputs, |o| f64::from(o.counters.clusters(verdict))), clusters_in);
+    }
+    println!("clusters out                   {:>10.0}", sum(|c| c.clusters_out));
+    println!("triangles in                   {triangles_in:>10.0}");
+    for (name, verdict) in [
+        ("culled as degenerate", TriangleVerdict::Degenerate),
+        ("culled as back-facing", TriangleVerdict::Backface),
+        ("culled off screen", TriangleVerdict::Frustum),
+        ("culled as small (eq. 19.4)", TriangleVerdict::Small),
+    ] {
+        culled(name, mean_of(&outputs, |o| f64::from(o.counters.triangles(verdict))), triangles_in);
+    }
+    println!(
+        "triangles out                  {:>10.0} ({:.1}% kept)",
+        sum(|c| c.triangles_out),
+        pct(sum(|c| c.triangles_out), triangles_in)
+    );
+    println!("indirect draws                 {:>10.0} in one multi-draw-indirect-count", sum(|c| c.draws));
+    println!("wall time, submit to counters back: {:.3} ms", mean_of(&outputs, |o| o.wall_time.as_secs_f64() * 1e3));
+    if let Some(times) = GpuPassTimes::mean(&outputs) {
+        println!("GPU time per pass (timestamps, mean): {times}");
+        println!("cluster and triangle passes together: {:.1} us", us(times.clusters) + us(times.triangles));
+    } else {
+        println!("no timestamp queries on this adapter: per-pass GPU times not measured");
+    }
+}
+
+/// Mean GPU time of the culling passes and the draw (HZB excluded: it runs either way), in microseconds, over
+/// every frame but the first (start-up, and the frame that probes a gate).
+fn culling_and_draw(outputs: &[GpuFrameOutput]) -> Option<(f64, f64, f64)> {
+    let times = GpuPassTimes::mean(outputs.get(1..)?)?;
+    Some((us(times.clusters), us(times.triangles), us(times.draw)))
+}
+
+/// The triangle pass against none on `scene`: what it costs, what it saves the draw, and the share of its
+/// triangles it must remove to pay for itself there.
+fn triangle_gate(context: &GpuContext, name: &str, scene: &(Scene, CameraPath), frames: u32, size: (u32, u32)) {
+    let never_skip = GpuGating::fixed();
+    // Every frame removes less than twice what it tests: skipped from the second frame on, never re-probed.
+    let always_skip =
+        GpuGating { min_triangle_benefit: 2.0, low_benefit_frames: 1, reprobe_every: u32::MAX, ..never_skip };
+    let (with, _) = fly(context, scene, frames, size, never_skip);
+    let (without, _) = fly(context, scene, frames, size, always_skip);
+    let (Some((_, pass, draw_with)), Some((_, _, draw_without))) =
+        (culling_and_draw(&with), culling_and_draw(&without))
+    else {
+        println!("{name:<12} no timestamps: not measured");
+        return;
+    };
+    let tested = mean_of(&with[1..], |o| f64::from(o.counters.triangles_in));
+    let removed = tested - mean_of(&with[1..], |o| f64::from(o.counters.triangles_out));
+    let share = removed / tested.max(1.0);
+    let saved = draw_without - draw_with;
+    // The draw saves about the same per removed triangle at any share, so the pass pays above this share.
+    let break_even = if saved > 0.0 { format!("{:.1}%", 100.0 * share * pass / saved) } else { "never".into() };
+    println!(
+        "{name:<12} {tested:>10.0} {:>8.1}% {pass:>9.1} {draw_with:>9.1} {draw_without:>9.1} {:>9.1} {break_even:>10}",
+        100.0 * share,
+        saved - pass
+    );
+}
+
+/// The cluster pass against none (the CPU lists every candidate cluster) on a city of `objects`.
+fn cluster_gate(context: &GpuContext, objects: usize, frames: u32, size: (u32, u32)) {
+    let never_skip = GpuGating::fixed();
+    let always_skip = GpuGating { tiny_scene_clusters: u32::MAX, ..never_skip };
+    let scene = city(objects);
+    let (with, _) = fly(context, &scene, frames, size, never_skip);
+    let (without, _) = fly(context, &scene, frames, size, always_skip);
+    let total = |outputs: &[GpuFrameOutput]| culling_and_draw(outputs).map(|(c, t, d)| c + t + d);
+    let wall = |outputs: &[GpuFrameOutput]| mean_of(&outputs[1..], |o| us(o.wall_time));
+    let clusters = mean_of(&with[1..], |o| f64::from(o.counters.clusters_in));
+    let (Some(gpu_with), Some(gpu_without)) = (total(&with), total(&without)) else {
+        println!("{objects:>8} no timestamps: not measured");
+        return;
+    };
+    println!(
+        "{objects:>8} {clusters:>10.0} {gpu_with:>11.1} {gpu_without:>11.1} {:>11.1} {:>11.1}",
+        wall(&with),
+        wall(&without)
+    );
 }
 
 fn main() {
@@ -34,70 +197,31 @@ fn main() {
     );
     let objects = env_or("CULLET_GPU_OBJECTS", 100_000);
     let frames = env_or("CULLET_GPU_FRAMES", 100) as u32;
-    let (width, height) = (1920, 1080);
-    let city = CityScene::generate(CityParams::with_objects(objects));
-    let mut flight =
-        Flight::new(city.flythrough(), width as f32 / height as f32, frames, OcclusionSettings::default(), |world| {
-            city.spawn(world);
-        });
-    let mut culler = GpuCuller::for_world(&context, &flight.world, &city.scene.meshes, (width, height));
-    let library = &culler.scene().library;
-    println!(
-        "{objects}-object city, {frames} frames at {width}x{height}; clusters of at most 64 vertices / 124 triangles: {} \
-         clusters for {} triangles in the mesh library",
-        library.clusters.len(),
-        library.indices.len() / 3
-    );
-    let settings = GpuCullSettings::default();
-    let mut outputs: Vec<GpuFrameOutput> = Vec::new();
-    let mut written = 0;
-    for frame in 0..frames {
-        flight.run_frame(frame);
-        outputs.push(culler.run_world(&context, &mut flight.world, &settings).expect("GPU frame"));
-        written += culler.scene().instances_written_last_update;
+    let scene = city(objects);
+    for size in resolutions() {
+        report(&context, &scene, objects, frames, size);
     }
-    let n = outputs.len() as f64;
-    let sum = |f: fn(&GpuCounters) -> u32| outputs.iter().map(|o| f64::from(f(&o.counters))).sum::<f64>() / n;
-    let pct = |part: f64, whole: f64| if whole > 0.0 { 100.0 * part / whole } else { 0.0 };
-    let (clusters_in, triangles_in) = (sum(|c| c.clusters_in), sum(|c| c.triangles_in));
-    println!(
-        "\nper frame, mean over {frames} frames (instances written: {:.0} per frame after the first)",
-        written as f64 / n
-    );
-    println!("instances from the CPU stages  {:>10.0}", sum(|c| c.instances));
-    println!("clusters in                    {clusters_in:>10.0}");
-    let culled = |name: &str, count: f64, whole: f64| println!("  {name:<29}{count:>10.0} ({:.1}%)", pct(count, whole));
-    for (name, verdict) in [
-        ("culled by frustum", ClusterVerdict::Frustum),
-        ("culled by normal cone", ClusterVerdict::Cone),
-        ("culled by HZB", ClusterVerdict::Hzb),
-        ("culled as small", ClusterVerdict::Small),
-    ] {
-        let count = outputs.iter().map(|o| f64::from(o.counters.clusters(verdict))).sum::<f64>() / n;
-        culled(name, count, clusters_in);
+    if env_or("CULLET_GPU_GATES", 0) == 0 {
+        return;
     }
-    println!("clusters out                   {:>10.0}", sum(|c| c.clusters_out));
-    println!("triangles in                   {triangles_in:>10.0}");
-    for (name, verdict) in [
-        ("culled as degenerate", TriangleVerdict::Degenerate),
-        ("culled as back-facing", TriangleVerdict::Backface),
-        ("culled off screen", TriangleVerdict::Frustum),
-        ("culled as small (eq. 19.4)", TriangleVerdict::Small),
-    ] {
-        let count = outputs.iter().map(|o| f64::from(o.counters.triangles(verdict))).sum::<f64>() / n;
-        culled(name, count, triangles_in);
-    }
+    let size = (1920, 1080);
     println!(
-        "triangles out                  {:>10.0} ({:.1}% kept)",
-        sum(|c| c.triangles_out),
-        pct(sum(|c| c.triangles_out), triangles_in)
+        "\ntriangle pass against none, {frames} frames at 1920x1080 (GPU us per frame, every frame but the first)"
     );
-    println!("indirect draws                 {:>10.0} in one multi-draw-indirect-count", sum(|c| c.draws));
-    let mean = |f: fn(&GpuFrameOutput) -> Duration| outputs.iter().map(|o| f(o).as_secs_f64() * 1e3).sum::<f64>() / n;
-    println!("\nwall time, submit to counters back: {:.3} ms", mean(|o| o.wall_time));
-    if let Some(times) = GpuPassTimes::mean(&outputs) {
-        println!("GPU time per pass (timestamps, mean): {times}");
-    } else {
-        println!("no timestamp queries on this adapter: per-pass GPU times not measured");
+    println!(
+        "{:<12} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>10}",
+        "scene", "tested", "removed", "pass", "draw", "draw w/o", "net gain", "break-even"
+    );
+    let small = env_or("CULLET_GPU_GATE_OBJECTS", 20_000);
+    triangle_gate(&context, &format!("city:{objects}"), &scene, frames, size);
+    triangle_gate(&context, &format!("field:{small}"), &cullet::scene::field::field(small), frames, size);
+    triangle_gate(&context, &format!("cad:{small}"), &cullet::scene::cad::cad(small), frames, size);
+    println!("\ncluster pass against none on cities of each size, {frames} frames at 1920x1080 (us per frame)");
+    println!(
+        "{:>8} {:>10} {:>11} {:>11} {:>11} {:>11}",
+        "objects", "clusters", "GPU with", "GPU w/o", "wall with", "wall w/o"
+    );
+    for objects in [10, 100, 300, 1000, 3000, 10_000, 30_000, 100_000] {
+        cluster_gate(&context, objects, frames, size);
     }
 }
