@@ -341,29 +341,35 @@ fn culled_image_equals_unculled_image_with_a_masked_buffer_at_an_odd_size() {
     }
 }
 
-/// Each way of skipping GPU passes (no cluster pass for a tiny frame, no triangle pass where it removes too
-/// little, both) draws the same image as no culling at all, and its counters say what ran.
+/// Each way of skipping GPU passes (no cluster pass for a tiny frame or where it removes too little, no
+/// triangle pass where it removes too little, both) draws the same image as no culling at all, and its
+/// counters say what ran.
 #[test]
 fn skipped_gpu_passes_draw_the_same_image() {
     let Some(context) = context_for_tests() else { return };
     let mut setup = setup(&context, 2000);
     let half = setup.half;
-    // Every frame counts as tiny, or as too little removed; the triangle pass is skipped from the second frame.
+    // Every frame counts as tiny, or as too little removed; a gated pass is skipped from the second frame.
     let tiny = GpuGating { tiny_scene_clusters: u32::MAX, ..GpuGating::fixed() };
+    let no_clusters =
+        GpuGating { min_cluster_benefit: 1.0, low_benefit_frames: 1, reprobe_every: u32::MAX, ..GpuGating::fixed() };
     let no_triangles =
         GpuGating { min_triangle_benefit: 1.0, low_benefit_frames: 1, reprobe_every: u32::MAX, ..GpuGating::fixed() };
     let both = GpuGating { tiny_scene_clusters: u32::MAX, ..no_triangles };
-    for (label, adaptive) in [("tiny", tiny), ("no triangle pass", no_triangles), ("both", both)] {
+    let variants =
+        [("tiny", tiny), ("no cluster pass", no_clusters), ("no triangle pass", no_triangles), ("both", both)];
+    for (label, adaptive) in variants {
         setup.culler.set_gating(adaptive);
         let mut tested = 0;
-        for (name, camera) in cameras(half) {
+        for (frame, (name, camera)) in cameras(half).into_iter().enumerate() {
             let (output, visible, _) = setup.run(&context, camera, &GpuCullSettings::default());
             let (differing, covered) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
             let c = output.counters;
             println!("{label}, {name}: {differing} differing of {covered} covered, {output:?}");
             assert!(covered > 0, "{label}, {name}: nothing drawn");
             assert_eq!(differing, 0, "{label}, {name}: {differing} pixels changed");
-            assert_eq!(output.cluster_pass_skipped, adaptive.tiny_scene_clusters > 0);
+            let gated = adaptive.min_cluster_benefit > 0.0 && frame > 0;
+            assert_eq!(output.cluster_pass_skipped, adaptive.tiny_scene_clusters > 0 || gated, "{label}, {name}");
             let library = &setup.culler.scene().library;
             let instances = setup.culler.scene().instances();
             let candidates: Vec<_> =
@@ -386,27 +392,40 @@ fn skipped_gpu_passes_draw_the_same_image() {
     }
 }
 
-/// The triangle pass is skipped after `low_benefit_frames` frames under the threshold and re-probed every
+/// Each pass is skipped after `low_benefit_frames` frames under its threshold and re-probed every
 /// `reprobe_every` frames; a pass that removes enough is never skipped.
 #[test]
-fn triangle_pass_is_skipped_and_reprobed() {
+fn each_pass_is_skipped_and_reprobed() {
     let Some(context) = context_for_tests() else { return };
     let mut setup = setup(&context, 1000);
     let camera = cameras(setup.half)[0].1;
-    let gated = GpuGating { min_triangle_benefit: 1.0, low_benefit_frames: 2, reprobe_every: 3, ..Default::default() };
-    setup.culler.set_gating(gated);
-    let skipped: Vec<bool> =
-        (0..10).map(|_| setup.run(&context, camera, &GpuCullSettings::default()).0.triangle_pass_skipped).collect();
-    // Two low frames, three skipped, then the re-probe starts the count again.
-    let expected = [false, false, true, true, true, false, false, true, true, true];
-    assert_eq!(skipped, expected);
-    // The default threshold (10%) keeps the pass on the street, where back faces alone are far more.
+    let low = GpuGating { low_benefit_frames: 2, reprobe_every: 3, ..GpuGating::fixed() };
+    let cluster_skipped: fn(&GpuFrameOutput) -> bool = |o| o.cluster_pass_skipped;
+    let triangle_skipped: fn(&GpuFrameOutput) -> bool = |o| o.triangle_pass_skipped;
+    for (pass, gating, skipped) in [
+        ("cluster", GpuGating { min_cluster_benefit: 1.0, ..low }, cluster_skipped),
+        ("triangle", GpuGating { min_triangle_benefit: 1.0, ..low }, triangle_skipped),
+    ] {
+        setup.culler.set_gating(gating);
+        let pattern: Vec<bool> =
+            (0..10).map(|_| skipped(&setup.run(&context, camera, &GpuCullSettings::default()).0)).collect();
+        // Two low frames, three skipped, then the re-probe starts the count again.
+        let expected = [false, false, true, true, true, false, false, true, true, true];
+        assert_eq!(pattern, expected, "{pass} pass");
+    }
+    // The default threshold (40%) keeps the triangle pass on the street, where it removes more.
     setup.culler.set_gating(GpuGating::default());
     let outputs: Vec<GpuFrameOutput> =
         (0..20).map(|_| setup.run(&context, camera, &GpuCullSettings::default()).0).collect();
-    assert!(outputs.iter().all(|o| !o.triangle_pass_skipped && !o.cluster_pass_skipped));
+    assert!(outputs.iter().all(|o| !o.triangle_pass_skipped));
     let c = outputs[0].counters;
-    println!("street: {} of {} triangles removed", c.triangles_in - c.triangles_out, c.triangles_in);
+    println!(
+        "street: {} of {} clusters and {} of {} triangles removed",
+        c.clusters_in - c.clusters_out,
+        c.clusters_in,
+        c.triangles_in - c.triangles_out,
+        c.triangles_in
+    );
 }
 
 /// Per-instance data is written only where the store changed (the moving cars), and the GPU copy always

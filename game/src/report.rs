@@ -61,8 +61,8 @@ pub fn print_gpu_summary(frames: &[GpuFrameOutput]) {
     }
     let skipped = |f: fn(&GpuFrameOutput) -> bool| frames.iter().filter(|o| f(o)).count();
     println!(
-        "GPU gating: cluster pass skipped in {} of {} frames (too few clusters to pay), triangle pass in {} (it had \
-         removed under the threshold)",
+        "GPU gating: cluster pass skipped in {} of {} frames (too few clusters, or it had removed under its \
+         threshold), triangle pass in {} (it had removed under its threshold)",
         skipped(|o| o.cluster_pass_skipped),
         frames.len(),
         skipped(|o| o.triangle_pass_skipped)

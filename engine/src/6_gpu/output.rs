@@ -227,8 +227,9 @@ pub struct GpuFrameOutput {
     pub pass_times: Option<GpuPassTimes>,
     /// Wall time from submitting the frame until its counters were back on the CPU.
     pub wall_time: Duration,
-    /// The frame had too few clusters for the cluster pass to pay ([`super::GpuGating::tiny_scene_clusters`]):
-    /// every candidate cluster went on to the next pass.
+    /// The cluster pass was skipped, for too few clusters to pay ([`super::GpuGating::tiny_scene_clusters`]) or
+    /// for removing too little lately ([`super::GpuGating::min_cluster_benefit`]): every candidate cluster went
+    /// on to the next pass.
     pub cluster_pass_skipped: bool,
     /// The triangle pass was skipped for removing too little lately
     /// ([`super::GpuGating::min_triangle_benefit`]): the surviving clusters were drawn whole.

@@ -92,6 +92,7 @@ pub(crate) struct ViewCull {
     /// Buffers sized for its candidates, once it has had any.
     pub frame: Option<FrameBuffers>,
     /// When its triangle pass is skipped for removing too little.
+    cluster_gate: BenefitGate,
     triangle_gate: BenefitGate,
 }
 
@@ -103,21 +104,32 @@ impl ViewCull {
             counters: storage_buffer(context, "counters", COUNTER_BYTES, wgpu::BufferUsages::INDIRECT),
             dispatch: storage_buffer(context, "triangle dispatch", 12, wgpu::BufferUsages::INDIRECT),
             frame: None,
+            cluster_gate: BenefitGate::default(),
             triangle_gate: BenefitGate::default(),
         }
     }
 
     /// The passes this view skips this frame, with `clusters` candidate clusters: the cluster pass for a tiny
-    /// frame, the triangle pass while its benefit gate says so. Call once a frame.
+    /// frame, and each pass while its benefit gate says so. Call once a frame.
     pub fn gate(&mut self, gating: &GpuGating, clusters: usize) -> PassGate {
+        let clusters_gated = self.cluster_gate.skip_this_frame();
         PassGate {
-            skip_clusters: clusters <= gating.tiny_scene_clusters as usize,
+            skip_clusters: clusters <= gating.tiny_scene_clusters as usize || clusters_gated,
             skip_triangles: self.triangle_gate.skip_this_frame(),
         }
     }
 
-    /// Records what a frame whose triangle pass ran (not `gate.skip_triangles`) removed, for the benefit gate.
+    /// Records what the passes that ran this frame (not skipped in `gate`) removed, for their benefit gates.
     pub fn record_benefit(&mut self, gating: &GpuGating, gate: PassGate, counters: &GpuCounters) {
+        if !gate.skip_clusters {
+            self.cluster_gate.record(
+                counters.clusters_in.saturating_sub(counters.clusters_out) as usize,
+                counters.clusters_in as usize,
+                gating.min_cluster_benefit,
+                gating.low_benefit_frames,
+                gating.reprobe_every,
+            );
+        }
         if !gate.skip_triangles {
             let removed = counters.triangles_in - counters.triangles_out;
             self.triangle_gate.record(
@@ -130,8 +142,9 @@ impl ViewCull {
         }
     }
 
-    /// Starts the benefit gate afresh (new gating settings).
+    /// Starts the benefit gates afresh (new gating settings).
     pub fn reset_gate(&mut self) {
+        self.cluster_gate = BenefitGate::default();
         self.triangle_gate = BenefitGate::default();
     }
 

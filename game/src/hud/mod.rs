@@ -455,7 +455,7 @@ fn adaptive_flags(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls
         notes.push("occlusion skipped: it removed too little lately".into());
     }
     if gpu.is_some_and(|o| o.cluster_pass_skipped) {
-        notes.push("cluster pass skipped: too few clusters to pay".into());
+        notes.push("cluster pass skipped: too few clusters, or it removed too little lately".into());
     }
     if gpu.is_some_and(|o| o.triangle_pass_skipped) {
         notes.push("triangle pass skipped: it removed too little lately".into());
