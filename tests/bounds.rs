@@ -412,4 +412,24 @@ fn update_many_equals_update_one_by_one() {
     assert_eq!(many.entities(), one_by_one.entities());
     assert_eq!(many.soa().all(), one_by_one.soa().all());
     assert_eq!(many.groups(), one_by_one.groups());
+    // Moves only, enough of them and out of slot order: the arrays are written in parallel, to the same store.
+    let moves: Vec<(Entity, LocalBounds, Affine3A)> = (0..2999)
+        .map(|i| (i * 7) % 2999)
+        .filter(|&i| i != 2500) // refused above: no longer stored
+        .map(|i| (entity(i), unit, Affine3A::from_translation(Vec3::new(-(i as f32), 2.0 * i as f32, 1.0))))
+        .collect();
+    many.take_moved_slots();
+    one_by_one.take_moved_slots();
+    let expected: Vec<_> =
+        moves.iter().map(|(e, local, t)| one_by_one.update(*e, local, &ObjectTransform(*t))).collect();
+    let outcomes = many.update_many(&moves);
+    assert_eq!(slots(&outcomes), slots(&expected));
+    assert_eq!(many.soa().all(), one_by_one.soa().all());
+    assert_eq!(many.groups(), one_by_one.groups());
+    assert_eq!(many.generation(), one_by_one.generation());
+    assert_eq!(many.take_moved_slots(), one_by_one.take_moved_slots());
+    assert_eq!(many.take_written_slots(), one_by_one.take_written_slots());
+    many.tighten_some_groups(usize::MAX);
+    one_by_one.tighten_some_groups(usize::MAX);
+    assert_eq!(many.groups(), one_by_one.groups());
 }

@@ -27,6 +27,9 @@ pub const SIMD_LANES: usize = 8;
 /// the culling hierarchy ([`GroupBounds`]).
 pub const SOA_PADDING: usize = 64;
 
+/// [`BoundsStore::update_many`] writes the arrays in parallel from this many objects on.
+const PARALLEL_WRITES_FROM: usize = 1024;
+
 /// Read-only views of the store's seven SoA arrays, each [`BoundsStore::padded_len`] long; slot `i` of each is
 /// the object in store slot `i` (padding slots hold zeros).
 #[derive(Clone, Copy, Debug)]
@@ -307,8 +310,14 @@ impl BoundsStore {
 
     /// [`BoundsStore::set`] of a valid slot and valid bounds.
     fn overwrite(&mut self, slot: usize, bounds: &WorldBounds) {
+        self.note_overwrite(slot, bounds);
+        self.write_arrays(slot, bounds);
+    }
+
+    /// Everything [`BoundsStore::overwrite`] does but writing the arrays.
+    fn note_overwrite(&mut self, slot: usize, bounds: &WorldBounds) {
         self.mark_loose(slot / SOA_PADDING);
-        self.write(slot, bounds);
+        self.note_write(slot, bounds);
         // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
         let limit = self.len() / 8;
         if let Some(moved) = self.moved.as_mut().filter(|moved| moved.len() < limit) {
@@ -319,6 +328,12 @@ impl BoundsStore {
     }
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
+        self.note_write(slot, bounds);
+        self.write_arrays(slot, bounds);
+    }
+
+    /// Everything [`BoundsStore::write`] does but writing the arrays: the counters, marks and group boxes.
+    fn note_write(&mut self, slot: usize, bounds: &WorldBounds) {
         self.generation += 1;
         if self.written.len() < self.padded_len() {
             self.written.resize(self.padded_len());
@@ -334,6 +349,9 @@ impl BoundsStore {
             let supergroup = &mut self.supergroups[slot / SOA_PADDING / GROUPS_PER_SUPERGROUP];
             *supergroup = supergroup.union(&group);
         }
+    }
+
+    fn write_arrays(&mut self, slot: usize, bounds: &WorldBounds) {
         self.center_x[slot] = bounds.center.x;
         self.center_y[slot] = bounds.center.y;
         self.center_z[slot] = bounds.center.z;
@@ -445,21 +463,77 @@ impl BoundsStore {
     }
 
     /// [`BoundsStore::update`] of many objects, each `(entity, local bounds, transform)`: their world bounds are
-    /// computed and their slots looked up in parallel (rayon), then stored one by one in the order given, as
-    /// `update` would. Returns each object's outcome in that order. The same entity must not appear twice.
+    /// computed and their slots looked up in parallel (rayon), then stored as `update` would one by one in the
+    /// order given. Returns each object's outcome in that order. The same entity must not appear twice.
+    ///
+    /// Where there are many and each already has a slot and valid bounds (objects that moved), the seven
+    /// arrays are written in parallel, each thread a range of slots: those writes miss the caches of a large
+    /// store, and were a serial part of the frame.
     pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
         let computed: Vec<(Option<usize>, Result<WorldBounds, BoundsError>)> = objects
             .par_iter()
-            .with_min_len(1024)
+            .with_min_len(256)
             .map(|(entity, local, transform)| {
                 (self.slot_of(*entity), WorldBounds::from_local(*entity, local, transform))
             })
             .collect();
-        objects
-            .iter()
-            .zip(computed)
-            .map(|(&(entity, ..), (slot, bounds))| self.apply_update(entity, slot, bounds))
-            .collect()
+        // Every object stored already, none refused: no insert or removal moves a slot, so each write is an
+        // overwrite of the slot looked up above.
+        let in_place = objects.len() >= PARALLEL_WRITES_FROM
+            && computed.iter().all(|(slot, bounds)| slot.is_some() && bounds.is_ok());
+        if !in_place {
+            return objects
+                .iter()
+                .zip(computed)
+                .map(|(&(entity, ..), (slot, bounds))| self.apply_update(entity, slot, bounds))
+                .collect();
+        }
+        let writes: Vec<(usize, WorldBounds)> =
+            computed.into_iter().filter_map(|(slot, bounds)| Some((slot?, bounds.ok()?))).collect();
+        for (slot, bounds) in &writes {
+            self.note_overwrite(*slot, bounds);
+        }
+        self.write_arrays_in_parallel(&writes);
+        writes.iter().map(|&(slot, _)| Ok(slot)).collect()
+    }
+
+    /// Writes the seven arrays of each `(slot, bounds)`, in parallel over ranges of slots; where a slot appears
+    /// twice, the later write stands, as written one by one.
+    fn write_arrays_in_parallel(&mut self, writes: &[(usize, WorldBounds)]) {
+        const RANGE: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
+        // The writes grouped by range, in their order within each (a counting sort: no comparisons).
+        let mut starts = vec![0; self.padded_len().div_ceil(RANGE) + 1];
+        for &(slot, _) in writes {
+            starts[slot / RANGE + 1] += 1;
+        }
+        for range in 1..starts.len() {
+            starts[range] += starts[range - 1];
+        }
+        let mut order = vec![0; writes.len()];
+        let mut next = starts.clone();
+        for (index, &(slot, _)) in writes.iter().enumerate() {
+            order[next[slot / RANGE]] = index;
+            next[slot / RANGE] += 1;
+        }
+        let [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius] = self.arrays_mut();
+        let ranges = (
+            center_x.par_chunks_mut(RANGE),
+            center_y.par_chunks_mut(RANGE),
+            center_z.par_chunks_mut(RANGE),
+            extent_x.par_chunks_mut(RANGE),
+            extent_y.par_chunks_mut(RANGE),
+            extent_z.par_chunks_mut(RANGE),
+            radius.par_chunks_mut(RANGE),
+        );
+        ranges.into_par_iter().enumerate().for_each(|(range, (cx, cy, cz, ex, ey, ez, r))| {
+            for &index in &order[starts[range]..starts[range + 1]] {
+                let (slot, bounds) = &writes[index];
+                let at = slot - range * RANGE;
+                (cx[at], cy[at], cz[at]) = bounds.center.into();
+                (ex[at], ey[at], ez[at]) = bounds.half_extent.into();
+                r[at] = bounds.radius;
+            }
+        });
     }
 
     /// Stores `bounds` computed by [`WorldBounds::from_local`] for `entity`, whose slot was looked up as `slot`
