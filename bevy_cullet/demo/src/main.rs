@@ -4,14 +4,22 @@
 //! Keys: C switches the plugin (off: Bevy's own visibility check), O switches occlusion, Esc quits.
 //!
 //! `cargo run --release -p bevy_cullet_demo -- --objects 20000` (under Xvfb and lavapipe in a headless
-//! machine: `xvfb-run -a ...`). `--frames N` quits after N frames and prints the means; `--screenshot F`
-//! saves the window at the last frame.
+//! machine: `xvfb-run -a ...`). `--frames N` spreads N frames along the path, quits and prints the means;
+//! `--screenshot F` saves the window at the last frame. `--headless` draws into an image of `--resolution`
+//! instead of a window and waits for the GPU at the end of each frame, so that the mean frame time is the
+//! rendered frame's on a machine without a display.
 
-use bevy::app::AppExit;
+use bevy::app::{AppExit, ScheduleRunnerPlugin};
+use bevy::camera::RenderTarget;
 use bevy::camera::visibility::{VisibilitySystems, VisibleEntities};
-use bevy::diagnostic::{DiagnosticsStore, FrameTimeDiagnosticsPlugin};
+use bevy::diagnostic::{DiagnosticsStore, FrameCount, FrameTimeDiagnosticsPlugin};
 use bevy::prelude::*;
+use bevy::render::render_resource::{PollType, TextureFormat};
+use bevy::render::renderer::RenderDevice;
 use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+use bevy::render::{Render, RenderApp, RenderSystems};
+use bevy::window::ExitCondition;
+use bevy::winit::WinitPlugin;
 use bevy_cullet::{CulletPlugin, CulletSettings, CulletSystems, CulletView, spawn_scene};
 use clap::Parser;
 use cullet::scene::city::{CityParams, CityScene};
@@ -36,6 +44,23 @@ struct Args {
     /// Save the window to this PNG at the last frame (with `--frames`).
     #[arg(long)]
     screenshot: Option<std::path::PathBuf>,
+    /// No window: draw into an image of `--resolution`, waiting for the GPU at the end of each frame (needs
+    /// `--frames`).
+    #[arg(long, requires = "frames", conflicts_with = "screenshot")]
+    headless: bool,
+}
+
+impl Args {
+    /// `--resolution` as `(width, height)`.
+    ///
+    /// # Panics
+    /// If it is not `WIDTHxHEIGHT`.
+    fn size(&self) -> (u32, u32) {
+        self.resolution
+            .split_once('x')
+            .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+            .expect("--resolution WIDTHxHEIGHT")
+    }
 }
 
 /// The city's fly-through, played in a loop.
@@ -58,33 +83,40 @@ struct Timing {
 
 fn main() -> AppExit {
     let args = Args::parse();
-    let (width, height) = args
-        .resolution
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
-        .expect("--resolution WIDTHxHEIGHT");
+    let (width, height) = args.size();
     let mut app = App::new();
-    app.add_plugins(DefaultPlugins.set(WindowPlugin {
-        primary_window: Some(Window {
-            title: "Cullet city in Bevy: C switches the plugin, O occlusion".into(),
-            resolution: (width, height).into(),
+    if args.headless {
+        let no_window = WindowPlugin { primary_window: None, exit_condition: ExitCondition::DontExit, ..default() };
+        app.add_plugins((
+            DefaultPlugins.set(no_window).disable::<WinitPlugin>(),
+            ScheduleRunnerPlugin::run_loop(Duration::ZERO),
+        ));
+        // Without a swapchain nothing paces the frames: wait for the GPU so that a frame's time includes its
+        // rendering.
+        app.sub_app_mut(RenderApp).add_systems(Render, wait_for_gpu.in_set(RenderSystems::Cleanup));
+    } else {
+        app.add_plugins(DefaultPlugins.set(WindowPlugin {
+            primary_window: Some(Window {
+                title: "Cullet city in Bevy: C switches the plugin, O occlusion".into(),
+                resolution: (width, height).into(),
+                ..default()
+            }),
             ..default()
-        }),
-        ..default()
-    }))
-    .add_plugins((CulletPlugin, FrameTimeDiagnosticsPlugin::default()))
-    .insert_resource(CulletSettings { enabled: !args.bevy_check, ..default() })
-    .insert_resource(args)
-    .init_resource::<Timing>()
-    .add_systems(Startup, setup)
-    .add_systems(Update, (fly, keys, show))
-    .add_systems(
-        PostUpdate,
-        (
-            start_timer.in_set(CulletSystems::Mirror),
-            stop_timer.after(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
-        ),
-    );
+        }));
+    }
+    app.add_plugins((CulletPlugin, FrameTimeDiagnosticsPlugin::default()))
+        .insert_resource(CulletSettings { enabled: !args.bevy_check, ..default() })
+        .insert_resource(args)
+        .init_resource::<Timing>()
+        .add_systems(Startup, setup)
+        .add_systems(Update, (fly, keys, show))
+        .add_systems(
+            PostUpdate,
+            (
+                start_timer.in_set(CulletSystems::Mirror),
+                stop_timer.after(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
+            ),
+        );
     app.run()
 }
 
@@ -98,15 +130,14 @@ fn setup(world: &mut World) {
     };
     let mut materials: HashMap<[u8; 4], Handle<StandardMaterial>> = HashMap::new();
     for object in &city.scene.objects {
-        if !materials.contains_key(&object.color) {
+        materials.entry(object.color).or_insert_with(|| {
             let [r, g, b, _] = object.color;
-            let material = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
+            world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial {
                 base_color: Color::srgb_u8(r, g, b),
                 perceptual_roughness: 0.9,
                 ..default()
-            });
-            materials.insert(object.color, material);
-        }
+            })
+        });
     }
     spawn_scene(world, &city.scene, |object, entity| {
         entity.insert((
@@ -115,11 +146,24 @@ fn setup(world: &mut World) {
         ));
     });
     let path = city.flythrough();
-    world.spawn((
-        Camera3d::default(),
-        Projection::Perspective(PerspectiveProjection { fov: 60f32.to_radians(), near: 0.1, far: 1e5, ..default() }),
-        camera_transform(&path, 0.0),
-    ));
+    let camera = world
+        .spawn((
+            Camera3d::default(),
+            Projection::Perspective(PerspectiveProjection {
+                fov: 60f32.to_radians(),
+                near: 0.1,
+                far: 1e5,
+                ..default()
+            }),
+            camera_transform(&path, 0.0),
+        ))
+        .id();
+    if args.headless {
+        let (width, height) = args.size();
+        let target = Image::new_target_texture(width, height, TextureFormat::Rgba8UnormSrgb, None);
+        let target = world.resource_mut::<Assets<Image>>().add(target);
+        world.entity_mut(camera).insert(RenderTarget::Image(target.into()));
+    }
     world.spawn((
         DirectionalLight { illuminance: 12000.0, ..default() },
         Transform::from_xyz(300.0, 800.0, 200.0).looking_at(Vec3::ZERO, Vec3::Y),
@@ -149,10 +193,28 @@ fn camera_transform(path: &cullet::CameraPath, t: f32) -> Transform {
     Transform::from_translation(v(position)).looking_at(v(target), Vec3::Y)
 }
 
-/// Flies the camera along the path, looping.
-fn fly(time: Res<Time>, flight: Res<Flight>, mut camera: Single<&mut Transform, With<Camera3d>>) {
-    let t = time.elapsed_secs() % flight.0.duration();
+/// Flies the camera along the path: looping in real time, or with `--frames` a fixed step a frame, so that
+/// every run sees the same views.
+fn fly(
+    time: Res<Time>,
+    frame: Res<FrameCount>,
+    args: Res<Args>,
+    flight: Res<Flight>,
+    mut camera: Single<&mut Transform, With<Camera3d>>,
+) {
+    let duration = flight.0.duration();
+    let t = match args.frames {
+        Some(frames) => duration * (frame.0 as f32 / frames as f32).min(1.0),
+        None => time.elapsed_secs() % duration,
+    };
     **camera = camera_transform(&flight.0, t);
+}
+
+/// Blocks until the GPU has finished the frame's work (headless runs).
+fn wait_for_gpu(device: Res<RenderDevice>) {
+    if let Err(error) = device.poll(PollType::wait_indefinitely()) {
+        warn!("waiting for the GPU: {error}");
+    }
 }
 
 fn keys(keys: Res<ButtonInput<KeyCode>>, mut settings: ResMut<CulletSettings>, mut exit: MessageWriter<AppExit>) {
@@ -178,6 +240,7 @@ fn stop_timer(mut timing: ResMut<Timing>) {
 }
 
 /// Updates the text; with `--frames`, sums the times, saves the screenshot and quits at the end.
+#[allow(clippy::too_many_arguments)] // a Bevy system: each parameter is data it reads or writes
 fn show(
     mut commands: Commands,
     args: Res<Args>,
@@ -219,10 +282,10 @@ fn show(
         timing.visibility_sum += visibility;
         timing.frame_sum += delta;
     }
-    if timing.frames == frames {
-        if let Some(path) = &args.screenshot {
-            commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
-        }
+    if timing.frames == frames
+        && let Some(path) = &args.screenshot
+    {
+        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
     }
     if timing.frames == frames + 2 {
         let counted = (frames - 5) as f64;
