@@ -412,7 +412,7 @@ fn update_many_equals_update_one_by_one() {
     assert_eq!(many.entities(), one_by_one.entities());
     assert_eq!(many.soa().all(), one_by_one.soa().all());
     assert_eq!(many.groups(), one_by_one.groups());
-    // Moves only, enough of them and out of slot order: the arrays are written in parallel, to the same store.
+    // Moves only, enough of them and out of slot order: written in parallel, to the same store.
     let moves: Vec<(Entity, LocalBounds, Affine3A)> = (0..2999)
         .map(|i| (i * 7) % 2999)
         .filter(|&i| i != 2500) // refused above: no longer stored
@@ -420,12 +420,19 @@ fn update_many_equals_update_one_by_one() {
         .collect();
     many.take_moved_slots();
     one_by_one.take_moved_slots();
+    // Some of them occluders, so that their groups' occluder radii grow too.
+    for slot in (0..2999).step_by(5) {
+        many.set_occluder(slot, true).unwrap();
+        one_by_one.set_occluder(slot, true).unwrap();
+    }
     let expected: Vec<_> =
         moves.iter().map(|(e, local, t)| one_by_one.update(*e, local, &ObjectTransform(*t))).collect();
     let outcomes = many.update_many(&moves);
     assert_eq!(slots(&outcomes), slots(&expected));
     assert_eq!(many.soa().all(), one_by_one.soa().all());
     assert_eq!(many.groups(), one_by_one.groups());
+    assert_eq!(many.supergroups(), one_by_one.supergroups());
+    assert_eq!(many.occluder_radii(), one_by_one.occluder_radii());
     assert_eq!(many.generation(), one_by_one.generation());
     assert_eq!(many.take_moved_slots(), one_by_one.take_moved_slots());
     assert_eq!(many.take_written_slots(), one_by_one.take_written_slots());

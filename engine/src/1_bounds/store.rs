@@ -310,14 +310,14 @@ impl BoundsStore {
 
     /// [`BoundsStore::set`] of a valid slot and valid bounds.
     fn overwrite(&mut self, slot: usize, bounds: &WorldBounds) {
-        self.note_overwrite(slot, bounds);
-        self.write_arrays(slot, bounds);
+        self.note_moved(slot);
+        self.write(slot, bounds);
     }
 
-    /// Everything [`BoundsStore::overwrite`] does but writing the arrays.
-    fn note_overwrite(&mut self, slot: usize, bounds: &WorldBounds) {
+    /// What an overwrite of `slot` records in the order of the writes: its group to tighten, and the slot
+    /// among those moved.
+    fn note_moved(&mut self, slot: usize) {
         self.mark_loose(slot / SOA_PADDING);
-        self.note_write(slot, bounds);
         // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
         let limit = self.len() / 8;
         if let Some(moved) = self.moved.as_mut().filter(|moved| moved.len() < limit) {
@@ -328,12 +328,6 @@ impl BoundsStore {
     }
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
-        self.note_write(slot, bounds);
-        self.write_arrays(slot, bounds);
-    }
-
-    /// Everything [`BoundsStore::write`] does but writing the arrays: the counters, marks and group boxes.
-    fn note_write(&mut self, slot: usize, bounds: &WorldBounds) {
         self.generation += 1;
         if self.written.len() < self.padded_len() {
             self.written.resize(self.padded_len());
@@ -349,9 +343,6 @@ impl BoundsStore {
             let supergroup = &mut self.supergroups[slot / SOA_PADDING / GROUPS_PER_SUPERGROUP];
             *supergroup = supergroup.union(&group);
         }
-    }
-
-    fn write_arrays(&mut self, slot: usize, bounds: &WorldBounds) {
         self.center_x[slot] = bounds.center.x;
         self.center_y[slot] = bounds.center.y;
         self.center_z[slot] = bounds.center.z;
@@ -466,9 +457,9 @@ impl BoundsStore {
     /// computed and their slots looked up in parallel (rayon), then stored as `update` would one by one in the
     /// order given. Returns each object's outcome in that order. The same entity must not appear twice.
     ///
-    /// Where there are many and each already has a slot and valid bounds (objects that moved), the seven
-    /// arrays are written in parallel, each thread a range of slots: those writes miss the caches of a large
-    /// store, and were a serial part of the frame.
+    /// Where there are many and each already has a slot and valid bounds (objects that moved), they are
+    /// written in parallel, each thread a range of slots (the arrays' writes miss the caches of a large
+    /// store, and were a serial part of the frame); only what depends on their order is recorded in order.
     pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
         let computed: Vec<(Option<usize>, Result<WorldBounds, BoundsError>)> = objects
             .par_iter()
@@ -490,18 +481,21 @@ impl BoundsStore {
         }
         let writes: Vec<(usize, WorldBounds)> =
             computed.into_iter().filter_map(|(slot, bounds)| Some((slot?, bounds.ok()?))).collect();
-        for (slot, bounds) in &writes {
-            self.note_overwrite(*slot, bounds);
+        for &(slot, _) in &writes {
+            self.note_moved(slot);
         }
-        self.write_arrays_in_parallel(&writes);
+        self.generation += writes.len() as u64;
+        self.write_in_parallel(&writes);
         writes.iter().map(|&(slot, _)| Ok(slot)).collect()
     }
 
-    /// Writes the seven arrays of each `(slot, bounds)`, in parallel over ranges of slots; where a slot appears
-    /// twice, the later write stands, as written one by one.
-    fn write_arrays_in_parallel(&mut self, writes: &[(usize, WorldBounds)]) {
+    /// Writes each `(slot, bounds)` as [`BoundsStore::write`] does but the generation (the seven arrays, the
+    /// written mark, the occluder radius and the group and supergroup boxes), in parallel over supergroups,
+    /// whose slots, groups and words no two share. Where a slot appears twice, the later write stands, as
+    /// written one by one.
+    fn write_in_parallel(&mut self, writes: &[(usize, WorldBounds)]) {
         const RANGE: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
-        // The writes grouped by range, in their order within each (a counting sort: no comparisons).
+        // The writes grouped by supergroup, in their order within each (a counting sort: no comparisons).
         let mut starts = vec![0; self.padded_len().div_ceil(RANGE) + 1];
         for &(slot, _) in writes {
             starts[slot / RANGE + 1] += 1;
@@ -515,7 +509,28 @@ impl BoundsStore {
             order[next[slot / RANGE]] = index;
             next[slot / RANGE] += 1;
         }
-        let [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius] = self.arrays_mut();
+        if self.written.len() < self.padded_len() {
+            self.written.resize(self.padded_len());
+        }
+        let Self {
+            center_x,
+            center_y,
+            center_z,
+            extent_x,
+            extent_y,
+            extent_z,
+            radius,
+            groups,
+            supergroups,
+            occluder_radii,
+            written,
+            occluders,
+            ..
+        } = self;
+        let occluders = &*occluders;
+        // One item per supergroup: its slots of each array, its groups and their occluder radii, its box, and
+        // the written words of its slots (one per group). Every sequence has one item per supergroup but the
+        // written marks, which may have more words than the store (the zip stops at the shortest).
         let ranges = (
             center_x.par_chunks_mut(RANGE),
             center_y.par_chunks_mut(RANGE),
@@ -524,16 +539,30 @@ impl BoundsStore {
             extent_y.par_chunks_mut(RANGE),
             extent_z.par_chunks_mut(RANGE),
             radius.par_chunks_mut(RANGE),
+            groups.par_chunks_mut(GROUPS_PER_SUPERGROUP),
+            occluder_radii.par_chunks_mut(GROUPS_PER_SUPERGROUP),
+            supergroups.par_iter_mut(),
+            written.words_mut().par_chunks_mut(GROUPS_PER_SUPERGROUP),
         );
-        ranges.into_par_iter().enumerate().for_each(|(range, (cx, cy, cz, ex, ey, ez, r))| {
-            for &index in &order[starts[range]..starts[range + 1]] {
-                let (slot, bounds) = &writes[index];
-                let at = slot - range * RANGE;
-                (cx[at], cy[at], cz[at]) = bounds.center.into();
-                (ex[at], ey[at], ez[at]) = bounds.half_extent.into();
-                r[at] = bounds.radius;
-            }
-        });
+        ranges.into_par_iter().enumerate().for_each(
+            |(range, (cx, cy, cz, ex, ey, ez, r, groups, radii, supergroup, written))| {
+                for &index in &order[starts[range]..starts[range + 1]] {
+                    let (slot, bounds) = &writes[index];
+                    let (at, group) = (slot - range * RANGE, (slot - range * RANGE) / SOA_PADDING);
+                    (cx[at], cy[at], cz[at]) = bounds.center.into();
+                    (ex[at], ey[at], ez[at]) = bounds.half_extent.into();
+                    r[at] = bounds.radius;
+                    written[group] |= 1 << (at % SOA_PADDING);
+                    if occluders.contains(*slot) {
+                        radii[group] = radii[group].max(bounds.radius);
+                    }
+                    if !groups[group].contains(bounds) {
+                        groups[group].grow(bounds);
+                        *supergroup = supergroup.union(&groups[group]);
+                    }
+                }
+            },
+        );
     }
 
     /// Stores `bounds` computed by [`WorldBounds::from_local`] for `entity`, whose slot was looked up as `slot`
