@@ -27,8 +27,49 @@ pub const SIMD_LANES: usize = 8;
 /// the culling hierarchy ([`GroupBounds`]).
 pub const SOA_PADDING: usize = 64;
 
-/// [`BoundsStore::update_many`] writes the arrays in parallel from this many objects on.
+/// [`BoundsStore::update_many`] writes in parallel from this many objects on.
 const PARALLEL_WRITES_FROM: usize = 1024;
+
+/// Slots of one supergroup.
+const SUPERGROUP_SLOTS: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
+
+// A group's written marks are one word ([`SlotsMut::write`]).
+const _: () = assert!(SOA_PADDING == u64::BITS as usize);
+
+/// The store's slots from the first of a supergroup on (or all of them), to write them: their seven arrays,
+/// and their groups' boxes, occluder radii and written words (one word a group); and the box of the supergroup
+/// whose slots are written through it. Supergroups share none of it, so each can be written at once through
+/// its own.
+struct SlotsMut<'a> {
+    /// In the order of [`BoundsStore::soa`]'s arrays.
+    arrays: [&'a mut [f32]; 7],
+    groups: &'a mut [GroupBounds],
+    occluder_radii: &'a mut [f32],
+    written: &'a mut [u64],
+    supergroup: &'a mut GroupBounds,
+}
+
+impl SlotsMut<'_> {
+    /// Stores `bounds` in slot `at` (counted from the first of these slots, and in the supergroup whose box this
+    /// holds), that of an occluder or not: the arrays and the written mark; the group's occluder radius and box,
+    /// and so the supergroup's, grow to hold it at once.
+    #[inline(always)] // in the parallel pass's loop: a call per write cost 5% more instructions there
+    fn write(&mut self, at: usize, bounds: &WorldBounds, occluder: bool) {
+        let [cx, cy, cz, ex, ey, ez, r] = &mut self.arrays;
+        (cx[at], cy[at], cz[at]) = bounds.center.into();
+        (ex[at], ey[at], ez[at]) = bounds.half_extent.into();
+        r[at] = bounds.radius;
+        let group = at / SOA_PADDING;
+        self.written[group] |= 1 << (at % SOA_PADDING);
+        if occluder {
+            self.occluder_radii[group] = self.occluder_radii[group].max(bounds.radius);
+        }
+        if !self.groups[group].contains(bounds) {
+            self.groups[group].grow(bounds);
+            *self.supergroup = self.supergroup.union(&self.groups[group]);
+        }
+    }
+}
 
 /// Read-only views of the store's seven SoA arrays, each [`BoundsStore::padded_len`] long; slot `i` of each is
 /// the object in store slot `i` (padding slots hold zeros).
@@ -329,27 +370,37 @@ impl BoundsStore {
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
         self.generation += 1;
+        self.fit_written();
+        let occluder = self.occluders.contains(slot);
+        let Self {
+            center_x,
+            center_y,
+            center_z,
+            extent_x,
+            extent_y,
+            extent_z,
+            radius,
+            groups,
+            supergroups,
+            occluder_radii,
+            written,
+            ..
+        } = self;
+        let mut slots = SlotsMut {
+            arrays: [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius].map(Vec::as_mut_slice),
+            groups,
+            occluder_radii,
+            written: written.words_mut(),
+            supergroup: &mut supergroups[slot / SUPERGROUP_SLOTS],
+        };
+        slots.write(slot, bounds, occluder);
+    }
+
+    /// Grows the written marks to the store's padded length, so that every slot has its bit.
+    fn fit_written(&mut self) {
         if self.written.len() < self.padded_len() {
             self.written.resize(self.padded_len());
         }
-        self.written.set(slot, true);
-        if self.occluders.contains(slot) {
-            self.grow_occluder_radius(slot, bounds.radius);
-        }
-        let group = &mut self.groups[slot / SOA_PADDING];
-        if !group.contains(bounds) {
-            group.grow(bounds);
-            let group = *group;
-            let supergroup = &mut self.supergroups[slot / SOA_PADDING / GROUPS_PER_SUPERGROUP];
-            *supergroup = supergroup.union(&group);
-        }
-        self.center_x[slot] = bounds.center.x;
-        self.center_y[slot] = bounds.center.y;
-        self.center_z[slot] = bounds.center.z;
-        self.extent_x[slot] = bounds.half_extent.x;
-        self.extent_y[slot] = bounds.half_extent.y;
-        self.extent_z[slot] = bounds.half_extent.z;
-        self.radius[slot] = bounds.radius;
     }
 
     /// Stores `entity`'s bounds: overwrites its slot if it has one, else appends it. Returns the slot.
@@ -489,16 +540,14 @@ impl BoundsStore {
         writes.iter().map(|&(slot, _)| Ok(slot)).collect()
     }
 
-    /// Writes each `(slot, bounds)` as [`BoundsStore::write`] does but the generation (the seven arrays, the
-    /// written mark, the occluder radius and the group and supergroup boxes), in parallel over supergroups,
-    /// whose slots, groups and words no two share. Where a slot appears twice, the later write stands, as
-    /// written one by one.
+    /// Writes each `(slot, bounds)` as [`BoundsStore::write`] does but the generation, in parallel over
+    /// supergroups ([`SlotsMut`]: no two share a slot, a group or a word). Where a slot appears twice, the
+    /// later write stands, as written one by one.
     fn write_in_parallel(&mut self, writes: &[(usize, WorldBounds)]) {
-        const RANGE: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
         // The writes grouped by supergroup, in their order within each (a counting sort: no comparisons).
-        let mut starts = vec![0; self.padded_len().div_ceil(RANGE) + 1];
+        let mut starts = vec![0; self.padded_len().div_ceil(SUPERGROUP_SLOTS) + 1];
         for &(slot, _) in writes {
-            starts[slot / RANGE + 1] += 1;
+            starts[slot / SUPERGROUP_SLOTS + 1] += 1;
         }
         for range in 1..starts.len() {
             starts[range] += starts[range - 1];
@@ -506,12 +555,10 @@ impl BoundsStore {
         let mut order = vec![0; writes.len()];
         let mut next = starts.clone();
         for (index, &(slot, _)) in writes.iter().enumerate() {
-            order[next[slot / RANGE]] = index;
-            next[slot / RANGE] += 1;
+            order[next[slot / SUPERGROUP_SLOTS]] = index;
+            next[slot / SUPERGROUP_SLOTS] += 1;
         }
-        if self.written.len() < self.padded_len() {
-            self.written.resize(self.padded_len());
-        }
+        self.fit_written();
         let Self {
             center_x,
             center_y,
@@ -528,38 +575,28 @@ impl BoundsStore {
             ..
         } = self;
         let occluders = &*occluders;
-        // One item per supergroup: its slots of each array, its groups and their occluder radii, its box, and
-        // the written words of its slots (one per group). Every sequence has one item per supergroup but the
-        // written marks, which may have more words than the store (the zip stops at the shortest).
-        let ranges = (
-            center_x.par_chunks_mut(RANGE),
-            center_y.par_chunks_mut(RANGE),
-            center_z.par_chunks_mut(RANGE),
-            extent_x.par_chunks_mut(RANGE),
-            extent_y.par_chunks_mut(RANGE),
-            extent_z.par_chunks_mut(RANGE),
-            radius.par_chunks_mut(RANGE),
+        // One item per supergroup. The written marks may have more words than the store has groups: the zip
+        // stops at the shortest.
+        let parts = (
+            center_x.par_chunks_mut(SUPERGROUP_SLOTS),
+            center_y.par_chunks_mut(SUPERGROUP_SLOTS),
+            center_z.par_chunks_mut(SUPERGROUP_SLOTS),
+            extent_x.par_chunks_mut(SUPERGROUP_SLOTS),
+            extent_y.par_chunks_mut(SUPERGROUP_SLOTS),
+            extent_z.par_chunks_mut(SUPERGROUP_SLOTS),
+            radius.par_chunks_mut(SUPERGROUP_SLOTS),
             groups.par_chunks_mut(GROUPS_PER_SUPERGROUP),
             occluder_radii.par_chunks_mut(GROUPS_PER_SUPERGROUP),
             supergroups.par_iter_mut(),
             written.words_mut().par_chunks_mut(GROUPS_PER_SUPERGROUP),
         );
-        ranges.into_par_iter().enumerate().for_each(
-            |(range, (cx, cy, cz, ex, ey, ez, r, groups, radii, supergroup, written))| {
-                for &index in &order[starts[range]..starts[range + 1]] {
-                    let (slot, bounds) = &writes[index];
-                    let (at, group) = (slot - range * RANGE, (slot - range * RANGE) / SOA_PADDING);
-                    (cx[at], cy[at], cz[at]) = bounds.center.into();
-                    (ex[at], ey[at], ez[at]) = bounds.half_extent.into();
-                    r[at] = bounds.radius;
-                    written[group] |= 1 << (at % SOA_PADDING);
-                    if occluders.contains(*slot) {
-                        radii[group] = radii[group].max(bounds.radius);
-                    }
-                    if !groups[group].contains(bounds) {
-                        groups[group].grow(bounds);
-                        *supergroup = supergroup.union(&groups[group]);
-                    }
+        parts.into_par_iter().enumerate().for_each(
+            |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written))| {
+                let arrays = [cx, cy, cz, ex, ey, ez, r];
+                let mut part = SlotsMut { arrays, groups, occluder_radii, written, supergroup };
+                for &write in &order[starts[index]..starts[index + 1]] {
+                    let (slot, bounds) = &writes[write];
+                    part.write(slot % SUPERGROUP_SLOTS, bounds, occluders.contains(*slot));
                 }
             },
         );
