@@ -91,8 +91,9 @@ pub(crate) struct ViewCull {
     dispatch: wgpu::Buffer,
     /// Buffers sized for its candidates, once it has had any.
     pub frame: Option<FrameBuffers>,
-    /// When its triangle pass is skipped for removing too little.
+    /// When its cluster pass is skipped for removing too little.
     cluster_gate: BenefitGate,
+    /// When its triangle pass is skipped for removing too little.
     triangle_gate: BenefitGate,
 }
 
