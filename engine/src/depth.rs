@@ -240,10 +240,33 @@ impl DepthPyramid {
 
     /// [`DepthPyramid::resize_for_overwrite`] for a view of `width` x `height` pixels whose level 0 has a texel
     /// a block of `2^shift` pixels on each side (`ceil(size / 2^shift)` texels per axis). Drops the partial
-    /// coverage, which [`DepthPyramid::blocks_mut`] sizes again for a masked raster.
+    /// coverage.
     pub(crate) fn resize_blocks_for_overwrite(&mut self, width: u32, height: u32, shift: u32) {
         self.partial.0.clear();
         self.partial.1.clear();
+        self.size_levels(width, height, shift);
+    }
+
+    /// [`DepthPyramid::resize_blocks_for_overwrite`] for [`crate::raster::rasterize`] in masked mode: returns
+    /// level 0's texels and the partial coverage of each (see [`DepthPyramid`]), sized for them, their contents
+    /// unspecified (finite), for the raster to write every one. Kept at their size from one frame to the next,
+    /// so that nothing is written twice.
+    pub(crate) fn resize_masked_for_overwrite(
+        &mut self,
+        width: u32,
+        height: u32,
+        shift: u32,
+    ) -> (&mut [f32], &mut [f32], &mut [u16]) {
+        self.size_levels(width, height, shift);
+        let count = self.levels[0].texels.len();
+        self.partial.0.resize(count, 0.0);
+        self.partial.1.resize(count, 0);
+        (&mut self.levels[0].texels, &mut self.partial.0, &mut self.partial.1)
+    }
+
+    /// Sizes the levels for a view of `width` x `height` pixels and level-0 texels of `2^shift` pixels on each
+    /// side, leaving their texels unspecified (finite).
+    fn size_levels(&mut self, width: u32, height: u32, shift: u32) {
         let (mut w, mut h) = (width.div_ceil(1 << shift), height.div_ceil(1 << shift));
         let mut sizes = vec![(w, h)];
         while w > 1 || h > 1 {
@@ -255,15 +278,6 @@ impl DepthPyramid {
             level.resize_for_overwrite(w, h);
             (level.texel_shift, level.view_size) = (shift + k as u32, (width, height));
         }
-    }
-
-    /// Level 0's texels with the partial coverage of each (see [`DepthPyramid`]), sized for it, for
-    /// [`crate::raster::rasterize`] in masked mode.
-    pub(crate) fn blocks_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [u16]) {
-        let count = self.levels[0].texels.len();
-        self.partial.0.resize(count, 0.0);
-        self.partial.1.resize(count, 0);
-        (&mut self.levels[0].texels, &mut self.partial.0, &mut self.partial.1)
     }
 
     /// Whether the blocks of a masked pyramid's level 0 under the pixel rectangle `x0..x1`, `y0..y1` (non-empty,

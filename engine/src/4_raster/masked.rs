@@ -52,7 +52,7 @@ const LANES: usize = 8;
 /// `view` (the last row and column of blocks may reach past the view), and the levels above are reduced from
 /// it.
 pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], pyramid: &mut DepthPyramid) {
-    pyramid.resize_blocks_for_overwrite(view.width, view.height, BLOCK_SHIFT);
+    let (known, working, mask) = pyramid.resize_masked_for_overwrite(view.width, view.height, BLOCK_SHIFT);
     if view.width == 0 || view.height == 0 {
         return;
     }
@@ -60,7 +60,6 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
     let band_rows = BAND_BLOCK_ROWS * BLOCK as usize;
     let bins = bin_by_band(pending, view.height, band_rows);
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
-    let (known, working, mask) = pyramid.blocks_mut();
     let chunk = blocks_wide * BAND_BLOCK_ROWS;
     let band_blocks = known.par_chunks_mut(chunk).zip(working.par_chunks_mut(chunk)).zip(mask.par_chunks_mut(chunk));
     band_blocks.zip(bins.par_iter()).enumerate().for_each(|(band, (((known, working), mask), bin))| {
