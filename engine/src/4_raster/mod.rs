@@ -44,7 +44,7 @@
 use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor, reduce_rows};
 use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
-use glam::{DAffine3, DVec3, DVec4, Vec3};
+use glam::{DAffine3, DMat4, DVec3, DVec4, Vec3};
 use rayon::prelude::*;
 use std::sync::OnceLock;
 
@@ -624,13 +624,19 @@ fn screen_bound(view: &ScreenView, instance: &OccluderInstance<'_>) -> Option<(T
     if !(low.cmple(high).all()) {
         return None; // No triangle.
     }
-    let transform = relative_transform(view, instance);
     let near = view.near as f64;
+    // Local position to homogeneous `(x, y, w, d)` in one affine map, so that each corner costs additions: the
+    // centre's image plus or minus each half-axis's (instead of two matrix products a corner).
+    let xywd = local_to_clip(view, instance);
+    let (low, high) = (low.as_dvec3(), high.as_dvec3());
+    let (centre, half) = ((low + high) * 0.5, (high - low) * 0.5);
+    let centre = xywd * centre.extend(1.0);
+    let axes = [xywd.x_axis * half.x, xywd.y_axis * half.y, xywd.z_axis * half.z];
     let (mut min, mut max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
     let mut in_front = true;
     for corner in 0..8 {
-        let local = Vec3::select(glam::BVec3::new(corner & 1 != 0, corner & 2 != 0, corner & 4 != 0), high, low);
-        let clip = to_clip(view, transform.transform_point3(local.as_dvec3()));
+        let signed = |bit: usize, axis: DVec4| if corner & bit != 0 { axis } else { -axis };
+        let clip = centre + signed(1, axes[0]) + signed(2, axes[1]) + signed(4, axes[2]);
         // Written so that NaN counts as behind.
         in_front &= clip.z - near >= 0.0;
         let screen = to_screen(view, clip);
@@ -657,6 +663,15 @@ fn relative_transform(view: &ScreenView, instance: &OccluderInstance<'_>) -> DAf
         glam::Mat3::from(instance.transform.matrix3).as_dmat3(),
         DVec3::from(Vec3::from(instance.transform.translation)) - view.origin.as_dvec3(),
     )
+}
+
+/// The occluder's local position to homogeneous `(x, y, w, d)` ([`to_clip`] of its camera-relative position),
+/// as one matrix whose rows are clip `x`, `y`, `w` and the depth row.
+fn local_to_clip(view: &ScreenView, instance: &OccluderInstance<'_>) -> DMat4 {
+    let relative = DMat4::from(relative_transform(view, instance));
+    let clip = view.clip_from_relative * relative;
+    let depth = relative.transpose() * view.depth_from_relative;
+    DMat4::from_cols(clip.row(0), clip.row(1), clip.row(3), depth).transpose()
 }
 
 /// Transforms, clips against the near plane and sets up the front faces of one occluder, with the boundary of
