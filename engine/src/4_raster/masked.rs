@@ -46,6 +46,7 @@ const FULL: u16 = u16::MAX;
 /// fewer bands cost less (5-8% less than 16 rows on the street view), while 1080 rows still make 34 tasks.
 const BAND_BLOCK_ROWS: usize = 8;
 /// Blocks of a row drawn side by side where AVX2 is available: one register of f32.
+#[cfg(target_arch = "x86_64")]
 const LANES: usize = 8;
 
 /// Rasterizes the occluders (nearest first) into blocks: level 0 of `pyramid` gets one texel per 4x4 pixels of
