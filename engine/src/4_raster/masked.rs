@@ -30,7 +30,10 @@
 //! Where the processor has AVX2, eight blocks of a row are decided side by side, and a block's 16 centres in two
 //! registers, by the same f32 operations: the blocks come out the same bit for bit.
 
-use super::{PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, bin_by_band};
+use super::{
+    BLOCK_COLUMNS, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, bin_by_band,
+    summary_hides, update_summary,
+};
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
 use rayon::prelude::*;
@@ -116,14 +119,18 @@ unsafe fn draw_band_avx2(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView
 #[inline(always)]
 fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &[PendingOccluder]) {
     let mut scratch = SetupScratch::default();
+    // The farthest known depth of each group of block columns over the band's rows, and working memory.
+    let (mut summary, mut columns) = (vec![0.0; blocks.blocks_wide.div_ceil(BLOCK_COLUMNS)], Vec::new());
     for &index in bin {
         let pending = &pending[index as usize];
-        if blocks.hides(pending.rect, pending.nearest) {
+        if blocks.hides(&summary, pending.rect, pending.nearest) {
             continue;
         }
         for triangle in pending.setup(view, RasterMode::Masked, &mut scratch).map_or(&[][..], |o| &o.triangles) {
             blocks.draw(triangle);
         }
+        // Known depths only grow nearer, so the summary stays a bound until the next update.
+        update_summary(&mut summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect), &mut columns);
     }
 }
 
@@ -148,16 +155,25 @@ struct Blocks<'a> {
 
 impl Blocks<'_> {
     /// Whether every block under `rect` (pixels) within the band already knows a depth nearer than `nearest`,
-    /// so that an occluder no nearer than that can add nothing there.
+    /// so that an occluder no nearer than that can add nothing there. First reads `summary` (see
+    /// [`update_summary`]); where it cannot tell, the blocks.
     #[inline(always)]
-    fn hides(&self, rect: TexelRect, nearest: f32) -> bool {
+    fn hides(&self, summary: &[f32], rect: TexelRect, nearest: f32) -> bool {
         let (y0, y1) = (rect.y0.max(self.y0), rect.y1.min(self.y1));
         if y0 >= y1 {
             return true;
         }
-        let columns = (rect.x0 >> BLOCK_SHIFT) as usize..(rect.x1.div_ceil(BLOCK)) as usize;
+        let columns = self.columns(rect);
+        if summary_hides(summary, columns.clone(), nearest) {
+            return true;
+        }
         let rows = ((y0 - self.y0) >> BLOCK_SHIFT) as usize..((y1 - self.y0).div_ceil(BLOCK)) as usize;
         rows.into_iter().all(|row| all_nearer(&self.known[row * self.blocks_wide..][columns.clone()], nearest))
+    }
+
+    /// The columns of blocks under the pixel columns of `rect`.
+    fn columns(&self, rect: TexelRect) -> std::ops::Range<usize> {
+        (rect.x0 >> BLOCK_SHIFT) as usize..(rect.x1.div_ceil(BLOCK)) as usize
     }
 
     /// Merges the pixel centres `triangle` covers within the band into its blocks (see the module

@@ -310,6 +310,42 @@ const FUSED_LEVELS: usize = 3;
 /// Columns of a band summarised by one farthest depth, which [`Band::hides`] reads.
 const BLOCK_COLUMNS: usize = 8;
 
+/// Whether every group of [`BLOCK_COLUMNS`] columns that `columns` reaches has a farthest depth (`summary`, kept
+/// by [`update_summary`]) nearer than `nearest`: then so has every cell of those columns in every row the summary
+/// covers.
+#[inline(always)]
+fn summary_hides(summary: &[f32], columns: std::ops::Range<usize>, nearest: f32) -> bool {
+    summary[columns.start / BLOCK_COLUMNS..columns.end.div_ceil(BLOCK_COLUMNS)]
+        .iter()
+        .all(|&farthest| farthest > nearest)
+}
+
+/// Recomputes `summary`, the farthest depth of each group of [`BLOCK_COLUMNS`] columns over every row of
+/// `cells` (rows of `width`: a band's texels, or a masked band's blocks), for the groups `columns` reaches.
+/// `scratch` is working memory.
+fn update_summary(
+    summary: &mut [f32],
+    cells: &[f32],
+    width: usize,
+    columns: std::ops::Range<usize>,
+    scratch: &mut Vec<f32>,
+) {
+    let first = columns.start / BLOCK_COLUMNS;
+    let end = columns.end.div_ceil(BLOCK_COLUMNS);
+    let span = first * BLOCK_COLUMNS..(end * BLOCK_COLUMNS).min(width);
+    // Farthest of each column over the rows (elementwise, so it vectorizes), then of each group.
+    scratch.clear();
+    scratch.resize(span.len(), f32::INFINITY);
+    for row in cells.chunks_exact(width) {
+        for (farthest, &cell) in scratch.iter_mut().zip(&row[span.clone()]) {
+            *farthest = farther(cell, *farthest);
+        }
+    }
+    for (farthest, group) in summary[first..end].iter_mut().zip(scratch.chunks(BLOCK_COLUMNS)) {
+        *farthest = group.iter().copied().fold(f32::INFINITY, farther);
+    }
+}
+
 /// The rows `y0..y1` of the depth buffer one task owns.
 struct Band<'a> {
     texels: &'a mut [f32],
@@ -329,8 +365,7 @@ impl Band<'_> {
     /// the texels of `rect` in its columns, so when every block is nearer, so is every texel. Where the blocks
     /// cannot tell (they also cover rows and columns outside `rect`), the texels are read.
     fn hides(&self, blocks: &[f32], rect: TexelRect, nearest: f32) -> bool {
-        let columns = rect.x0 as usize / BLOCK_COLUMNS..(rect.x1 as usize).div_ceil(BLOCK_COLUMNS);
-        if blocks[columns].iter().all(|&farthest| farthest > nearest) {
+        if summary_hides(blocks, rect.x0 as usize..rect.x1 as usize, nearest) {
             return true;
         }
         let rect = self.clip(rect);
@@ -342,20 +377,7 @@ impl Band<'_> {
     /// Recomputes the farthest depth of the blocks under `rect`'s columns after an occluder was drawn there.
     /// `columns` is working memory.
     fn update_blocks(&self, blocks: &mut [f32], rect: TexelRect, columns: &mut Vec<f32>) {
-        let first = rect.x0 as usize / BLOCK_COLUMNS;
-        let end = (rect.x1 as usize).div_ceil(BLOCK_COLUMNS);
-        let span = first * BLOCK_COLUMNS..(end * BLOCK_COLUMNS).min(self.width);
-        // Farthest of each column over the band's rows (elementwise, so it vectorizes), then of each block.
-        columns.clear();
-        columns.resize(span.len(), f32::INFINITY);
-        for row in self.texels.chunks_exact(self.width) {
-            for (farthest, &texel) in columns.iter_mut().zip(&row[span.clone()]) {
-                *farthest = farther(texel, *farthest);
-            }
-        }
-        for (farthest, block) in blocks[first..end].iter_mut().zip(columns.chunks(BLOCK_COLUMNS)) {
-            *farthest = block.iter().copied().fold(f32::INFINITY, farther);
-        }
+        update_summary(blocks, self.texels, self.width, rect.x0 as usize..rect.x1 as usize, columns);
     }
 
     /// The part of `rect` inside the band.
