@@ -36,6 +36,18 @@ const SUPERGROUP_SLOTS: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
 // A group's written marks are one word ([`SlotsMut::write`]).
 const _: () = assert!(SOA_PADDING == u64::BITS as usize);
 
+/// The whole store borrowed apart into what the writers of its slots change ([`BoundsStore::parts_mut`]).
+struct StoreParts<'a> {
+    /// In the order of [`BoundsStore::soa`]'s arrays.
+    arrays: [&'a mut [f32]; 7],
+    groups: &'a mut [GroupBounds],
+    supergroups: &'a mut [GroupBounds],
+    occluder_radii: &'a mut [f32],
+    /// The written marks' words.
+    written: &'a mut [u64],
+    occluders: &'a VisibleSet,
+}
+
 /// The store's slots from the first of a supergroup on (or all of them), to write them: their seven arrays,
 /// and their groups' boxes, occluder radii and written words (one word a group); and the box of the supergroup
 /// whose slots are written through it. Supergroups share none of it, so each can be written at once through
@@ -370,8 +382,24 @@ impl BoundsStore {
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
         self.generation += 1;
-        self.fit_written();
         let occluder = self.occluders.contains(slot);
+        let parts = self.parts_mut();
+        let mut slots = SlotsMut {
+            arrays: parts.arrays,
+            groups: parts.groups,
+            occluder_radii: parts.occluder_radii,
+            written: parts.written,
+            supergroup: &mut parts.supergroups[slot / SUPERGROUP_SLOTS],
+        };
+        slots.write(slot, bounds, occluder);
+    }
+
+    /// The arrays and bookkeeping a slot's writer changes, borrowed apart, with the written marks grown to the
+    /// store's padded length first so that every slot has its bit.
+    fn parts_mut(&mut self) -> StoreParts<'_> {
+        if self.written.len() < self.padded_len() {
+            self.written.resize(self.padded_len());
+        }
         let Self {
             center_x,
             center_y,
@@ -384,22 +412,16 @@ impl BoundsStore {
             supergroups,
             occluder_radii,
             written,
+            occluders,
             ..
         } = self;
-        let mut slots = SlotsMut {
+        StoreParts {
             arrays: [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius].map(Vec::as_mut_slice),
             groups,
+            supergroups,
             occluder_radii,
             written: written.words_mut(),
-            supergroup: &mut supergroups[slot / SUPERGROUP_SLOTS],
-        };
-        slots.write(slot, bounds, occluder);
-    }
-
-    /// Grows the written marks to the store's padded length, so that every slot has its bit.
-    fn fit_written(&mut self) {
-        if self.written.len() < self.padded_len() {
-            self.written.resize(self.padded_len());
+            occluders,
         }
     }
 
@@ -558,23 +580,8 @@ impl BoundsStore {
             order[next[slot / SUPERGROUP_SLOTS]] = index;
             next[slot / SUPERGROUP_SLOTS] += 1;
         }
-        self.fit_written();
-        let Self {
-            center_x,
-            center_y,
-            center_z,
-            extent_x,
-            extent_y,
-            extent_z,
-            radius,
-            groups,
-            supergroups,
-            occluder_radii,
-            written,
-            occluders,
-            ..
-        } = self;
-        let occluders = &*occluders;
+        let StoreParts { arrays, groups, supergroups, occluder_radii, written, occluders } = self.parts_mut();
+        let [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius] = arrays;
         // One item per supergroup. The written marks may have more words than the store has groups: the zip
         // stops at the shortest.
         let parts = (
@@ -588,7 +595,7 @@ impl BoundsStore {
             groups.par_chunks_mut(GROUPS_PER_SUPERGROUP),
             occluder_radii.par_chunks_mut(GROUPS_PER_SUPERGROUP),
             supergroups.par_iter_mut(),
-            written.words_mut().par_chunks_mut(GROUPS_PER_SUPERGROUP),
+            written.par_chunks_mut(GROUPS_PER_SUPERGROUP),
         );
         parts.into_par_iter().enumerate().for_each(
             |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written))| {
