@@ -389,8 +389,9 @@ impl Band<'_> {
 /// Per-occluder working memory of the conservative mode, over the occluder's rectangle within a band.
 #[derive(Default)]
 struct Scratch {
-    /// Some triangle covers the texel centre.
-    covered: Vec<bool>,
+    /// Some triangle covers the texel centre (1, else 0: 32 bits, as the depths, so that the texel loop
+    /// vectorizes).
+    covered: Vec<u32>,
     /// A boundary segment touches the texel.
     blocked: Vec<bool>,
     /// The farthest depth of every triangle that may overlap the texel.
@@ -461,13 +462,15 @@ fn candidate_columns(a: [f32; 3], rows: [f32; 3], lo: u32, hi: u32) -> (u32, u32
     if x0 < x1 { (x0.max(lo as f32) as u32, (x1.ceil() as u32).min(hi)) } else { (0, 0) }
 }
 
+/// The column offsets within a group of 8 columns that the texel loops handle as one.
+const COLUMN_OFFSETS: [f32; 8] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+
 /// Raises each texel of `row` (whose first column is `x0`) whose centre passes the three edge tests
 /// `a[i]*x + rows[i] >= 0` to the plane depth `p*x + rz` where that is nearer. Groups of 8 columns go through
 /// fixed-width loops the compiler vectorizes; every test and depth is the same f32 expression as for a single
 /// texel (`x0 + k` is exact in f32 for any buffer width).
 #[inline(always)]
 fn write_covered(row: &mut [f32], x0: u32, a: [f32; 3], rows: [f32; 3], p: f32, rz: f32) {
-    const OFFSETS: [f32; 8] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
     let texel = |texel: &mut f32, x: f32| {
         let inside = (a[0] * x + rows[0] >= 0.0) & (a[1] * x + rows[1] >= 0.0) & (a[2] * x + rows[2] >= 0.0);
         // Written unconditionally as a maximum: a conditional write becomes a masked store, slow on many cores.
@@ -477,12 +480,12 @@ fn write_covered(row: &mut [f32], x0: u32, a: [f32; 3], rows: [f32; 3], p: f32, 
     let mut chunks = row.chunks_exact_mut(8);
     let mut base = x0 as f32;
     for chunk in &mut chunks {
-        for (t, offset) in chunk.iter_mut().zip(OFFSETS) {
+        for (t, offset) in chunk.iter_mut().zip(COLUMN_OFFSETS) {
             texel(t, base + offset);
         }
         base += 8.0;
     }
-    for (t, offset) in chunks.into_remainder().iter_mut().zip(OFFSETS) {
+    for (t, offset) in chunks.into_remainder().iter_mut().zip(COLUMN_OFFSETS) {
         texel(t, base + offset);
     }
 }
@@ -518,10 +521,10 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
         return;
     }
     let (w, h) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
-    for (buffer, value) in [(&mut scratch.covered, false), (&mut scratch.blocked, false)] {
-        buffer.clear();
-        buffer.resize(w * h, value);
-    }
+    scratch.covered.clear();
+    scratch.covered.resize(w * h, 0);
+    scratch.blocked.clear();
+    scratch.blocked.resize(w * h, false);
     scratch.farthest.clear();
     scratch.farthest.resize(w * h, f32::INFINITY);
 
@@ -553,18 +556,38 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
                 continue;
             }
             let rz = q * yf + r;
-            let start = (y - rect.y0) as usize * w + (x_lo - rect.x0) as usize;
-            let count = (x_hi - x_lo) as usize;
-            let covered = &mut scratch.covered[start..start + count];
-            let farthest = &mut scratch.farthest[start..start + count];
-            for (i, (covered, farthest)) in covered.iter_mut().zip(farthest.iter_mut()).enumerate() {
-                let xf = (x_lo + i as u32) as f32;
-                let (e0, e1, e2) = (a0 * xf, a1 * xf, a2 * xf);
-                let centre = (e0 + r0 >= 0.0) & (e1 + r1 >= 0.0) & (e2 + r2 >= 0.0);
-                let overlaps = (e0 + s0 >= 0.0) & (e1 + s1 >= 0.0) & (e2 + s2 >= 0.0);
-                let depth = p * xf + rz;
-                *covered |= centre;
-                *farthest = if overlaps { farthest.min(depth) } else { *farthest };
+            // Each test the same f32 expression for every column; the centre and overlap tests in two loops
+            // of one output each, which the compiler vectorizes.
+            let centre = |xf: f32| (a0 * xf + r0 >= 0.0) & (a1 * xf + r1 >= 0.0) & (a2 * xf + r2 >= 0.0);
+            let overlap_depth = |xf: f32| {
+                let overlaps = (a0 * xf + s0 >= 0.0) & (a1 * xf + s1 >= 0.0) & (a2 * xf + s2 >= 0.0);
+                if overlaps { p * xf + rz } else { f32::INFINITY }
+            };
+            let row = (y - rect.y0) as usize * w;
+            if w < 8 {
+                for x in x_lo..x_hi {
+                    let at = row + (x - rect.x0) as usize;
+                    scratch.covered[at] |= centre(x as f32) as u32;
+                    scratch.farthest[at] = scratch.farthest[at].min(overlap_depth(x as f32));
+                }
+                continue;
+            }
+            // Whole groups of 8 columns; the last group ends at the run's end or the row's, overlapping the one
+            // before. Columns outside the run are tested like any other (their tests and depths are exact per
+            // column), and testing a column twice changes nothing.
+            let mut x = x_lo;
+            while x < x_hi {
+                let group = x.min(rect.x1 - 8);
+                let at = row + (group - rect.x0) as usize;
+                let covered = scratch.covered[at..].first_chunk_mut::<8>().expect("8 columns of the row");
+                for (covered, offset) in covered.iter_mut().zip(COLUMN_OFFSETS) {
+                    *covered |= centre(group as f32 + offset) as u32;
+                }
+                let farthest = scratch.farthest[at..].first_chunk_mut::<8>().expect("8 columns of the row");
+                for (farthest, offset) in farthest.iter_mut().zip(COLUMN_OFFSETS) {
+                    *farthest = farthest.min(overlap_depth(group as f32 + offset));
+                }
+                x += 8;
             }
         }
     }
@@ -577,7 +600,7 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
         let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
         for (((texel, &covered), &blocked), &farthest) in row.iter_mut().zip(covered).zip(blocked).zip(farthest) {
             // Written unconditionally as a maximum, so that the loop vectorizes.
-            *texel = texel.max(if covered & !blocked { farthest } else { f32::NEG_INFINITY });
+            *texel = texel.max(if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY });
         }
     }
 }
@@ -586,16 +609,18 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
 const SEGMENT_GROW: f64 = 1e-3;
 
 /// Marks every texel of `rect` that the segment touches, each texel grown by a margin for rounding.
+#[inline(always)]
 fn block_segment(segment: &[f64; 4], rect: TexelRect, w: usize, blocked: &mut [bool]) {
     block_segment_rows(segment, rect, segment_rows(segment, rect), w, blocked);
 }
 
 /// The rows of `rect` a segment can touch: those its height reaches, a row more each side. Ends that are not
-/// finite keep every row, as the test of [`block_segment_rows`] blocks them all.
+/// finite keep every row, as [`block_segment_rows`] blocks them all.
+#[inline(always)]
 fn segment_rows(segment: &[f64; 4], rect: TexelRect) -> std::ops::Range<u32> {
     let [_, y0, _, y1] = *segment;
     let mut rows = rect.y0..rect.y1;
-    if y0.is_finite() && y1.is_finite() {
+    if segment.iter().all(|end| end.is_finite()) {
         let (top, bottom) = (y0.min(y1) - SEGMENT_GROW - 1.0, y0.max(y1) + SEGMENT_GROW + 1.0);
         rows.start = rows.start.max(top.max(0.0).floor().min(rect.y1 as f64) as u32);
         rows.end = rows.end.min(bottom.max(0.0).ceil().min(u32::MAX as f64) as u32);
@@ -603,23 +628,37 @@ fn segment_rows(segment: &[f64; 4], rect: TexelRect) -> std::ops::Range<u32> {
     rows
 }
 
-/// [`block_segment`] over `rows` of `rect` only.
+/// [`block_segment`] over `rows` of `rect` only. A segment with an end that is not finite blocks every texel
+/// of those rows. Inlined, so that the raster's AVX2 build rounds with one instruction, not a call.
+#[inline(always)]
 fn block_segment_rows(segment: &[f64; 4], rect: TexelRect, rows: std::ops::Range<u32>, w: usize, blocked: &mut [bool]) {
     let [x0, y0, x1, y1] = *segment;
-    let (dx, dy) = (x1 - x0, y1 - y0);
+    if !segment.iter().all(|end| end.is_finite()) {
+        for y in rows {
+            let row = (y - rect.y0) as usize * w;
+            blocked[row..row + w].fill(true);
+        }
+        return;
+    }
+    let (top, bottom) = (y0.min(y1), y0.max(y1));
+    // Near horizontal: the whole segment in the rows its height reaches. Otherwise its part within each row's
+    // slab `lo <= y <= hi`, from its slope (rounded by far less than the margin).
+    let horizontal = (y1 - y0).abs() < 1e-12;
+    let slope = (x1 - x0) / (y1 - y0);
     for y in rows {
         let (lo, hi) = (y as f64 - SEGMENT_GROW, y as f64 + 1.0 + SEGMENT_GROW);
-        // Parameter range of the segment inside the slab lo <= y <= hi.
-        let (t0, t1) = if dy.abs() < 1e-12 {
-            if y0 < lo || y0 > hi { continue } else { (0.0, 1.0) }
+        let (xa, xb) = if horizontal {
+            if y0 < lo || y0 > hi {
+                continue;
+            }
+            (x0, x1)
         } else {
-            let (ta, tb) = ((lo - y0) / dy, (hi - y0) / dy);
-            (ta.min(tb).max(0.0), ta.max(tb).min(1.0))
+            let (ya, yb) = (lo.max(top), hi.min(bottom));
+            if ya > yb {
+                continue;
+            }
+            (x0 + (ya - y0) * slope, x0 + (yb - y0) * slope)
         };
-        if t0 > t1 {
-            continue;
-        }
-        let (xa, xb) = (x0 + dx * t0, x0 + dx * t1);
         let (left, right) = ((xa.min(xb) - SEGMENT_GROW).floor(), (xa.max(xb) + SEGMENT_GROW).floor());
         // Compared before converting: a column left of the rectangle would saturate to column 0.
         if right < rect.x0 as f64 || left >= rect.x1 as f64 {
@@ -627,9 +666,7 @@ fn block_segment_rows(segment: &[f64; 4], rect: TexelRect, rows: std::ops::Range
         }
         let (first, last) = (left.max(rect.x0 as f64) as u32, right.min(rect.x1 as f64 - 1.0) as u32);
         let row = (y - rect.y0) as usize * w;
-        for x in first..=last {
-            blocked[row + (x - rect.x0) as usize] = true;
-        }
+        blocked[row + (first - rect.x0) as usize..=row + (last - rect.x0) as usize].fill(true);
     }
 }
 
@@ -990,6 +1027,33 @@ mod tests {
                 blocked
             };
             prop_assert_eq!(blocked(segment_rows(&segment, rect)), blocked(rect.y0..rect.y1));
+        }
+
+        /// Every texel a boundary segment passes through is blocked: points along it, the ends included, each
+        /// lie in a blocked texel (steep, shallow and near-horizontal segments alike).
+        #[test]
+        fn a_segment_blocks_every_texel_it_passes_through(
+            ends in prop::array::uniform4(-20.0f64..60.0),
+            near_horizontal in prop::bool::ANY,
+        ) {
+            let mut segment = ends;
+            if near_horizontal {
+                segment[3] = segment[1] + 1e-13;
+            }
+            let rect = TexelRect { x0: 3, x1: 37, y0: 5, y1: 41 };
+            let w = (rect.x1 - rect.x0) as usize;
+            let mut blocked = vec![false; w * (rect.y1 - rect.y0) as usize];
+            block_segment(&segment, rect, w, &mut blocked);
+            let [x0, y0, x1, y1] = segment;
+            for k in 0..=512 {
+                let t = k as f64 / 512.0;
+                let (x, y) = (x0 + (x1 - x0) * t, y0 + (y1 - y0) * t);
+                let (column, row) = (x.floor(), y.floor());
+                if column >= rect.x0 as f64 && column < rect.x1 as f64 && row >= rect.y0 as f64 && row < rect.y1 as f64 {
+                    let at = (row as u32 - rect.y0) as usize * w + (column as u32 - rect.x0) as usize;
+                    prop_assert!(blocked[at], "texel ({column}, {row}) at t = {t} not blocked");
+                }
+            }
         }
 
         /// The bound made before setup holds every texel the set-up triangles reach, whether the box lies in
