@@ -22,12 +22,14 @@
 //! block as a whole is not known.
 //!
 //! # Coverage
-//! A centre is covered when it passes the triangle's three f32 edge tests, the very tests of pixel-centre mode.
-//! Each test is monotonic in `x` and in `y` (f32 rounding is), so over a block's 16 centres it passes
-//! everywhere when it passes at the block's corner facing away from its edge, and nowhere when it fails at
-//! the corner facing it: most blocks are decided by three tests, and only the blocks an edge crosses have
-//! their centres tested one by one. So a block's mask never holds a centre pixel-centre mode leaves uncovered.
-//! Where the processor has AVX2, eight blocks of a row are decided side by side, and a block's 16 centres in two
+//! Triangles are drawn as quads: two consecutive ones sharing an edge as one, tested against their four outer
+//! edges, and the others alone (see [`quads`]). A centre is covered when it passes the quad's f32 edge tests,
+//! the very tests of pixel-centre mode, each of which passes only on the inner side of its exact edge; so a
+//! covered centre lies in one of the triangles. Each test is monotonic in `x` and in `y` (f32 rounding is), so
+//! over a block's 16 centres it passes everywhere when it passes at the block's corner facing away from its
+//! edge, and nowhere when it fails at the corner facing it: most blocks are decided by four tests, and only
+//! the blocks an edge crosses have their centres tested one by one. A quad's depth over a block is the lesser
+//! of its two planes'. Where the processor has AVX2, eight blocks of a row are decided side by side, and a block's 16 centres in two
 //! registers, by the same f32 operations: the blocks come out the same bit for bit.
 
 use super::{
@@ -36,6 +38,7 @@ use super::{
 };
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
+use glam::DVec3;
 use rayon::prelude::*;
 use std::cmp::Ordering;
 
@@ -48,6 +51,8 @@ const FULL: u16 = u16::MAX;
 /// Block rows rasterized by one rayon task (32 pixel rows): a triangle is set up once per band it reaches, so
 /// fewer bands cost less (5-8% less than 16 rows on the street view), while 1080 rows still make 34 tasks.
 const BAND_BLOCK_ROWS: usize = 8;
+/// Edges a quad is tested against; a lone triangle repeats its last.
+const EDGES: usize = 4;
 /// Blocks of a row drawn side by side where AVX2 is available: one register of f32.
 #[cfg(target_arch = "x86_64")]
 const LANES: usize = 8;
@@ -114,6 +119,76 @@ unsafe fn draw_band_avx2(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView
     draw_band(blocks, bin, view, pending)
 }
 
+/// A set-up triangle, or two sharing an edge, as the masked raster draws them (see [`quads`]).
+#[derive(Clone, Debug)]
+pub(super) struct SetupQuad {
+    /// Per outer edge `(a, b, c)`: a pixel centre `(x, y)` passes when `a * x + (b * y + c) >= 0` in f32, the
+    /// set-up triangle's own test.
+    edges: [[f32; 3]; EDGES],
+    /// Each triangle's depth plane `(p, q, r)` (a lone triangle's twice): a block takes the farther of the two.
+    depth: [[f32; 3]; 2],
+    rect: TexelRect,
+}
+
+/// Pairs consecutive set-up triangles that share an edge in opposite directions (`vertices`: each one's
+/// counter-clockwise screen vertices, edge `i` from vertex `i`) into quads tested against their four other
+/// edges; a triangle paired with neither neighbour stays alone. Meshes list a quad's two triangles together,
+/// and near-plane clipping splits a triangle into two such.
+///
+/// Still no centre outside the triangles is covered: each f32 edge test passes only for centres on the inner
+/// side of its exact edge line (setup's margin), and a point on the inner side of all four outer lines lies
+/// in one of the two triangles: on the first's side of the shared line it is inside all three of the first's,
+/// otherwise all three of the second's (whose shared line is the same one, reversed). But the quad covers the
+/// centres along the shared edge that the margins leave uncovered in both triangles, and a band draws it once:
+/// one row of tests, no partial blocks along the diagonal. A pair is left apart where rounding could have
+/// flipped either triangle's orientation.
+pub(super) fn quads(triangles: &[SetupTriangle], vertices: &[[DVec3; 3]]) -> Vec<SetupQuad> {
+    let outer = |triangle: &SetupTriangle, edge: usize| {
+        let [a, b, c, _] = triangle.edges[edge % 3];
+        [a, b, c]
+    };
+    let mut quads = Vec::with_capacity(triangles.len());
+    let mut i = 0;
+    while let Some(first) = triangles.get(i) {
+        if let Some(second) = triangles.get(i + 1)
+            && let Some((k1, k2)) = shared_edge(&vertices[i], &vertices[i + 1])
+        {
+            quads.push(SetupQuad {
+                edges: [outer(first, k1 + 1), outer(first, k1 + 2), outer(second, k2 + 1), outer(second, k2 + 2)],
+                depth: [first.depth, second.depth],
+                rect: first.rect.union(second.rect),
+            });
+            i += 2;
+        } else {
+            quads.push(SetupQuad {
+                edges: [outer(first, 0), outer(first, 1), outer(first, 2), outer(first, 2)],
+                depth: [first.depth; 2],
+                rect: first.rect,
+            });
+            i += 1;
+        }
+    }
+    quads
+}
+
+/// The edges `(k1, k2)` by which two counter-clockwise triangles meet: edge `k1` of `u` is edge `k2` of `v`
+/// reversed (the same screen positions). `None` where there is none, or where either triangle is so thin that
+/// the f64 sign of its area, which decided its orientation, could be wrong.
+fn shared_edge(u: &[DVec3; 3], v: &[DVec3; 3]) -> Option<(usize, usize)> {
+    let same = |p: DVec3, q: DVec3| p.x == q.x && p.y == q.y;
+    let (k1, k2) = (0..3)
+        .flat_map(|k1| (0..3).map(move |k2| (k1, k2)))
+        .find(|&(k1, k2)| same(u[k1], v[(k2 + 1) % 3]) && same(u[(k1 + 1) % 3], v[k2]))?;
+    (well_oriented(u) && well_oriented(v)).then_some((k1, k2))
+}
+
+/// Whether a counter-clockwise triangle's doubled area is far above the rounding of the cross product that
+/// computes it (a few ulps of the product of two edge lengths), so its orientation is certain.
+fn well_oriented(t: &[DVec3; 3]) -> bool {
+    let (e1, e2) = ((t[1] - t[0]).truncate(), (t[2] - t[0]).truncate());
+    e1.perp_dot(e2) > 1e-9 * e1.length() * e2.length()
+}
+
 /// Draws the occluders of `bin` (indices into `pending`, nearest first) into a band's blocks, skipping those
 /// already hidden there, and setting up the others if no band has yet.
 #[inline(always)]
@@ -126,8 +201,8 @@ fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &
         if blocks.hides(&summary, pending.rect, pending.nearest) {
             continue;
         }
-        for triangle in pending.setup(view, RasterMode::Masked, &mut scratch).map_or(&[][..], |o| &o.triangles) {
-            blocks.draw(triangle);
+        for quad in pending.setup(view, RasterMode::Masked, &mut scratch).map_or(&[][..], |o| &o.quads) {
+            blocks.draw(quad);
         }
         // Known depths only grow nearer, so the summary stays a bound until the next update.
         update_summary(&mut summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect), &mut columns);
@@ -176,27 +251,27 @@ impl Blocks<'_> {
         (rect.x0 >> BLOCK_SHIFT) as usize..(rect.x1.div_ceil(BLOCK)) as usize
     }
 
-    /// Merges the pixel centres `triangle` covers within the band into its blocks (see the module
-    /// documentation's coverage section).
+    /// Merges the pixel centres `quad` covers within the band into its blocks (see the module documentation's
+    /// coverage section).
     #[inline(always)]
-    fn draw(&mut self, triangle: &SetupTriangle) {
-        let (y0, y1) = (triangle.rect.y0.max(self.y0), triangle.rect.y1.min(self.y1));
+    fn draw(&mut self, quad: &SetupQuad) {
+        let (y0, y1) = (quad.rect.y0.max(self.y0), quad.rect.y1.min(self.y1));
         if y0 >= y1 {
             return;
         }
-        let [p, q, r] = triangle.depth;
-        let edges = triangle.edges.map(|[a, b, c, _]| [a, b, c]);
+        let edges = quad.edges;
         let last = BLOCK - 1;
-        // The least depth over a block's centres is at the corner its plane falls towards.
-        let (depth_x, depth_y) = (if p < 0.0 { last } else { 0 }, if q < 0.0 { last } else { 0 });
+        // The least depth of each plane over a block's centres is at the corner it falls towards.
+        let depth_x = quad.depth.map(|[p, _, _]| if p < 0.0 { last } else { 0 });
+        let depth_y = quad.depth.map(|[_, q, _]| if q < 0.0 { last } else { 0 });
         // Per edge, the corner offsets where its test is lowest (`worst`) and highest.
         let worst = edges.map(|[a, b, _]| (if a < 0.0 { last } else { 0 }, if b < 0.0 { last } else { 0 }));
         let last_column = self.blocks_wide as u32 - 1;
         let block_rows = (y0 - self.y0) >> BLOCK_SHIFT..(y1 - self.y0).div_ceil(BLOCK);
-        // One run of blocks for all the triangle's rows in the band: a row's own run would save a few lanes, but
+        // One run of blocks for all the quad's rows in the band: a row's own run would save a few lanes, but
         // finding it costs more than they do (14% of the raster on the street view).
         let (top, bottom) = (self.y0 + block_rows.start * BLOCK, self.y0 + block_rows.end * BLOCK - 1);
-        let (first, end) = Span::of(&edges, triangle.rect).blocks(top, bottom);
+        let (first, end) = Span::of(&edges, quad.rect).blocks(top, bottom);
         if first >= end {
             return;
         }
@@ -204,7 +279,7 @@ impl Blocks<'_> {
             let top = self.y0 + block_row * BLOCK;
             // Each edge's `b * y + c` at the block row's four pixel rows; its worst and best corners lie on two of
             // them.
-            let rows: [[f32; BLOCK as usize]; 3] =
+            let rows: [[f32; BLOCK as usize]; EDGES] =
                 std::array::from_fn(|e| std::array::from_fn(|k| edges[e][1] * (top + k as u32) as f32 + edges[e][2]));
             let tests = RowTests {
                 a: edges.map(|[a, _, _]| a),
@@ -213,9 +288,9 @@ impl Blocks<'_> {
                 worst_rows: std::array::from_fn(|e| rows[e][worst[e].1 as usize]),
                 best_rows: std::array::from_fn(|e| rows[e][(last - worst[e].1) as usize]),
                 rows,
-                p,
-                depth_x: depth_x as f32,
-                rz: q * (top + depth_y) as f32 + r,
+                p: quad.depth.map(|[p, _, _]| p),
+                depth_x: depth_x.map(|x| x as f32),
+                rz: std::array::from_fn(|i| quad.depth[i][1] * (top + depth_y[i]) as f32 + quad.depth[i][2]),
             };
             let outside_rows = self.outside_rows(top);
             let row = block_row as usize * self.blocks_wide;
@@ -270,18 +345,18 @@ impl Blocks<'_> {
     }
 }
 
-/// Where a triangle's rows may hold covered centres: its rectangle, and each edge's crossing `x = origin + slope
+/// Where a quad's rows may hold covered centres: its rectangle, and each edge's crossing `x = origin + slope
 /// * y` of a row (f32).
 struct Span {
     rect: TexelRect,
-    /// Per edge: `(origin, slope, a)`; `a > 0` for an edge that bounds the triangle on the left, `a < 0` on the
+    /// Per edge: `(origin, slope, a)`; `a > 0` for an edge that bounds the quad on the left, `a < 0` on the
     /// right, `a == 0` for a horizontal edge (which decides rows, not columns).
-    edges: [(f32, f32, f32); 3],
+    edges: [(f32, f32, f32); EDGES],
 }
 
 impl Span {
     #[inline(always)]
-    fn of(edges: &[[f32; 3]; 3], rect: TexelRect) -> Self {
+    fn of(edges: &[[f32; 3]; EDGES], rect: TexelRect) -> Self {
         Self { rect, edges: edges.map(|[a, b, c]| (-c / a, -b / a, a)) }
     }
 
@@ -318,20 +393,27 @@ impl Span {
 #[derive(Debug)]
 struct RowTests {
     /// Each edge's `a` (its test at `(x, y)` is `a * x + (b * y + c) >= 0`).
-    a: [f32; 3],
+    a: [f32; EDGES],
     /// Per edge, the column offset within a block of its worst corner (where its test is lowest) and of its best.
-    worst_x: [f32; 3],
-    best_x: [f32; 3],
+    worst_x: [f32; EDGES],
+    best_x: [f32; EDGES],
     /// Per edge, `b * y + c` at the row of its worst corner and of its best.
-    worst_rows: [f32; 3],
-    best_rows: [f32; 3],
+    worst_rows: [f32; EDGES],
+    best_rows: [f32; EDGES],
     /// Per edge, `b * y + c` at each of the block row's four pixel rows.
-    rows: [[f32; BLOCK as usize]; 3],
-    /// The depth plane's `p`, the column offset where it is least over a block, and `q * y + r` at the row
+    rows: [[f32; BLOCK as usize]; EDGES],
+    /// Per depth plane, its `p`, the column offset where it is least over a block, and `q * y + r` at the row
     /// where it is least.
-    p: f32,
-    depth_x: f32,
-    rz: f32,
+    p: [f32; 2],
+    depth_x: [f32; 2],
+    rz: [f32; 2],
+}
+
+/// The lesser of two depths, `b` where they are equal or either is NaN: what `_mm256_min_ps(a, b)` gives in
+/// each lane.
+#[inline(always)]
+fn least(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
 }
 
 /// What a triangle adds to a block.
@@ -351,12 +433,13 @@ impl RowTests {
     #[inline(always)]
     fn classify(&self, left: f32, known: f32) -> (Coverage, f32) {
         let test = |e: usize, offset: f32, row: f32| self.a[e] * (left + offset) + row >= 0.0;
-        let depth = self.p * (left + self.depth_x) + self.rz;
+        let plane = |i: usize| self.p[i] * (left + self.depth_x[i]) + self.rz[i];
+        let depth = least(plane(0), plane(1));
         // A triangle no nearer than the known depth adds nothing, whatever it covers (see `merge`). Not
         // short-circuiting, so that the fixed-size tests stay branch-free.
         let adds = !matches!(depth.partial_cmp(&known), Some(Ordering::Less | Ordering::Equal));
-        let all = (0..3).fold(adds, |all, e| all & test(e, self.worst_x[e], self.worst_rows[e]));
-        let any = (0..3).fold(adds, |any, e| any & test(e, self.best_x[e], self.best_rows[e]));
+        let all = (0..EDGES).fold(adds, |all, e| all & test(e, self.worst_x[e], self.worst_rows[e]));
+        let any = (0..EDGES).fold(adds, |any, e| any & test(e, self.best_x[e], self.best_rows[e]));
         let coverage = if all {
             Coverage::Full
         } else if any {
@@ -378,8 +461,8 @@ impl RowTests {
         }
     }
 
-    /// The bits (`4 * row + column`) of the centres of the block whose first column is `left` that pass all
-    /// three edge tests: the same f32 expressions as [`super::write_covered`].
+    /// The bits (`4 * row + column`) of the centres of the block whose first column is `left` that pass every
+    /// edge test: the same f32 expressions as [`super::write_covered`].
     #[inline(always)]
     fn centre_mask(&self, left: f32) -> u16 {
         let mut mask = 0u16;
@@ -387,7 +470,7 @@ impl RowTests {
             // `left + column` is exact (both are integers below 2^24), as `write_covered`'s columns are.
             let x = left + (k & (BLOCK as usize - 1)) as f32;
             let row = k >> BLOCK_SHIFT;
-            let inside = (0..3).fold(true, |inside, e| inside & (self.a[e] * x + self.rows[e][row] >= 0.0));
+            let inside = (0..EDGES).fold(true, |inside, e| inside & (self.a[e] * x + self.rows[e][row] >= 0.0));
             mask |= (inside as u16) << k;
         }
         mask
@@ -399,20 +482,29 @@ mod avx2 {
     //! [`RowTests::classify`], `merge` of a full block and [`RowTests::centre_mask`] eight lanes wide: the
     //! same operations in the same order (no fused multiply-add), so the same bits. Written without closures,
     //! which would not inherit the target feature.
-    use super::{BLOCK, LANES, RowTests};
+    use super::{BLOCK, EDGES, LANES, RowTests};
     use std::arch::x86_64::*;
 
     /// Whether `a * (x + offset) + row >= 0` in each lane, as in [`RowTests::classify`].
     #[target_feature(enable = "avx2")]
     #[inline]
-    fn passes(x: __m256, a: &[f32; 3], offsets: &[f32; 3], rows: &[f32; 3]) -> __m256 {
+    fn passes(x: __m256, a: &[f32; EDGES], offsets: &[f32; EDGES], rows: &[f32; EDGES]) -> __m256 {
         let mut all = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
-        for e in 0..3 {
+        for e in 0..EDGES {
             let value = _mm256_mul_ps(_mm256_set1_ps(a[e]), _mm256_add_ps(x, _mm256_set1_ps(offsets[e])));
             let value = _mm256_add_ps(value, _mm256_set1_ps(rows[e]));
             all = _mm256_and_ps(all, _mm256_cmp_ps::<_CMP_GE_OQ>(value, _mm256_setzero_ps()));
         }
         all
+    }
+
+    /// Depth plane `i`'s value at the corner of each lane's block where it is least, as in
+    /// [`RowTests::classify`].
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn plane(tests: &RowTests, x: __m256, i: usize) -> __m256 {
+        let at_depth = _mm256_add_ps(x, _mm256_set1_ps(tests.depth_x[i]));
+        _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(tests.p[i]), at_depth), _mm256_set1_ps(tests.rz[i]))
     }
 
     /// Classifies the first `count` (at most 8) of the eight blocks whose first columns are `left`, `left + 4`,
@@ -436,8 +528,8 @@ mod avx2 {
         let counted = _mm256_cmp_ps::<_CMP_LT_OQ>(lane, _mm256_set1_ps(count as f32));
         // Exact: integers below 2^24.
         let x = _mm256_add_ps(_mm256_set1_ps(left), _mm256_mul_ps(lane, _mm256_set1_ps(BLOCK as f32)));
-        let at_depth = _mm256_add_ps(x, _mm256_set1_ps(tests.depth_x));
-        let depth = _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(tests.p), at_depth), _mm256_set1_ps(tests.rz));
+        // `least(plane(0), plane(1))` in each lane.
+        let depth = _mm256_min_ps(plane(tests, x, 0), plane(tests, x, 1));
         // SAFETY: each array is 8 readable f32 (its type); the loads are unaligned.
         let (known_depth, working_depth) =
             unsafe { (_mm256_loadu_ps(known.as_ptr()), _mm256_loadu_ps(working.as_ptr())) };
@@ -479,7 +571,7 @@ mod avx2 {
         let x = _mm256_add_ps(_mm256_set1_ps(left), _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0));
         let (mut upper, mut lower) =
             (_mm256_castsi256_ps(_mm256_set1_epi32(-1)), _mm256_castsi256_ps(_mm256_set1_epi32(-1)));
-        for e in 0..3 {
+        for e in 0..EDGES {
             let ax = _mm256_mul_ps(_mm256_set1_ps(tests.a[e]), x);
             let [r0, r1, r2, r3] = tests.rows[e];
             let (rows_01, rows_23) =
@@ -541,31 +633,28 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    /// A row of tests from arbitrary edges and depth plane, of small half-integers, so that tests land exactly
+    /// A row of tests from arbitrary edges and depth planes, of small half-integers, so that tests land exactly
     /// on zero and depths exactly on each other as well as on either side.
     fn row_tests() -> impl Strategy<Value = RowTests> {
         let value = || (-32i32..32).prop_map(|v| v as f32 / 2.0);
+        let plane = || (value(), 0u32..4, value());
         (
-            [value(), value(), value()],
-            [
-                [value(), value(), value(), value()],
-                [value(), value(), value(), value()],
-                [value(), value(), value(), value()],
-            ],
-            [0u32..4, 0u32..4, 0u32..4],
-            [0u32..4, 0u32..4, 0u32..4],
-            (value(), 0u32..4, value()),
+            prop::array::uniform4(value()),
+            prop::array::uniform4(prop::array::uniform4(value())),
+            prop::array::uniform4(0u32..4),
+            prop::array::uniform4(0u32..4),
+            [plane(), plane()],
         )
-            .prop_map(|(a, rows, worst_x, worst_y, (p, depth_x, rz))| RowTests {
+            .prop_map(|(a, rows, worst_x, worst_y, planes)| RowTests {
                 a,
                 worst_x: worst_x.map(|x| x as f32),
                 best_x: worst_x.map(|x| (BLOCK - 1 - x) as f32),
                 worst_rows: std::array::from_fn(|e| rows[e][worst_y[e] as usize]),
                 best_rows: std::array::from_fn(|e| rows[e][(BLOCK - 1 - worst_y[e]) as usize]),
                 rows,
-                p,
-                depth_x: depth_x as f32,
-                rz,
+                p: planes.map(|(p, _, _)| p),
+                depth_x: planes.map(|(_, x, _)| x as f32),
+                rz: planes.map(|(_, _, rz)| rz),
             })
     }
 

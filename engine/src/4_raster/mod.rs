@@ -26,7 +26,9 @@
 //!   and one depth per 4x4 block of pixels rather than a depth per pixel, after Intel's Masked Occlusion
 //!   Culling (`4_raster/masked.rs`). Level 0 of the pyramid is the blocks' depths, so a buffer at the viewport's
 //!   resolution costs a sixteenth of the memory to clear, write and reduce; it is conservative where
-//!   pixel centres are, a block holding a depth no nearer than any of its pixels would.
+//!   pixel centres are, a block holding a depth no nearer than the occluders at any of its pixel centres. Two
+//!   triangles sharing an edge are drawn as one quad, which also covers the centres along that edge that
+//!   pixel-centre mode's margins leave out.
 //! - [`RasterMode::Fast`]: sampled at texel centres like Collin's 256x144 buffer, with no margins; lossy
 //!   below the viewport's resolution.
 //!
@@ -65,9 +67,10 @@ pub enum RasterMode {
     /// Texel-centre sampling with rounding margins: never hides an object visible at a pixel centre of a
     /// rendering at the buffer's own resolution. Meant for a buffer as large as the viewport.
     PixelCentres,
-    /// The pixel centres of [`RasterMode::PixelCentres`], kept as a coverage mask and one depth per 4x4 block
-    /// of pixels: level 0 of the pyramid has a texel per block ([`crate::depth::DepthBuffer::texel_size`] 4).
-    /// Conservative at the viewport's own resolution, like pixel centres, for less work a pixel.
+    /// The pixel centres of [`RasterMode::PixelCentres`] (and those along the edge two triangles of a quad
+    /// share), kept as a coverage mask and one depth per 4x4 block of pixels: level 0 of the pyramid has a
+    /// texel per block ([`crate::depth::DepthBuffer::texel_size`] 4). Conservative at the viewport's own
+    /// resolution, like pixel centres, for less work a pixel.
     Masked,
     /// Texel-centre sampling: hides more, and may hide what is visible.
     Fast,
@@ -151,6 +154,9 @@ struct SetupOccluder {
     /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole. Only
     /// the conservative mode reads them; empty in the others.
     boundary: Vec<[f64; 4]>,
+    /// The triangles as the masked mode draws them: consecutive ones sharing an edge paired into one quad
+    /// (see [`masked::quads`]). Empty in the other modes.
+    quads: Vec<masked::SetupQuad>,
     rect: TexelRect,
 }
 
@@ -746,7 +752,8 @@ fn setup_occluder(
     let occluder = instance.occluder;
     let (vertices, corners) = occluder.indexed();
     let neighbours = occluder.neighbours();
-    let SetupScratch { relative, front, projected } = scratch;
+    let SetupScratch { relative, front, projected, oriented } = scratch;
+    oriented.clear();
     let (mut screen_min, mut screen_max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
     // Each distinct vertex is transformed and projected once; the triangles read them through `corners`.
     relative.clear();
@@ -770,6 +777,7 @@ fn setup_occluder(
     let mut setup = SetupOccluder {
         triangles: Vec::with_capacity(occluder.triangle_count()),
         boundary: Vec::new(),
+        quads: Vec::new(),
         rect: TexelRect::EMPTY,
     };
     for (t, triangle) in corners.chunks_exact(3).enumerate() {
@@ -812,9 +820,12 @@ fn setup_occluder(
             }
         }
         for i in 1..count - 1 {
-            if let Some(tri) = setup_triangle([screen[0], screen[i], screen[i + 1]], view, mode) {
+            if let Some((tri, vertices)) = setup_triangle([screen[0], screen[i], screen[i + 1]], view, mode) {
                 setup.rect = setup.rect.union(tri.rect);
                 setup.triangles.push(tri);
+                if mode == RasterMode::Masked {
+                    oriented.push(vertices);
+                }
             }
         }
     }
@@ -822,6 +833,9 @@ fn setup_occluder(
     // across on screen (before clamping to the buffer) can write none.
     let extent = screen_max - screen_min;
     let too_small = mode == RasterMode::Conservative && (extent.x < 1.0 || extent.y < 1.0);
+    if mode == RasterMode::Masked {
+        setup.quads = masked::quads(&setup.triangles, oriented);
+    }
     (!setup.triangles.is_empty() && !too_small).then_some(setup)
 }
 
@@ -831,6 +845,8 @@ struct SetupScratch {
     relative: Vec<DVec3>,
     front: Vec<bool>,
     projected: Vec<(DVec4, DVec3)>,
+    /// Each set-up triangle's screen vertices, counter-clockwise (masked mode only).
+    oriented: Vec<[DVec3; 3]>,
 }
 
 /// Clips a triangle of homogeneous `(x, y, w, d)` vertices, each flagged when the edge leaving it is a
@@ -873,8 +889,9 @@ fn to_screen(view: &ScreenView, v: DVec4) -> DVec3 {
     DVec3::new(x, y, v.w * inv_w)
 }
 
-/// Edge and depth planes of a screen-space triangle, or `None` if it is degenerate or off screen.
-fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<SetupTriangle> {
+/// Edge and depth planes of a screen-space triangle, and its vertices in the order of its edges (counter-clockwise:
+/// edge `i` runs from vertex `i` to vertex `i + 1`); `None` if it is degenerate or off screen.
+fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<(SetupTriangle, [DVec3; 3])> {
     let area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
     if area == 0.0 || !area.is_finite() {
         return None;
@@ -921,7 +938,7 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     let depth = [p as f32, q as f32, r_written as f32];
     // Not short-circuiting, so that the fixed-size loops unroll.
     let finite = edges.as_flattened().iter().chain(&depth).fold(true, |finite, c| finite & c.is_finite());
-    finite.then_some(SetupTriangle { edges, depth, rect })
+    finite.then_some((SetupTriangle { edges, depth, rect }, v))
 }
 
 #[cfg(test)]
