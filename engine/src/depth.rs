@@ -248,20 +248,20 @@ impl DepthPyramid {
     }
 
     /// [`DepthPyramid::resize_blocks_for_overwrite`] for [`crate::raster::rasterize`] in masked mode: returns
-    /// level 0's texels and the partial coverage of each (see [`DepthPyramid`]), sized for them, their contents
-    /// unspecified (finite), for the raster to write every one. Kept at their size from one frame to the next,
-    /// so that nothing is written twice.
+    /// the levels and the partial coverage of each texel of level 0 (see [`DepthPyramid`]), sized for them,
+    /// their contents unspecified (finite), for the raster to write every one. Kept at their size from one
+    /// frame to the next, so that nothing is written twice.
     pub(crate) fn resize_masked_for_overwrite(
         &mut self,
         width: u32,
         height: u32,
         shift: u32,
-    ) -> (&mut [f32], &mut [f32], &mut [u16]) {
+    ) -> (&mut [DepthBuffer], &mut [f32], &mut [u16]) {
         self.size_levels(width, height, shift);
         let count = self.levels[0].texels.len();
         self.partial.0.resize(count, 0.0);
         self.partial.1.resize(count, 0);
-        (&mut self.levels[0].texels, &mut self.partial.0, &mut self.partial.1)
+        (&mut self.levels, &mut self.partial.0, &mut self.partial.1)
     }
 
     /// Sizes the levels for a view of `width` x `height` pixels and level-0 texels of `2^shift` pixels on each

@@ -33,8 +33,8 @@
 //! registers, by the same f32 operations: the blocks come out the same bit for bit.
 
 use super::{
-    BLOCK_COLUMNS, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, bin_by_band,
-    summary_hides, update_summary,
+    BLOCK_COLUMNS, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, band_levels,
+    bin_by_band, reduce_band, summary_hides, update_summary,
 };
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::SimdBackend;
@@ -61,17 +61,20 @@ const LANES: usize = 8;
 /// `view` (the last row and column of blocks may reach past the view), and the levels above are reduced from
 /// it.
 pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], pyramid: &mut DepthPyramid) {
-    let (known, working, mask) = pyramid.resize_masked_for_overwrite(view.width, view.height, BLOCK_SHIFT);
+    let (levels, working, mask) = pyramid.resize_masked_for_overwrite(view.width, view.height, BLOCK_SHIFT);
     if view.width == 0 || view.height == 0 {
         return;
     }
     let blocks_wide = view.width.div_ceil(BLOCK) as usize;
     let band_rows = BAND_BLOCK_ROWS * BLOCK as usize;
     let bins = bin_by_band(pending, view.height, band_rows);
+    let (band_levels, level_widths) = band_levels(levels, BAND_BLOCK_ROWS, bins.len());
+    let fused = level_widths.len() - 1;
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let chunk = blocks_wide * BAND_BLOCK_ROWS;
-    let band_blocks = known.par_chunks_mut(chunk).zip(working.par_chunks_mut(chunk)).zip(mask.par_chunks_mut(chunk));
-    band_blocks.zip(bins.par_iter()).enumerate().for_each(|(band, (((known, working), mask), bin))| {
+    let band_blocks = band_levels.into_par_iter().zip(working.par_chunks_mut(chunk)).zip(mask.par_chunks_mut(chunk));
+    band_blocks.zip(bins.par_iter()).enumerate().for_each(|(band, (((mut levels, working), mask), bin))| {
+        let known = &mut *levels[0];
         known.fill(0.0);
         working.fill(f32::INFINITY);
         mask.fill(0);
@@ -88,8 +91,9 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
             avx2,
         };
         draw_band_with_backend(avx2, &mut blocks, bin, view, pending);
+        reduce_band(&mut levels, &level_widths);
     });
-    pyramid.reduce_from(0);
+    pyramid.reduce_from(fused);
 }
 
 /// [`draw_band`], compiled for AVX2 where `avx2` (detected on this processor); the arithmetic is the same, so

@@ -43,7 +43,7 @@
 //! orthographic view) are skipped: a closed occluder's front faces hide everything its back faces would, and
 //! from inside an occluder nothing is hidden by it.
 
-use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor, reduce_rows};
+use crate::depth::{DepthBuffer, DepthPyramid, ScreenView, ceil, farther, floor, reduce_rows};
 use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DMat4, DVec3, DVec4, Vec3};
@@ -245,18 +245,8 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
     let width = view.width as usize;
     let bands = (view.height as usize).div_ceil(BAND_ROWS);
     let bins = bin_by_band(pending, view.height, BAND_ROWS);
-    // Each band's rows in level 0 and in the fused levels above it: level k holds BAND_ROWS >> k of them
-    // (ceil-halving sizes give every band its share, the last band a shorter one).
-    let levels = pyramid.levels_mut();
-    let fused = FUSED_LEVELS.min(levels.len() - 1);
-    let level_widths: Vec<usize> = levels[..=fused].iter().map(|level| level.width() as usize).collect();
-    let mut band_rows: Vec<Vec<&mut [f32]>> = (0..bands).map(|_| Vec::with_capacity(fused + 1)).collect();
-    for (k, level) in levels[..=fused].iter_mut().enumerate() {
-        let chunk = level.width() as usize * (BAND_ROWS >> k);
-        for (rows, slice) in band_rows.iter_mut().zip(level.texels_mut().chunks_mut(chunk)) {
-            rows.push(slice);
-        }
-    }
+    let (band_rows, level_widths) = band_levels(pyramid.levels_mut(), BAND_ROWS, bands);
+    let fused = level_widths.len() - 1;
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     band_rows.into_par_iter().zip(bins.par_iter()).enumerate().for_each(|(band, (mut rows, bin))| {
         let texels = &mut *rows[0];
@@ -282,12 +272,34 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
             }
             band.update_blocks(&mut blocks, occluder.rect, &mut columns);
         }
-        for k in 1..rows.len() {
-            let (fine, coarse) = rows.split_at_mut(k);
-            reduce_rows(fine[k - 1], level_widths[k - 1], coarse[0]);
-        }
+        reduce_band(&mut rows, &level_widths);
     });
     pyramid.reduce_from(fused);
+}
+
+/// Each of `bands` bands' rows in level 0 (`band_rows` rows a band) and in the [`FUSED_LEVELS`] levels above
+/// it, which level `k` holds `band_rows >> k` of (ceil-halving sizes give every band its share, the last band
+/// a shorter one), and those levels' widths. A band rasterizes its rows of level 0, then reduces them into the
+/// others while they are in its core's cache ([`reduce_band`]).
+fn band_levels(levels: &mut [DepthBuffer], band_rows: usize, bands: usize) -> (Vec<Vec<&mut [f32]>>, Vec<usize>) {
+    let fused = FUSED_LEVELS.min(levels.len() - 1);
+    let level_widths: Vec<usize> = levels[..=fused].iter().map(|level| level.width() as usize).collect();
+    let mut rows: Vec<Vec<&mut [f32]>> = (0..bands).map(|_| Vec::with_capacity(fused + 1)).collect();
+    for (k, level) in levels[..=fused].iter_mut().enumerate() {
+        let chunk = level.width() as usize * (band_rows >> k);
+        for (rows, slice) in rows.iter_mut().zip(level.texels_mut().chunks_mut(chunk)) {
+            rows.push(slice);
+        }
+    }
+    (rows, level_widths)
+}
+
+/// Reduces a band's rows of level 0 into its rows of the levels above ([`band_levels`]).
+fn reduce_band(rows: &mut [&mut [f32]], level_widths: &[usize]) {
+    for k in 1..rows.len() {
+        let (fine, coarse) = rows.split_at_mut(k);
+        reduce_rows(fine[k - 1], level_widths[k - 1], coarse[0]);
+    }
 }
 
 /// The indices of `occluders` (in their order) whose rectangles reach each band of `band_rows` rows of a buffer
@@ -310,7 +322,8 @@ fn all_nearer(depths: &[f32], nearest: f32) -> bool {
     depths.chunks(32).all(|group| group.iter().map(|&depth| (depth <= nearest) as u32).sum::<u32>() == 0)
 }
 
-/// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1).
+/// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1, and
+/// so for the masked raster's bands).
 const FUSED_LEVELS: usize = 3;
 
 /// Columns of a band summarised by one farthest depth, which [`Band::hides`] reads.
