@@ -585,9 +585,10 @@ proptest! {
 
     /// Each block of the masked buffer (level 0: 4x4 pixels) is nowhere nearer than the exact depth of the same
     /// occluders at any pixel centre under it in the view, whatever the sizes (odd ones leave partial blocks on
-    /// the edges), the occluders' quads bent so that their triangles' planes differ. Blocks claim no centre the occluders leave uncovered, and no depth nearer than theirs, even
-    /// where a quad's two triangles are drawn as one and cover the centres along its diagonal that per-triangle
-    /// margins leave out (so the pixel-centre buffer is no bound there).
+    /// the edges), the occluders' quads bent so that their triangles' planes differ. Blocks claim no centre the
+    /// occluders leave uncovered, and no depth nearer than theirs, even where a quad's two triangles are drawn
+    /// as one and cover the centres along its diagonal that per-triangle margins leave out (so the pixel-centre
+    /// buffer is no bound there).
     #[test]
     fn masked_blocks_are_never_nearer_than_the_exact_depth_under_them(
         (camera, occluders, _) in bent_scene_strategy(0.5),

@@ -29,14 +29,14 @@
 //! over a block's 16 centres it passes everywhere when it passes at the block's corner facing away from its
 //! edge, and nowhere when it fails at the corner facing it: most blocks are decided by four tests, and only
 //! the blocks an edge crosses have their centres tested one by one. A quad's depth over a block is the lesser
-//! of its two planes'. Where the processor has AVX2, eight blocks of a row are decided side by side, and a block's 16 centres in two
-//! registers, by the same f32 operations: the blocks come out the same bit for bit.
+//! of its two planes'. Where the processor has AVX2, eight blocks of a row are decided side by side, and a
+//! block's 16 centres in two registers, by the same f32 operations: the blocks come out the same bit for bit.
 
 use super::{
     BLOCK_COLUMNS, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, band_levels,
     bin_by_band, reduce_band, summary_hides, update_summary,
 };
-use crate::depth::{DepthPyramid, ScreenView};
+use crate::depth::{DepthPyramid, ScreenView, farther};
 use crate::frustum::SimdBackend;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -413,13 +413,6 @@ struct RowTests {
     rz: [f32; 2],
 }
 
-/// The lesser of two depths, `b` where they are equal or either is NaN: what `_mm256_min_ps(a, b)` gives in
-/// each lane.
-#[inline(always)]
-fn least(a: f32, b: f32) -> f32 {
-    if a < b { a } else { b }
-}
-
 /// What a triangle adds to a block.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Coverage {
@@ -438,7 +431,8 @@ impl RowTests {
     fn classify(&self, left: f32, known: f32) -> (Coverage, f32) {
         let test = |e: usize, offset: f32, row: f32| self.a[e] * (left + offset) + row >= 0.0;
         let plane = |i: usize| self.p[i] * (left + self.depth_x[i]) + self.rz[i];
-        let depth = least(plane(0), plane(1));
+        // `farther` is `a < b ? a : b`, what `_mm256_min_ps(a, b)` gives in each lane.
+        let depth = farther(plane(0), plane(1));
         // A triangle no nearer than the known depth adds nothing, whatever it covers (see `merge`). Not
         // short-circuiting, so that the fixed-size tests stay branch-free.
         let adds = !matches!(depth.partial_cmp(&known), Some(Ordering::Less | Ordering::Equal));
@@ -533,7 +527,7 @@ mod avx2 {
         let counted = _mm256_cmp_ps::<_CMP_LT_OQ>(lane, _mm256_set1_ps(count as f32));
         // Exact: integers below 2^24.
         let x = _mm256_add_ps(_mm256_set1_ps(left), _mm256_mul_ps(lane, _mm256_set1_ps(BLOCK as f32)));
-        // `least(plane(0), plane(1))` in each lane.
+        // `farther(plane(0), plane(1))` in each lane.
         let depth = _mm256_min_ps(plane(tests, x, 0), plane(tests, x, 1));
         // SAFETY: each array is 8 readable f32 (its type); the loads are unaligned.
         let (known_depth, working_depth) =
@@ -679,7 +673,9 @@ mod tests {
             first_block in 0u32..4,
             count in 1usize..=LANES,
             known in prop::array::uniform8((-32i32..32).prop_map(|v| v as f32 / 2.0)),
-            working in prop::array::uniform8(prop_oneof![Just(f32::INFINITY), (-32i32..32).prop_map(|v| v as f32 / 2.0)]),
+            working in prop::array::uniform8(
+                prop_oneof![Just(f32::INFINITY), (-32i32..32).prop_map(|v| v as f32 / 2.0)]
+            ),
             mask in prop::array::uniform8(0u16..u16::MAX),
         ) {
             prop_assume!(std::arch::is_x86_feature_detected!("avx2"));
@@ -689,7 +685,9 @@ mod tests {
             for k in 0..count {
                 let (coverage, depth) = tests.classify(left + (k as u32 * BLOCK) as f32, known[k]);
                 match coverage {
-                    Coverage::Full => merge(&mut scalar_known[k], &mut scalar_working[k], &mut scalar_mask[k], depth, FULL),
+                    Coverage::Full => {
+                        merge(&mut scalar_known[k], &mut scalar_working[k], &mut scalar_mask[k], depth, FULL)
+                    }
                     Coverage::Partial => scalar_partial |= 1 << k,
                     Coverage::None => {}
                 }

@@ -1079,7 +1079,8 @@ mod tests {
                 let t = k as f64 / 512.0;
                 let (x, y) = (x0 + (x1 - x0) * t, y0 + (y1 - y0) * t);
                 let (column, row) = (x.floor(), y.floor());
-                if column >= rect.x0 as f64 && column < rect.x1 as f64 && row >= rect.y0 as f64 && row < rect.y1 as f64 {
+                let inside = |v: f64, lo: u32, hi: u32| v >= lo as f64 && v < hi as f64;
+                if inside(column, rect.x0, rect.x1) && inside(row, rect.y0, rect.y1) {
                     let at = (row as u32 - rect.y0) as usize * w + (column as u32 - rect.x0) as usize;
                     prop_assert!(blocked[at], "texel ({column}, {row}) at t = {t} not blocked");
                 }
