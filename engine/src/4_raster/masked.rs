@@ -51,6 +51,8 @@ const FULL: u16 = u16::MAX;
 /// Block rows rasterized by one rayon task (32 pixel rows): a triangle is set up once per band it reaches, so
 /// fewer bands cost less (5-8% less than 16 rows on the street view), while 1080 rows still make 34 tasks.
 const BAND_BLOCK_ROWS: usize = 8;
+/// Pixel centres in a block, one bit each of its mask.
+const CENTRES: usize = (BLOCK * BLOCK) as usize;
 /// Edges a quad is tested against; a lone triangle repeats its last.
 const EDGES: usize = 4;
 /// Blocks of a row drawn side by side where AVX2 is available: one register of f32.
@@ -198,8 +200,8 @@ fn well_oriented(t: &[DVec3; 3]) -> bool {
 #[inline(always)]
 fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &[PendingOccluder]) {
     let mut scratch = SetupScratch::default();
-    // The farthest known depth of each group of block columns over the band's rows, and working memory.
-    let (mut summary, mut columns) = (vec![0.0; blocks.blocks_wide.div_ceil(BLOCK_COLUMNS)], Vec::new());
+    // The farthest known depth of each group of block columns over the band's rows.
+    let mut summary = vec![0.0; blocks.blocks_wide.div_ceil(BLOCK_COLUMNS)];
     for &index in bin {
         let pending = &pending[index as usize];
         if blocks.hides(&summary, pending.rect, pending.nearest) {
@@ -209,7 +211,7 @@ fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &
             blocks.draw(quad);
         }
         // Known depths only grow nearer, so the summary stays a bound until the next update.
-        update_summary(&mut summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect), &mut columns);
+        update_summary(&mut summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect));
     }
 }
 
@@ -279,23 +281,38 @@ impl Blocks<'_> {
         if first >= end {
             return;
         }
+        // The quad's part of the tests; each block row sets its rows' part in place, as building them all
+        // again took an eighth of the raster's instructions.
+        let mut tests = RowTests {
+            a: edges.map(|[a, _, _]| a),
+            worst_x: worst.map(|w| w.0 as f32),
+            best_x: worst.map(|w| (last - w.0) as f32),
+            worst_rows: [0.0; EDGES],
+            best_rows: [0.0; EDGES],
+            centre_rows: [[0.0; CENTRES]; EDGES],
+            p: quad.depth.map(|[p, _, _]| p),
+            depth_x: depth_x.map(|x| x as f32),
+            rz: [0.0; 2],
+        };
+        // Row offsets within a block row as f32 (exact, as are the rows they are added to: integers below 2^24),
+        // so that each row's values below are computed a register at a time, written as wholes, not lane by lane
+        // (a pair of depths written as two floats and read as one pair stalled the loop's store forwarding).
+        let (b, c) = (edges.map(|[_, b, _]| b), edges.map(|[_, _, c]| c));
+        let (worst_y, best_y) = (worst.map(|w| w.1 as f32), worst.map(|w| (last - w.1) as f32));
+        let (q, r, depth_y) = (quad.depth.map(|[_, q, _]| q), quad.depth.map(|[_, _, r]| r), depth_y.map(|y| y as f32));
         for block_row in block_rows {
             let top = self.y0 + block_row * BLOCK;
-            // Each edge's `b * y + c` at the block row's four pixel rows; its worst and best corners lie on two of
-            // them.
-            let rows: [[f32; BLOCK as usize]; EDGES] =
-                std::array::from_fn(|e| std::array::from_fn(|k| edges[e][1] * (top + k as u32) as f32 + edges[e][2]));
-            let tests = RowTests {
-                a: edges.map(|[a, _, _]| a),
-                worst_x: worst.map(|w| w.0 as f32),
-                best_x: worst.map(|w| (last - w.0) as f32),
-                worst_rows: std::array::from_fn(|e| rows[e][worst[e].1 as usize]),
-                best_rows: std::array::from_fn(|e| rows[e][(last - worst[e].1) as usize]),
-                rows,
-                p: quad.depth.map(|[p, _, _]| p),
-                depth_x: depth_x.map(|x| x as f32),
-                rz: std::array::from_fn(|i| quad.depth[i][1] * (top + depth_y[i]) as f32 + quad.depth[i][2]),
-            };
+            let y = top as f32;
+            // Each edge's `b * y + c` at each centre's row, and at the rows of its worst and best corners.
+            let centre_ys: [f32; CENTRES] = std::array::from_fn(|k| y + (k as u32 >> BLOCK_SHIFT) as f32);
+            for (rows, (b, c)) in tests.centre_rows.iter_mut().zip(b.iter().zip(&c)) {
+                for (row, centre_y) in rows.iter_mut().zip(&centre_ys) {
+                    *row = b * centre_y + c;
+                }
+            }
+            tests.worst_rows = std::array::from_fn(|e| b[e] * (y + worst_y[e]) + c[e]);
+            tests.best_rows = std::array::from_fn(|e| b[e] * (y + best_y[e]) + c[e]);
+            tests.rz = std::array::from_fn(|i| q[i] * (y + depth_y[i]) + r[i]);
             let outside_rows = self.outside_rows(top);
             let row = block_row as usize * self.blocks_wide;
             // The pixels of a block the triangle covers in part (none past the view, counted as covered).
@@ -404,8 +421,10 @@ struct RowTests {
     /// Per edge, `b * y + c` at the row of its worst corner and of its best.
     worst_rows: [f32; EDGES],
     best_rows: [f32; EDGES],
-    /// Per edge, `b * y + c` at each of the block row's four pixel rows.
-    rows: [[f32; BLOCK as usize]; EDGES],
+    /// Per edge, `b * y + c` at the pixel row of each of a block's centres, in the order of their bits
+    /// (`4 * row + column`): laid out as the AVX2 centre test reads them, two registers an edge, rather than
+    /// shuffled from four values for each block.
+    centre_rows: [[f32; CENTRES]; EDGES],
     /// Per depth plane, its `p`, the column offset where it is least over a block, and `q * y + r` at the row
     /// where it is least.
     p: [f32; 2],
@@ -464,11 +483,10 @@ impl RowTests {
     #[inline(always)]
     fn centre_mask(&self, left: f32) -> u16 {
         let mut mask = 0u16;
-        for k in 0..(BLOCK * BLOCK) as usize {
+        for k in 0..CENTRES {
             // `left + column` is exact (both are integers below 2^24), as `write_covered`'s columns are.
             let x = left + (k & (BLOCK as usize - 1)) as f32;
-            let row = k >> BLOCK_SHIFT;
-            let inside = (0..EDGES).fold(true, |inside, e| inside & (self.a[e] * x + self.rows[e][row] >= 0.0));
+            let inside = (0..EDGES).fold(true, |inside, e| inside & (self.a[e] * x + self.centre_rows[e][k] >= 0.0));
             mask |= (inside as u16) << k;
         }
         mask
@@ -576,9 +594,9 @@ mod avx2 {
             (_mm256_castsi256_ps(_mm256_set1_epi32(-1)), _mm256_castsi256_ps(_mm256_set1_epi32(-1)));
         for e in 0..EDGES {
             let ax = _mm256_mul_ps(_mm256_set1_ps(tests.a[e]), x);
-            let [r0, r1, r2, r3] = tests.rows[e];
-            let (rows_01, rows_23) =
-                (_mm256_setr_ps(r0, r0, r0, r0, r1, r1, r1, r1), _mm256_setr_ps(r2, r2, r2, r2, r3, r3, r3, r3));
+            let rows = &tests.centre_rows[e];
+            // SAFETY: `rows` is 16 readable f32 (its type); the loads are unaligned.
+            let (rows_01, rows_23) = unsafe { (_mm256_loadu_ps(rows.as_ptr()), _mm256_loadu_ps(rows[8..].as_ptr())) };
             upper = _mm256_and_ps(upper, _mm256_cmp_ps::<_CMP_GE_OQ>(_mm256_add_ps(ax, rows_01), _mm256_setzero_ps()));
             lower = _mm256_and_ps(lower, _mm256_cmp_ps::<_CMP_GE_OQ>(_mm256_add_ps(ax, rows_23), _mm256_setzero_ps()));
         }
@@ -654,7 +672,7 @@ mod tests {
                 best_x: worst_x.map(|x| (BLOCK - 1 - x) as f32),
                 worst_rows: std::array::from_fn(|e| rows[e][worst_y[e] as usize]),
                 best_rows: std::array::from_fn(|e| rows[e][(BLOCK - 1 - worst_y[e]) as usize]),
-                rows,
+                centre_rows: rows.map(|rows| std::array::from_fn(|k| rows[k >> BLOCK_SHIFT])),
                 p: planes.map(|(p, _, _)| p),
                 depth_x: planes.map(|(_, x, _)| x as f32),
                 rz: planes.map(|(_, _, rz)| rz),

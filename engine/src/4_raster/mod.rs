@@ -255,7 +255,7 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
         let band_y1 = band_y0 + (texels.len() / width) as u32;
         let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
         let (mut scratch, mut setup_scratch) = (Scratch::default(), SetupScratch::default());
-        let (mut blocks, mut columns) = (vec![0.0; width.div_ceil(BLOCK_COLUMNS)], Vec::new());
+        let mut blocks = vec![0.0; width.div_ceil(BLOCK_COLUMNS)];
         for &index in bin {
             let pending = &pending[index as usize];
             if band.hides(&blocks, pending.rect, pending.nearest) {
@@ -270,7 +270,7 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
                     raster_centres_with_backend(avx2, &occluder.triangles, band.reborrow())
                 }
             }
-            band.update_blocks(&mut blocks, occluder.rect, &mut columns);
+            band.update_blocks(&mut blocks, occluder.rect);
         }
         reduce_band(&mut rows, &level_widths);
     });
@@ -341,27 +341,23 @@ fn summary_hides(summary: &[f32], columns: std::ops::Range<usize>, nearest: f32)
 
 /// Recomputes `summary`, the farthest depth of each group of [`BLOCK_COLUMNS`] columns over every row of
 /// `cells` (rows of `width`: a band's texels, or a masked band's blocks), for the groups `columns` reaches.
-/// `scratch` is working memory.
-fn update_summary(
-    summary: &mut [f32],
-    cells: &[f32],
-    width: usize,
-    columns: std::ops::Range<usize>,
-    scratch: &mut Vec<f32>,
-) {
-    let first = columns.start / BLOCK_COLUMNS;
-    let end = columns.end.div_ceil(BLOCK_COLUMNS);
-    let span = first * BLOCK_COLUMNS..(end * BLOCK_COLUMNS).min(width);
-    // Farthest of each column over the rows (elementwise, so it vectorizes), then of each group.
-    scratch.clear();
-    scratch.resize(span.len(), f32::INFINITY);
-    for row in cells.chunks_exact(width) {
-        for (farthest, &cell) in scratch.iter_mut().zip(&row[span.clone()]) {
-            *farthest = farther(cell, *farthest);
-        }
-    }
-    for (farthest, group) in summary[first..end].iter_mut().zip(scratch.chunks(BLOCK_COLUMNS)) {
-        *farthest = group.iter().copied().fold(f32::INFINITY, farther);
+#[inline(always)]
+fn update_summary(summary: &mut [f32], cells: &[f32], width: usize, columns: std::ops::Range<usize>) {
+    let groups = columns.start / BLOCK_COLUMNS..columns.end.div_ceil(BLOCK_COLUMNS);
+    for (farthest, group) in summary[groups.clone()].iter_mut().zip(groups) {
+        let start = group * BLOCK_COLUMNS;
+        let rows = cells.chunks_exact(width);
+        *farthest = if start + BLOCK_COLUMNS <= width {
+            // A whole group: the farthest of each column over the rows, in one register, then of the columns.
+            let mut lanes = [f32::INFINITY; BLOCK_COLUMNS];
+            for row in rows {
+                let group: &[f32; BLOCK_COLUMNS] = row[start..].first_chunk().expect("a whole group fits the row");
+                lanes = std::array::from_fn(|i| farther(group[i], lanes[i]));
+            }
+            lanes.into_iter().fold(f32::INFINITY, farther)
+        } else {
+            rows.flat_map(|row| &row[start..]).copied().fold(f32::INFINITY, farther)
+        };
     }
 }
 
@@ -394,9 +390,8 @@ impl Band<'_> {
     }
 
     /// Recomputes the farthest depth of the blocks under `rect`'s columns after an occluder was drawn there.
-    /// `columns` is working memory.
-    fn update_blocks(&self, blocks: &mut [f32], rect: TexelRect, columns: &mut Vec<f32>) {
-        update_summary(blocks, self.texels, self.width, rect.x0 as usize..rect.x1 as usize, columns);
+    fn update_blocks(&self, blocks: &mut [f32], rect: TexelRect) {
+        update_summary(blocks, self.texels, self.width, rect.x0 as usize..rect.x1 as usize);
     }
 
     /// The part of `rect` inside the band.
