@@ -33,8 +33,8 @@
 //! block's 16 centres in two registers, by the same f32 operations: the blocks come out the same bit for bit.
 
 use super::{
-    BLOCK_COLUMNS, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, band_levels,
-    bin_by_band, reduce_band, summary_hides, update_summary,
+    BLOCK_COLUMNS, Bins, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, band_levels,
+    reduce_band, summary_hides, update_summary,
 };
 use crate::depth::{DepthPyramid, ScreenView, farther};
 use crate::frustum::SimdBackend;
@@ -69,7 +69,8 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
     }
     let blocks_wide = view.width.div_ceil(BLOCK) as usize;
     let band_rows = BAND_BLOCK_ROWS * BLOCK as usize;
-    let bins = bin_by_band(pending, view.height, band_rows);
+    let bins = Bins::new(pending, view.height, band_rows);
+    let bins = bins.bands();
     let (band_levels, level_widths) = band_levels(levels, BAND_BLOCK_ROWS, bins.len());
     let fused = level_widths.len() - 1;
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;

@@ -244,7 +244,8 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
 
     let width = view.width as usize;
     let bands = (view.height as usize).div_ceil(BAND_ROWS);
-    let bins = bin_by_band(pending, view.height, BAND_ROWS);
+    let bins = Bins::new(pending, view.height, BAND_ROWS);
+    let bins = bins.bands();
     let (band_rows, level_widths) = band_levels(pyramid.levels_mut(), BAND_ROWS, bands);
     let fused = level_widths.len() - 1;
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
@@ -256,7 +257,7 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
         let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
         let (mut scratch, mut setup_scratch) = (Scratch::default(), SetupScratch::default());
         let mut blocks = vec![0.0; width.div_ceil(BLOCK_COLUMNS)];
-        for &index in bin {
+        for &index in *bin {
             let pending = &pending[index as usize];
             if band.hides(&blocks, pending.rect, pending.nearest) {
                 continue;
@@ -302,17 +303,45 @@ fn reduce_band(rows: &mut [&mut [f32]], level_widths: &[usize]) {
     }
 }
 
-/// The indices of `occluders` (in their order) whose rectangles reach each band of `band_rows` rows of a buffer
-/// `height` rows high.
-fn bin_by_band(occluders: &[PendingOccluder], height: u32, band_rows: usize) -> Vec<Vec<u32>> {
-    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); (height as usize).div_ceil(band_rows)];
-    for (index, occluder) in occluders.iter().enumerate() {
-        let rows = occluder.rect.y0 as usize / band_rows..(occluder.rect.y1 as usize).div_ceil(band_rows);
-        for bin in &mut bins[rows] {
-            bin.push(index as u32);
+/// The indices of occluders (in their order) whose rectangles reach each band of a buffer's rows, in one array:
+/// counted first, then written once (a vector a band, grown one push at a time, took most of binning's time).
+struct Bins {
+    indices: Vec<u32>,
+    /// Band `b`'s indices are `indices[starts[b]..starts[b + 1]]`.
+    starts: Vec<usize>,
+}
+
+impl Bins {
+    /// The occluders whose rectangles reach each band of `band_rows` rows of a buffer `height` rows high.
+    fn new(occluders: &[PendingOccluder], height: u32, band_rows: usize) -> Self {
+        let bands = (height as usize).div_ceil(band_rows);
+        let rows = |occluder: &PendingOccluder| {
+            (occluder.rect.y0 as usize / band_rows)..(occluder.rect.y1 as usize).div_ceil(band_rows).min(bands)
+        };
+        let mut starts = vec![0; bands + 1];
+        for occluder in occluders {
+            for band in rows(occluder) {
+                starts[band + 1] += 1;
+            }
         }
+        for band in 0..bands {
+            starts[band + 1] += starts[band];
+        }
+        let mut next = starts.clone();
+        let mut indices = vec![0; starts[bands]];
+        for (index, occluder) in occluders.iter().enumerate() {
+            for band in rows(occluder) {
+                indices[next[band]] = index as u32;
+                next[band] += 1;
+            }
+        }
+        Self { indices, starts }
     }
-    bins
+
+    /// Each band's occluder indices.
+    fn bands(&self) -> Vec<&[u32]> {
+        self.starts.windows(2).map(|ends| &self.indices[ends[0]..ends[1]]).collect()
+    }
 }
 
 /// Whether every depth of `depths` is nearer (larger) than `nearest`. Counting the ones that are not
