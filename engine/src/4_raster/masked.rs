@@ -269,8 +269,8 @@ impl Blocks<'_> {
         let edges = quad.edges;
         let last = BLOCK - 1;
         // The least depth of each plane over a block's centres is at the corner it falls towards.
-        let depth_x = quad.depth.map(|[p, _, _]| if p < 0.0 { last } else { 0 });
-        let depth_y = quad.depth.map(|[_, q, _]| if q < 0.0 { last } else { 0 });
+        let depth_x = quad.depth.map(|[p, _, _]| if p < 0.0 { last as f32 } else { 0.0 });
+        let depth_y = quad.depth.map(|[_, q, _]| if q < 0.0 { last as f32 } else { 0.0 });
         // Per edge, the corner offsets where its test is lowest (`worst`) and highest.
         let worst = edges.map(|[a, b, _]| (if a < 0.0 { last } else { 0 }, if b < 0.0 { last } else { 0 }));
         let last_column = self.blocks_wide as u32 - 1;
@@ -292,7 +292,7 @@ impl Blocks<'_> {
             best_rows: [0.0; EDGES],
             centre_rows: [[0.0; CENTRES]; EDGES],
             p: quad.depth.map(|[p, _, _]| p),
-            depth_x: depth_x.map(|x| x as f32),
+            depth_x,
             rz: [0.0; 2],
         };
         // Row offsets within a block row as f32 (exact, as are the rows they are added to: integers below 2^24),
@@ -300,7 +300,7 @@ impl Blocks<'_> {
         // (a pair of depths written as two floats and read as one pair stalled the loop's store forwarding).
         let (b, c) = (edges.map(|[_, b, _]| b), edges.map(|[_, _, c]| c));
         let (worst_y, best_y) = (worst.map(|w| w.1 as f32), worst.map(|w| (last - w.1) as f32));
-        let (q, r, depth_y) = (quad.depth.map(|[_, q, _]| q), quad.depth.map(|[_, _, r]| r), depth_y.map(|y| y as f32));
+        let (q, r) = (quad.depth.map(|[_, q, _]| q), quad.depth.map(|[_, _, r]| r));
         for block_row in block_rows {
             let top = self.y0 + block_row * BLOCK;
             let y = top as f32;

@@ -243,10 +243,9 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
     }
 
     let width = view.width as usize;
-    let bands = (view.height as usize).div_ceil(BAND_ROWS);
     let bins = Bins::new(pending, view.height, BAND_ROWS);
     let bins = bins.bands();
-    let (band_rows, level_widths) = band_levels(pyramid.levels_mut(), BAND_ROWS, bands);
+    let (band_rows, level_widths) = band_levels(pyramid.levels_mut(), BAND_ROWS, bins.len());
     let fused = level_widths.len() - 1;
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     band_rows.into_par_iter().zip(bins.par_iter()).enumerate().for_each(|(band, (mut rows, bin))| {
