@@ -1,7 +1,8 @@
 //! The HUD's CPU cost: building its UI with full plots (5 s of history) and tessellating it. The game spreads
-//! a build over two frames (10 a second at most, or on input; see `HudPainter`): one runs egui's pass, the next
-//! tessellates what it drew. Each is timed on its own, with warm caches and with the caches flushed first, as
-//! after a frame's culling and draw; other frames draw the last build again.
+//! a build over frames (10 a second at most, or on input; see `HudPainter`): egui's pass (begun, then the HUD's
+//! parts, a frame each), then tessellating what it drew, then the upload. The pass and the tessellation are
+//! timed here on their own, with warm caches and with the caches flushed first, as after a frame's culling and
+//! draw; other frames draw the last build again.
 //!
 //! `cargo bench -p cullet-game --bench hud`
 
@@ -73,7 +74,7 @@ fn hud(c: &mut Criterion) {
         frame += 1;
         hud.record(figures(frame), 1.0 / 60.0);
     }
-    // egui's pass over the figures of a new frame: the first of a build's two frames.
+    // egui's pass over the figures of a new frame, whole: the game spreads its parts over frames.
     let mut pass = |hud: &mut Hud, frame: u64| {
         hud.record(figures(frame), 0.1);
         let mut output = ctx.run_pass(input(), |ctx| {

@@ -104,11 +104,12 @@ pub fn gating_and_savings_columns(gpu: Option<&GpuFrameOutput>, savings: &DrawSa
     )
 }
 
-/// Mean, median, 95th percentile and maximum of some per-frame figures.
+/// Mean, median, 95th and 99th percentiles and maximum of some per-frame figures.
 pub struct Spread {
     pub mean: f64,
     pub median: f64,
     pub p95: f64,
+    pub p99: f64,
     pub max: f64,
 }
 
@@ -116,12 +117,13 @@ impl Spread {
     /// The spread of `values`; all zero for none.
     pub fn of(mut values: Vec<f64>) -> Self {
         if values.is_empty() {
-            return Self { mean: 0.0, median: 0.0, p95: 0.0, max: 0.0 };
+            return Self { mean: 0.0, median: 0.0, p95: 0.0, p99: 0.0, max: 0.0 };
         }
         values.sort_by(f64::total_cmp);
         let percentile = |p: usize| values[(values.len() * p / 100).min(values.len() - 1)];
         let mean = values.iter().sum::<f64>() / values.len() as f64;
-        Self { mean, median: percentile(50), p95: percentile(95), max: values[values.len() - 1] }
+        let (median, p95, p99) = (percentile(50), percentile(95), percentile(99));
+        Self { mean, median, p95, p99, max: values[values.len() - 1] }
     }
 }
 

@@ -77,8 +77,9 @@ const PLOT_POINTS_PER_SECOND: f64 = 30.0;
 /// (or on input).
 pub const REFRESH_SECONDS: f64 = 0.1;
 /// Frames between refreshes, at least: below 40 frames a second they come every this many frames rather than
-/// every [`REFRESH_SECONDS`], so that the HUD's cost per frame stays low at any frame rate (a build takes two
-/// frames, egui's pass then the upload: see [`painter::HudPainter`]). The plots still get every frame.
+/// every [`REFRESH_SECONDS`], so that the HUD's cost per frame stays low at any frame rate (a build is spread
+/// over five frames, so it comes every fifth frame at most: see [`painter::HudPainter`]). The plots still get
+/// every frame.
 pub const REFRESH_FRAMES: u32 = 4;
 
 /// The egui context the HUD is built in, with its style.
@@ -88,6 +89,9 @@ pub fn context() -> egui::Context {
         // No shadows: the HUD covers exactly its windows' rectangles.
         style.visuals.window_shadow = egui::Shadow::NONE;
         style.visuals.popup_shadow = egui::Shadow::NONE;
+        // Text selection is egui's plugin, which a pass begun and ended by hand (spread over frames, see
+        // `painter::HudPainter`) does not run; the HUD's figures need none.
+        style.interaction.selectable_labels = false;
     });
     context
 }
@@ -230,52 +234,74 @@ impl Hud {
         refresh
     }
 
+    /// The parts [`Hud::ui_part`] builds the HUD in: its figures window, then its plots and help windows.
+    pub const PARTS: usize = 2;
+
     /// Builds the HUD from the figures recorded last, with `validation`'s live figures, and widgets editing
-    /// `controls`. Returns the screen areas its windows cover, in points (egui's logical pixels); none when it
-    /// is hidden or nothing was recorded yet.
+    /// `controls`: every part of [`Hud::ui_part`] in turn. Returns the screen areas its windows cover, in
+    /// points (egui's logical pixels); none when it is hidden or nothing was recorded yet.
     pub fn ui(&self, ctx: &egui::Context, validation: Option<&Validation>, controls: &mut Controls) -> Vec<egui::Rect> {
+        (0..Self::PARTS).flat_map(|part| self.ui_part(ctx, part, validation, controls)).collect()
+    }
+
+    /// Builds part `part` (below [`Hud::PARTS`]) of the HUD in egui's pass under way: 0 is the figures window
+    /// (with `validation`'s live figures and widgets editing `controls`), 1 the plots window and the key
+    /// bindings. The painter spreads the parts of a pass over frames of their own. Returns the screen areas the
+    /// part's windows cover, in points; none when the HUD is hidden, nothing was recorded yet, or `part` is
+    /// past the last.
+    pub fn ui_part(
+        &self,
+        ctx: &egui::Context,
+        part: usize,
+        validation: Option<&Validation>,
+        controls: &mut Controls,
+    ) -> Vec<egui::Rect> {
         let Some(frame) = self.shown.as_ref().filter(|_| self.visible) else {
             return Vec::new();
         };
-        let mut covered = Vec::new();
         let labels = Labels::new(ctx);
-        let table = panel(
-            ctx,
-            "cullet",
-            true,
-            |window| window.default_pos([8.0, 8.0]),
-            |ui| {
-                stage_table(ui, &labels, frame);
-                adaptive_flags(ui, &labels, frame, controls);
-                if let Some(validation) = validation {
-                    validation_lines(ui, &labels, validation);
-                }
-                view_help(ui, &labels, frame, controls);
-                egui::CollapsingHeader::new("settings")
-                    .default_open(false)
-                    .show(ui, |ui| settings(ui, frame, controls));
-                ui.label(RichText::new("H hides the HUD, F1 shows the keys").weak());
-            },
-        );
-        covered.extend(table);
-        // In a small window the plots would cover the figures: they start folded there.
-        let plots = panel(
-            ctx,
-            "last 5 seconds",
-            frame.viewport.0 >= 900,
-            |window| window.anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0]).default_width(260.0),
-            |ui| self.plots(ui, &labels),
-        );
-        covered.extend(plots);
-        if self.help {
-            let help = egui::Window::new("keys")
-                .anchor(egui::Align2::CENTER_BOTTOM, [0.0, -8.0])
-                .resizable(false)
-                .collapsible(false)
-                .show(ctx, |ui| ui.label(RichText::new(HELP).monospace()));
-            covered.extend(help.map(|shown| shown.response.rect));
+        match part {
+            0 => {
+                let table = panel(
+                    ctx,
+                    "cullet",
+                    true,
+                    |window| window.default_pos([8.0, 8.0]),
+                    |ui| {
+                        stage_table(ui, &labels, frame);
+                        adaptive_flags(ui, &labels, frame, controls);
+                        if let Some(validation) = validation {
+                            validation_lines(ui, &labels, validation);
+                        }
+                        view_help(ui, &labels, frame, controls);
+                        egui::CollapsingHeader::new("settings")
+                            .default_open(false)
+                            .show(ui, |ui| settings(ui, frame, controls));
+                        ui.label(RichText::new("H hides the HUD, F1 shows the keys").weak());
+                    },
+                );
+                table.into_iter().collect()
+            }
+            1 => {
+                // In a small window the plots would cover the figures: they start folded there.
+                let plots = panel(
+                    ctx,
+                    "last 5 seconds",
+                    frame.viewport.0 >= 900,
+                    |window| window.anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0]).default_width(260.0),
+                    |ui| self.plots(ui, &labels),
+                );
+                let help = self.help.then(|| {
+                    egui::Window::new("keys")
+                        .anchor(egui::Align2::CENTER_BOTTOM, [0.0, -8.0])
+                        .resizable(false)
+                        .collapsible(false)
+                        .show(ctx, |ui| ui.label(RichText::new(HELP).monospace()))
+                });
+                plots.into_iter().chain(help.flatten().map(|shown| shown.response.rect)).collect()
+            }
+            _ => Vec::new(),
         }
-        covered
     }
 
     /// The plots, each stacked by stage: CPU time, GPU time (where timestamps exist), and the share of objects

@@ -9,22 +9,29 @@ use winit::window::Window;
 
 /// egui's context, its winit input state and its wgpu renderer for one window.
 ///
-/// A new build of the HUD is spread over two frames, so that no frame pays for all of it: one runs egui's pass
-/// (the widgets and their layout), the next tessellates its shapes and uploads them. Both frames draw the
-/// build before; the new one shows a frame later. A first build, or one for a new window size, is done whole
-/// in one frame, as there is nothing to draw until it is.
+/// A new build of the HUD is spread over frames, so that no frame pays for much of it: one begins egui's pass
+/// (taking its input), then one builds each part of the HUD (its widgets and their layout; the last ends the
+/// pass), one tessellates the pass's shapes and one uploads them. Every frame draws the last build uploaded;
+/// the new one shows from its upload on. A build that answers input runs its pass whole in one frame, so that
+/// a click shows three frames later. A first build, or one for a new window size, is done whole in one frame,
+/// as there is nothing to draw until it is.
 pub struct HudPainter {
     context: egui::Context,
     input: egui_winit::State,
     renderer: egui_wgpu::Renderer,
+    /// The parts a build is made of, each built in a frame of its own.
+    parts: usize,
     /// The last build, uploaded: drawn every frame until the next replaces it.
     built: Option<Built>,
-    /// The last pass's output, to tessellate and upload next frame.
-    pending: Option<Pending>,
+    /// The build under way, if any: a step of it a frame.
+    building: Building,
     /// A build was asked for (its content changed, there was input the HUD can react to, egui asked to run
     /// again) and not yet begun.
     wanted: bool,
-    /// egui asked to be run again at once (an animation, a widget settling).
+    /// The build asked for answers input (or egui asking to run again): its pass runs whole in one frame, so
+    /// that the HUD answers a click three frames later rather than one a part later.
+    answering: bool,
+    /// egui asked to be run again at once (an animation, a widget settling, a pass to discard).
     run_again: bool,
     /// The pointer was over the HUD at its last event egui was given.
     hovering: bool,
@@ -40,8 +47,21 @@ struct Built {
     size: (u32, u32),
 }
 
-/// One pass of egui, not yet tessellated: its shapes and texture changes, for what frame size, and the areas
-/// it covers in points.
+/// A build under way, at the step the next frame takes.
+enum Building {
+    /// None: the next build begins egui's pass.
+    Idle,
+    /// egui's pass is under way for a `size`-pixel frame: the parts before `next` are built and cover
+    /// `covered` (points); the next frame builds part `next`.
+    Open { next: usize, covered: Vec<egui::Rect>, size: (u32, u32) },
+    /// The pass ended: its output, to tessellate.
+    Ended(Pending),
+    /// Its shapes tessellated, with the pass's texture changes: to upload.
+    Tessellated { primitives: Vec<egui::ClippedPrimitive>, textures: egui::TexturesDelta, built: Pending },
+}
+
+/// One pass of egui, not yet uploaded: its output (its shapes taken once tessellated), for what frame size,
+/// and the areas it covers in points.
 struct Pending {
     output: egui::FullOutput,
     covered: Vec<egui::Rect>,
@@ -53,9 +73,15 @@ struct Pending {
 pub enum Work {
     /// Nothing: the last build was drawn again.
     Drawn,
-    /// egui's pass for a new build.
+    /// Began egui's pass for a new build, taking its input.
+    Begin,
+    /// Ran egui's pass for a new build whole, answering input.
     Pass,
-    /// Tessellating and uploading the pass of the frame before.
+    /// Built this part of the HUD in egui's pass; the last part also ends the pass.
+    Part(usize),
+    /// Tessellated the shapes of the pass.
+    Tessellate,
+    /// Uploaded the tessellated build and its texture changes: drawn from this frame on.
     Upload,
     /// A whole build at once: the first, or one for a new window size.
     Whole,
@@ -76,8 +102,9 @@ pub struct Painted {
 }
 
 impl HudPainter {
-    /// A painter for `window`, drawing into targets of `format`.
-    pub fn new(window: &Window, gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
+    /// A painter for `window`, drawing into targets of `format` a HUD built in `parts` parts (at least one),
+    /// each in a frame of its own (see [`HudPainter::paint`]).
+    pub fn new(window: &Window, gpu: &GpuContext, format: wgpu::TextureFormat, parts: usize) -> Self {
         let context = super::context();
         let max_texture_side = gpu.device.limits().max_texture_dimension_2d as usize;
         let input = egui_winit::State::new(
@@ -93,9 +120,11 @@ impl HudPainter {
             context,
             input,
             renderer,
+            parts: parts.max(1),
             built: None,
-            pending: None,
+            building: Building::Idle,
             wanted: true,
+            answering: false,
             run_again: false,
             hovering: false,
             start: Instant::now(),
@@ -109,11 +138,11 @@ impl HudPainter {
     }
 
     /// Records drawing the HUD over `target`, a view of the `size`-pixel frame, into `encoder`. A new build
-    /// is begun with `build` (which returns the areas it covers, in points) only when `changed` says its content
-    /// did, when there is input the HUD can react to (the pointer over it, keys while one of its widgets has
-    /// the focus) or egui asked to be run again, or when the size changed; it is spread over this frame and the
-    /// next (see [`HudPainter`]). Otherwise the last build's triangles are drawn again, which costs next to
-    /// nothing.
+    /// is begun only when `changed` says its content did, when there is input the HUD can react to (the
+    /// pointer over it, keys while one of its widgets has the focus) or egui asked to be run again, or when
+    /// the size changed; `build(ctx, part)` builds each part of it in egui's pass (returning the areas it
+    /// covers, in points), a frame each (see [`HudPainter`]). Otherwise the last build's triangles are drawn
+    /// again, which costs next to nothing.
     #[allow(clippy::too_many_arguments)]
     pub fn paint(
         &mut self,
@@ -123,21 +152,21 @@ impl HudPainter {
         target: &wgpu::TextureView,
         size: (u32, u32),
         changed: bool,
-        build: impl FnMut(&egui::Context) -> Vec<egui::Rect>,
+        mut build: impl FnMut(&egui::Context, usize) -> Vec<egui::Rect>,
     ) -> Painted {
         let thread_start = ThreadTime::now();
         let resized = self.built.as_ref().is_none_or(|built| built.size != size);
-        if resized && let Some(mut pending) = self.pending.take() {
-            // A pass laid out for another size is of no use, but its texture changes are: later passes build
+        if resized {
+            // A build laid out for another size is of no use, but its texture changes are: later passes build
             // on them (the font atlas grows).
-            self.update_textures(gpu, &mut pending.output.textures_delta);
+            self.abandon(gpu);
         }
         // Input the HUD cannot react to (the pointer moving over the scene, keys flying the camera) starts no
         // build, and egui never sees it.
-        let covered = match (&self.pending, &self.built) {
-            (Some(pending), _) => &pending.covered[..],
-            (None, Some(built)) => &built.covered[..],
-            (None, None) => &[],
+        let covered = match (&self.building, &self.built) {
+            (Building::Ended(pending) | Building::Tessellated { built: pending, .. }, _) => &pending.covered[..],
+            (_, Some(built)) => &built.covered[..],
+            (_, None) => &[],
         };
         let input = keep_hud_input(
             &mut self.input.egui_input_mut().events,
@@ -147,23 +176,42 @@ impl HudPainter {
             self.context.egui_wants_keyboard_input(),
         );
         self.wanted |= changed || self.run_again || resized || input;
+        self.answering |= self.run_again || input;
         let mut wall_times = [Duration::ZERO; 3];
-        let work = if let Some(pending) = self.pending.take() {
-            self.upload(gpu, encoder, pending, &mut wall_times);
-            Work::Upload
-        } else if std::mem::take(&mut self.wanted) {
-            // Taken only for a build: taking it copies egui's per-viewport input, which other frames need not.
-            let raw_input = self.take_input(window, size);
-            let pending = self.run_pass(window, raw_input, size, build, &mut wall_times);
-            if resized {
-                self.upload(gpu, encoder, pending, &mut wall_times);
-                Work::Whole
-            } else {
-                self.pending = Some(pending);
-                Work::Pass
+        let work = if resized {
+            (self.wanted, self.answering) = (false, false);
+            self.build_pass(window, size, &mut build, &mut wall_times);
+            if self.run_again {
+                // A window showing for the first time is only sized in its first pass, unpainted, and egui asks
+                // to run again at once: with nothing to show until then, it runs again in this frame.
+                self.abandon(gpu);
+                self.build_pass(window, size, &mut build, &mut wall_times);
             }
+            self.tessellate(&mut wall_times);
+            self.upload(gpu, encoder, &mut wall_times);
+            Work::Whole
         } else {
-            Work::Drawn
+            match &self.building {
+                Building::Idle if std::mem::take(&mut self.wanted) => {
+                    if std::mem::take(&mut self.answering) {
+                        self.build_pass(window, size, &mut build, &mut wall_times);
+                        Work::Pass
+                    } else {
+                        self.begin(window, size, &mut wall_times);
+                        Work::Begin
+                    }
+                }
+                Building::Idle => Work::Drawn,
+                Building::Open { .. } => Work::Part(self.build_part(window, &mut build, &mut wall_times)),
+                Building::Ended(_) => {
+                    self.tessellate(&mut wall_times);
+                    Work::Tessellate
+                }
+                Building::Tessellated { .. } => {
+                    self.upload(gpu, encoder, &mut wall_times);
+                    Work::Upload
+                }
+            }
         };
         let built = self.built.as_ref().expect("built whole above when missing or of another size");
         let recording = Instant::now();
@@ -186,6 +234,114 @@ impl HudPainter {
         Painted { regions, work, wall_times, cpu_time: thread_start.elapsed() }
     }
 
+    /// Drops the build under way, applying the texture changes of its pass where it has ended or ends it now.
+    fn abandon(&mut self, gpu: &GpuContext) {
+        let mut textures = match std::mem::replace(&mut self.building, Building::Idle) {
+            Building::Idle => return,
+            Building::Open { .. } => self.context.end_pass().textures_delta,
+            Building::Ended(pending) => pending.output.textures_delta,
+            Building::Tessellated { textures, .. } => textures,
+        };
+        self.update_textures(gpu, &mut textures);
+    }
+
+    /// Begins egui's pass for a `size`-pixel frame, with the input since the last.
+    fn begin(&mut self, window: &Window, size: (u32, u32), wall_times: &mut [Duration; 3]) {
+        let start = Instant::now();
+        let raw_input = self.take_input(window, size);
+        self.context.begin_pass(raw_input);
+        self.building = Building::Open { next: 0, covered: Vec::new(), size };
+        wall_times[0] += start.elapsed();
+    }
+
+    /// Runs a whole pass of egui for a `size`-pixel frame, every part of the HUD in it.
+    fn build_pass(
+        &mut self,
+        window: &Window,
+        size: (u32, u32),
+        build: &mut impl FnMut(&egui::Context, usize) -> Vec<egui::Rect>,
+        wall_times: &mut [Duration; 3],
+    ) {
+        self.begin(window, size, wall_times);
+        while matches!(self.building, Building::Open { .. }) {
+            self.build_part(window, build, wall_times);
+        }
+    }
+
+    /// Builds the next part of the HUD in the pass under way, and ends the pass after the last. Returns the
+    /// part built.
+    fn build_part(
+        &mut self,
+        window: &Window,
+        build: &mut impl FnMut(&egui::Context, usize) -> Vec<egui::Rect>,
+        wall_times: &mut [Duration; 3],
+    ) -> usize {
+        let start = Instant::now();
+        let Building::Open { next, covered, size } = &mut self.building else {
+            unreachable!("called only while a pass is under way")
+        };
+        let (part, size) = (*next, *size);
+        covered.extend(build(&self.context, part));
+        *next += 1;
+        if *next == self.parts {
+            let mut covered = std::mem::take(covered);
+            let mut output = self.context.end_pass();
+            if output.platform_output.requested_discard() {
+                // egui asked to discard the pass (a window sizing itself on its first showing, unpainted): it
+                // runs again at once and whole, as `Context::run_pass` runs it, after the texture changes of
+                // the first.
+                output.platform_output.request_discard_reasons.clear();
+                let raw_input = self.take_input(window, size);
+                self.context.begin_pass(raw_input);
+                covered = (0..self.parts).flat_map(|part| build(&self.context, part)).collect();
+                output.append(self.context.end_pass());
+            }
+            let repaint_now = output
+                .viewport_output
+                .get(&egui::ViewportId::ROOT)
+                .is_some_and(|viewport| viewport.repaint_delay.is_zero());
+            self.run_again = repaint_now || output.platform_output.requested_discard();
+            self.input.handle_platform_output(window, std::mem::take(&mut output.platform_output));
+            self.building = Building::Ended(Pending { output, covered, size });
+        }
+        wall_times[0] += start.elapsed();
+        part
+    }
+
+    /// Tessellates the ended pass's shapes.
+    fn tessellate(&mut self, wall_times: &mut [Duration; 3]) {
+        let start = Instant::now();
+        let Building::Ended(mut pending) = std::mem::replace(&mut self.building, Building::Idle) else {
+            unreachable!("called only once a pass has ended")
+        };
+        let shapes = std::mem::take(&mut pending.output.shapes);
+        let primitives = self.context.tessellate(shapes, pending.output.pixels_per_point);
+        let textures = std::mem::take(&mut pending.output.textures_delta);
+        self.building = Building::Tessellated { primitives, textures, built: pending };
+        wall_times[1] += start.elapsed();
+    }
+
+    /// Uploads the tessellated build and its texture changes: the build drawn from now on.
+    fn upload(&mut self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, wall_times: &mut [Duration; 3]) {
+        let start = Instant::now();
+        let Building::Tessellated { primitives, mut textures, built } =
+            std::mem::replace(&mut self.building, Building::Idle)
+        else {
+            unreachable!("called only once a pass is tessellated")
+        };
+        let Pending { output, covered, size } = built;
+        let screen =
+            egui_wgpu::ScreenDescriptor { size_in_pixels: [size.0, size.1], pixels_per_point: output.pixels_per_point };
+        self.update_textures(gpu, &mut textures);
+        let extra = self.renderer.update_buffers(&gpu.device, &gpu.queue, encoder, &primitives, &screen);
+        if !extra.is_empty() {
+            // Only paint callbacks return command buffers; the HUD has none, so there is nothing to order.
+            gpu.queue.submit(extra);
+        }
+        wall_times[2] += start.elapsed();
+        self.built = Some(Built { primitives, screen, covered, size });
+    }
+
     /// egui's input since the last build, for a `size`-pixel frame: `egui_winit::State::take_egui_input`, but
     /// with the size the game already knows, where that asks the window (on X11 a round trip to the server each
     /// frame, which blocked the HUD's thread).
@@ -202,52 +358,6 @@ impl HudPainter {
         input.take()
     }
 
-    /// Runs egui's pass with `build`, for a `size`-pixel frame.
-    fn run_pass(
-        &mut self,
-        window: &Window,
-        raw_input: egui::RawInput,
-        size: (u32, u32),
-        mut build: impl FnMut(&egui::Context) -> Vec<egui::Rect>,
-        wall_times: &mut [Duration; 3],
-    ) -> Pending {
-        let start = Instant::now();
-        let mut covered = Vec::new();
-        let mut output = self.context.run_pass(raw_input, |ctx| covered = build(ctx));
-        self.run_again = output
-            .viewport_output
-            .get(&egui::ViewportId::ROOT)
-            .is_some_and(|viewport| viewport.repaint_delay.is_zero());
-        self.input.handle_platform_output(window, std::mem::take(&mut output.platform_output));
-        wall_times[0] = start.elapsed();
-        Pending { output, covered, size }
-    }
-
-    /// Tessellates `pending`'s shapes and uploads them and its textures: the build drawn from now on.
-    fn upload(
-        &mut self,
-        gpu: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
-        pending: Pending,
-        wall_times: &mut [Duration; 3],
-    ) {
-        let start = Instant::now();
-        let Pending { mut output, covered, size } = pending;
-        let pixels_per_point = output.pixels_per_point;
-        let primitives = self.context.tessellate(std::mem::take(&mut output.shapes), pixels_per_point);
-        let tessellated = Instant::now();
-        let screen = egui_wgpu::ScreenDescriptor { size_in_pixels: [size.0, size.1], pixels_per_point };
-        self.update_textures(gpu, &mut output.textures_delta);
-        let extra = self.renderer.update_buffers(&gpu.device, &gpu.queue, encoder, &primitives, &screen);
-        if !extra.is_empty() {
-            // Only paint callbacks return command buffers; the HUD has none, so there is nothing to order.
-            gpu.queue.submit(extra);
-        }
-        wall_times[1] = tessellated - start;
-        wall_times[2] = tessellated.elapsed();
-        self.built = Some(Built { primitives, screen, covered, size });
-    }
-
     /// Applies a pass's texture changes, in the order of the passes. Only in a frame whose drawn build is
     /// replaced before it is drawn: a freed texture goes at once, and the build before may use it.
     fn update_textures(&mut self, gpu: &GpuContext, delta: &mut egui::TexturesDelta) {
@@ -258,6 +368,17 @@ impl HudPainter {
         }
         for id in delta.free.drain() {
             self.renderer.free_texture(&id);
+        }
+    }
+}
+
+impl Drop for HudPainter {
+    /// A build under way when the window closes has texture changes no renderer will apply.
+    fn drop(&mut self) {
+        match &mut self.building {
+            Building::Idle | Building::Open { .. } => {}
+            Building::Ended(pending) => pending.output.textures_delta.clear(),
+            Building::Tessellated { textures, .. } => textures.clear(),
         }
     }
 }
