@@ -388,7 +388,8 @@ impl Drop for HudPainter {
 const HOVER_MARGIN: f32 = 8.0;
 
 /// Keeps of `events` those the HUD can react to, and returns whether any are left:
-/// - pointer events over `areas` (points) or within [`HOVER_MARGIN`] of them, or while the pointer was over them (so that egui sees it leave), or
+/// - pointer events over `areas` (points) or within [`HOVER_MARGIN`] of them, or while the pointer was over
+///   them (so that egui sees it leave), or
 ///   while egui `using_pointer` (a drag begun on the HUD);
 /// - keyboard events while egui has a widget `focused`;
 /// - every other event (the window's focus, say).
