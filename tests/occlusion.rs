@@ -1,6 +1,6 @@
 //! Software occlusion culling: exact cases with known answers, and property tests against an f64 depth buffer
 //! of the same occluders: at full resolution (1920x1080) for the conservative mode, at the buffer's own
-//! resolution for the pixel-centre mode.
+//! resolution for the pixel-centre modes, and at the frame's for those modes below it standing for its pixels.
 
 use bevy_ecs::entity::Entity;
 use cullet::bounds::LocalBounds;
@@ -9,6 +9,7 @@ use cullet::frustum::cull_frustum;
 use cullet::mesh::Mesh;
 use cullet::occluder::OccluderInstance;
 use cullet::occlusion;
+use cullet::pipeline::OcclusionSettings;
 use cullet::raster::{RasterMode, rasterize};
 use cullet::{BoundsStore, Camera, VisibleSet};
 use cullet_truth::occluders::ExactOccluderDepth;
@@ -36,10 +37,20 @@ fn cull(
     mode: RasterMode,
     size: (u32, u32),
 ) -> (VisibleSet, VisibleSet) {
+    cull_through(camera, occluders, boxes, mode, ScreenView::new(camera, size.0, size.1))
+}
+
+/// [`cull`] through `view`.
+fn cull_through(
+    camera: &Camera,
+    occluders: &[Occluder],
+    boxes: &[(Vec3, Vec3)],
+    mode: RasterMode,
+    view: ScreenView,
+) -> (VisibleSet, VisibleSet) {
     let store = store_of(boxes);
     let mut frustum_visible = VisibleSet::default();
     cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
-    let view = ScreenView::new(camera, size.0, size.1);
     let visible = occlude(&store, &frustum_visible, &view, occluders, mode);
     (frustum_visible, visible)
 }
@@ -432,8 +443,16 @@ fn check_against_reference(
     size: (u32, u32),
     reference: (u32, u32),
 ) -> usize {
-    assert!(mode.is_conservative_for(size, reference), "{mode:?} at {size:?} promises nothing at {reference:?}");
-    let (frustum, visible) = cull(camera, occluders, boxes, mode, size);
+    // The buffer's pixels stand for the reference's (`OcclusionSettings::frame`), as the pipeline makes them.
+    let settings = OcclusionSettings {
+        width: size.0,
+        height: size.1,
+        mode,
+        frame: Some(reference),
+        ..OcclusionSettings::default()
+    };
+    assert!(settings.is_conservative_for(reference), "{mode:?} at {size:?} promises nothing at {reference:?}");
+    let (frustum, visible) = cull_through(camera, occluders, boxes, mode, settings.view(camera));
     let exact = exact_depth(camera, occluders, reference);
     let mut culled = 0;
     for (slot, &(center, extent)) in boxes.iter().enumerate() {
@@ -533,6 +552,28 @@ proptest! {
     ) {
         for mode in CENTRE_MODES {
             check_against_reference(&camera, &occluders, &boxes, mode, size, size);
+        }
+    }
+}
+
+/// Buffer sizes below the 1920x1080 frame the pixel-centre modes are checked at, their pixels standing for the
+/// frame's: two thirds and half of it, and odd sides.
+const BELOW_FRAME_SIZES: [(u32, u32); 3] = [(1280, 720), (960, 540), (701, 397)];
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// Below the frame's resolution, each pixel standing for the frame's pixel centres in its square, the
+    /// pixel-centre and masked modes never cull a box that an f64 depth buffer of the same occluders at the
+    /// frame's resolution shows at some pixel centre: ordinary boxes, sub-pixel ones and boxes in one group,
+    /// with occluders crossing the near plane.
+    #[test]
+    fn pixel_centre_modes_below_the_frame_never_cull_what_the_frame_shows(
+        (camera, occluders, boxes) in prop_oneof![scene_strategy(), tiny_box_scene_strategy(), clustered_scene_strategy()],
+        size in prop::sample::select(BELOW_FRAME_SIZES.to_vec()),
+    ) {
+        for mode in CENTRE_MODES {
+            check_against_reference(&camera, &occluders, &boxes, mode, size, (1920, 1080));
         }
     }
 }

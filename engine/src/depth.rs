@@ -39,9 +39,30 @@ pub struct ScreenView {
     pub width: u32,
     /// Buffer height in texels.
     pub height: u32,
+    /// How far from a buffer pixel's centre, in buffer pixels along `x` and `y`, reach the pixel centres of
+    /// the frame it stands for ([`ScreenView::for_frame`]): the pixel-centre and masked rasters move each edge
+    /// test and depth plane that far inward, so that a sample covers only where all of them are covered. Zero
+    /// where the buffer is the frame's own size (as [`ScreenView::new`] makes it).
+    pub sample_reach: [f64; 2],
 }
 
 impl ScreenView {
+    /// This view with each buffer pixel standing for every pixel centre of a `frame`-pixel (width, height)
+    /// rendering of the same camera that lies in its square. Along an axis where the frame is a whole multiple
+    /// `k` of the buffer, those centres lie within `0.5 - 0.5 / k` buffer pixels of its centre (a quarter at
+    /// half the frame's resolution, none at the frame's own); elsewhere a centre may lie on the square's edge,
+    /// half a buffer pixel away (two thirds of the frame's resolution is no better than a third). A buffer
+    /// larger than the frame gets none, and stands for nothing.
+    pub fn for_frame(self, frame: (u32, u32)) -> Self {
+        let reach = |buffer: u32, frame: u32| match (buffer, frame) {
+            (0, _) | (_, 0) => 0.0,
+            _ if buffer >= frame => 0.0,
+            _ if frame.is_multiple_of(buffer) => 0.5 - 0.5 * buffer as f64 / frame as f64,
+            _ => 0.5,
+        };
+        Self { sample_reach: [reach(self.width, frame.0), reach(self.height, frame.1)], ..self }
+    }
+
     /// The view of `camera` on a `width` x `height` buffer.
     pub fn new(camera: &Camera, width: u32, height: u32) -> Self {
         Self::perspective(camera.position, camera.clip_from_relative_f64(), camera.near, width, height)
@@ -58,6 +79,7 @@ impl ScreenView {
             near,
             width,
             height,
+            sample_reach: [0.0; 2],
         }
     }
 

@@ -391,24 +391,49 @@ pub struct OcclusionSettings {
     /// Depth-buffer height in texels.
     pub height: u32,
     /// How texels are sampled ([`RasterMode`]): conservative (default), pixel centres or masked blocks at the
-    /// viewport's size, or fast.
+    /// viewport's size (or below it, for [`OcclusionSettings::frame`]), or fast.
     pub mode: RasterMode,
     /// Most occluder triangles rasterized per frame. The default, 4096, sits on the measured run-time-against-
     /// error Pareto front (see the README): on the city, 16 384 culls 1.5 points more for 60% more time.
     pub triangle_budget: usize,
+    /// The resolution (width, height) of the frame the kept objects are drawn at, where known (`None` by
+    /// default). With it, a [`RasterMode::PixelCentres`] or [`RasterMode::Masked`] buffer smaller than the frame
+    /// is conservative for it: each buffer pixel stands for the frame's pixel centres in its square
+    /// ([`ScreenView::for_frame`]). Without it, those modes are conservative at their own resolution only.
+    pub frame: Option<(u32, u32)>,
 }
 
 impl OcclusionSettings {
     /// Whether these settings never hide an object a rendering of `viewport` (width, height) pixels shows: the
-    /// stage is off, or its mode is conservative at that size ([`RasterMode::is_conservative_for`]).
+    /// stage is off, its mode is conservative at that size ([`RasterMode::is_conservative_for`]), or it samples
+    /// pixel centres for that very frame ([`OcclusionSettings::frame`]) at a buffer no larger.
     pub fn is_conservative_for(&self, viewport: (u32, u32)) -> bool {
-        !self.enabled || self.mode.is_conservative_for((self.width, self.height), viewport)
+        let buffer = (self.width, self.height);
+        let sampled_for_it = self.mode.samples_pixel_centres()
+            && self.frame == Some(viewport)
+            && buffer.0 <= viewport.0
+            && buffer.1 <= viewport.1;
+        !self.enabled || self.mode.is_conservative_for(buffer, viewport) || sampled_for_it
+    }
+
+    /// The view the stage rasterizes and tests through for `camera`: the buffer's size, standing for
+    /// [`OcclusionSettings::frame`]'s pixels where that is given.
+    pub fn view(&self, camera: &Camera) -> ScreenView {
+        let view = ScreenView::new(camera, self.width, self.height);
+        self.frame.map_or(view, |frame| view.for_frame(frame))
     }
 }
 
 impl Default for OcclusionSettings {
     fn default() -> Self {
-        Self { enabled: true, width: 256, height: 144, mode: RasterMode::Conservative, triangle_budget: 4096 }
+        Self {
+            enabled: true,
+            width: 256,
+            height: 144,
+            mode: RasterMode::Conservative,
+            triangle_budget: 4096,
+            frame: None,
+        }
     }
 }
 
@@ -714,7 +739,7 @@ pub fn occlusion_stage(
     if let Some(moved) = gate.retest.take() {
         // Same view and occluders as last frame: its pyramid stands (or its absence, where the stage was off,
         // gated or had no occluder); the benefit count waits for a full frame.
-        let view = ScreenView::new(&camera, settings.width, settings.height);
+        let view = settings.view(&camera);
         retest_occlusion(
             &store,
             &frustum_visible.0,
@@ -750,7 +775,7 @@ pub fn occlusion_stage(
     state.occluder_slots = slots;
     stats.occluders = chosen.len();
     let selection_time = start.elapsed();
-    let view = ScreenView::new(&camera, settings.width, settings.height);
+    let view = settings.view(&camera);
     let run = occlude(
         &store,
         &frustum_visible.0,
@@ -870,6 +895,36 @@ pub fn light_occlusion_stage(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pixel-centre or masked buffer below the frame is conservative for the frame it stands for, and only
+    /// for it; no larger than it; and its view moves each test inward by what the frame's pixel centres reach.
+    #[test]
+    fn sample_centre_buffers_below_the_frame_are_conservative_for_that_frame() {
+        let frame = (1920, 1080);
+        let masked = OcclusionSettings {
+            width: 960,
+            height: 540,
+            mode: RasterMode::Masked,
+            frame: Some(frame),
+            ..OcclusionSettings::default()
+        };
+        assert!(masked.is_conservative_for(frame));
+        assert!(!masked.is_conservative_for((2560, 1440)));
+        assert!(!OcclusionSettings { frame: None, ..masked }.is_conservative_for(frame));
+        assert!(!OcclusionSettings { width: 2560, height: 1440, ..masked }.is_conservative_for(frame));
+        let fast = OcclusionSettings { mode: RasterMode::Fast, ..masked };
+        assert!(!fast.is_conservative_for(frame));
+        let camera = Camera::looking_at(glam::Vec3::ZERO, glam::Vec3::NEG_Z);
+        assert_eq!(masked.view(&camera).sample_reach, [0.25, 0.25]);
+        // At two thirds, a frame pixel centre can lie on a buffer pixel's edge.
+        let two_thirds = OcclusionSettings { width: 1280, height: 720, ..masked };
+        assert_eq!(two_thirds.view(&camera).sample_reach, [0.5, 0.5]);
+        let third = OcclusionSettings { width: 640, height: 360, ..masked };
+        assert!(third.view(&camera).sample_reach.iter().all(|r| (r - 1.0 / 3.0).abs() < 1e-12));
+        let own_size = OcclusionSettings { width: 1920, height: 1080, ..masked };
+        assert_eq!(own_size.view(&camera).sample_reach, [0.0, 0.0]);
+        assert_eq!(OcclusionSettings::default().view(&camera).sample_reach, [0.0, 0.0]);
+    }
 
     /// Each way is measured (its first, cold measurement dropped) before they are compared; then the one that
     /// costs less for this many moved objects, a disturbed measurement moving the estimate halfway, and every

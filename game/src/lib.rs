@@ -273,6 +273,7 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         height: occlusion_height,
         mode,
         triangle_budget: args.occluder_budget,
+        frame: Some((width, height)),
     };
 
     let start = Instant::now();

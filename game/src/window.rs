@@ -564,11 +564,17 @@ impl ApplicationHandler for Game {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
                 let before = std::mem::replace(&mut self.size, (size.width, size.height));
-                // A pixel-centre or masked buffer is conservative only at the frame's size: it follows the window.
+                // A pixel-centre or masked buffer is conservative only for the frame it samples: the frame it
+                // stands for follows the window, and so does a buffer of the frame's size.
                 let mut controls = self.controls();
                 let occlusion = &mut controls.occlusion;
-                if occlusion.mode.samples_pixel_centres() && (occlusion.width, occlusion.height) == before {
+                let resized_buffer =
+                    occlusion.mode.samples_pixel_centres() && (occlusion.width, occlusion.height) == before;
+                if resized_buffer {
                     (occlusion.width, occlusion.height) = self.size;
+                }
+                if resized_buffer || occlusion.frame == Some(before) {
+                    occlusion.frame = Some(self.size);
                     self.set_controls(controls);
                 }
                 if let Some(graphics) = self.graphics.as_mut() {

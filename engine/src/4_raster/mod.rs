@@ -80,7 +80,8 @@ impl RasterMode {
     /// Whether a `buffer` (width, height) in this mode never hides an object that a rendering of `viewport`
     /// pixels shows at some pixel centre (given occluders that lie inside the geometry they stand for):
     /// always for [`RasterMode::Conservative`], only at the viewport's own resolution for
-    /// [`RasterMode::PixelCentres`] and [`RasterMode::Masked`], never for [`RasterMode::Fast`].
+    /// [`RasterMode::PixelCentres`] and [`RasterMode::Masked`] (below it, only through a view made for the
+    /// viewport's frame: [`crate::pipeline::OcclusionSettings::frame`]), never for [`RasterMode::Fast`].
     pub fn is_conservative_for(self, buffer: (u32, u32), viewport: (u32, u32)) -> bool {
         match self {
             Self::Conservative => true,
@@ -948,6 +949,7 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     }
     // Texel (x, y) spans [x, x+1] x [y, y+1]. The margin covers the f32 evaluation of a plane over the buffer.
     let margin = |a: f64, b: f64, c: f64| EVAL_MARGIN * (a.abs() * width + b.abs() * height + c.abs()) + 1e-9;
+    let reach = view.sample_reach;
     let mut edges = [[0.0f32; 4]; 3];
     for (i, edge) in edges.iter_mut().enumerate() {
         let (p, q) = (v[i], v[(i + 1) % 3]);
@@ -955,8 +957,10 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
         let c = -(a * p.x + b * p.y);
         let centre = c + 0.5 * (a + b);
         let outer = centre + 0.5 * (a.abs() + b.abs()) + margin(a, b, c);
-        // Pixel centres count as covered only when the f32 test cannot pass for a centre outside.
-        let centre = if mode.samples_pixel_centres() { centre - margin(a, b, c) } else { centre };
+        // Pixel centres count as covered only when the f32 test cannot pass for a centre outside, nor for a
+        // centre of the frame's the sample stands for (within `reach` of it).
+        let inward = margin(a, b, c) + reach[0] * a.abs() + reach[1] * b.abs();
+        let centre = if mode.samples_pixel_centres() { centre - inward } else { centre };
         *edge = [a as f32, b as f32, centre as f32, outer as f32];
     }
     // Depth plane z = p*x + q*y + r through the three vertices (Cramer's rule on the edge vectors).
@@ -968,7 +972,9 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     let centre = r + 0.5 * (p + q);
     let r_written = match mode {
         RasterMode::Conservative => centre - 0.5 * (p.abs() + q.abs()) - margin(p, q, r),
-        RasterMode::PixelCentres | RasterMode::Masked => centre - margin(p, q, r),
+        RasterMode::PixelCentres | RasterMode::Masked => {
+            centre - margin(p, q, r) - reach[0] * p.abs() - reach[1] * q.abs()
+        }
         RasterMode::Fast => centre,
     };
     let depth = [p as f32, q as f32, r_written as f32];
