@@ -416,6 +416,29 @@ impl OcclusionSettings {
         !self.enabled || self.mode.is_conservative_for(buffer, viewport) || sampled_for_it
     }
 
+    /// The settings to use where the frame's size (width, height, pixels) is known: a masked buffer at half of
+    /// it (rounded up), standing for its pixels ([`OcclusionSettings::frame`]), with 5120 occluder triangles.
+    /// On the city's fly-through at 1920x1080 (the README's run-time-against-error table) it culls 97.2% of
+    /// what is hidden in 0.93x the time of [`OcclusionSettings::default`] (256x144, 94.6%), with no object
+    /// wrongly hidden. The default cannot be this, as it does not know the frame.
+    ///
+    /// ```
+    /// use cullet::pipeline::OcclusionSettings;
+    /// let settings = OcclusionSettings::for_frame(1920, 1080);
+    /// assert_eq!((settings.width, settings.height), (960, 540));
+    /// assert!(settings.is_conservative_for((1920, 1080)));
+    /// ```
+    pub fn for_frame(width: u32, height: u32) -> Self {
+        Self {
+            width: width.div_ceil(2),
+            height: height.div_ceil(2),
+            mode: RasterMode::Masked,
+            triangle_budget: 5120,
+            frame: Some((width, height)),
+            ..Self::default()
+        }
+    }
+
     /// The view the stage rasterizes and tests through for `camera`: the buffer's size, standing for
     /// [`OcclusionSettings::frame`]'s pixels where that is given.
     pub fn view(&self, camera: &Camera) -> ScreenView {

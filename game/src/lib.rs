@@ -58,9 +58,12 @@ struct Args {
     /// Print only the summary, not one line per frame.
     #[arg(long)]
     quiet: bool,
-    /// Size of the software occlusion depth buffer, `WIDTHxHEIGHT`.
-    #[arg(long, default_value = "256x144")]
-    occlusion_resolution: String,
+    /// Size of the software occlusion depth buffer, `WIDTHxHEIGHT`, sampled by whole-texel coverage (the
+    /// engine's default without a frame, 256x144) or at texel centres with `--fast-occlusion`. Without it (and
+    /// without `--pixel-centres` or `--masked`) the buffer is masked at half the frame's size, each sample
+    /// standing for the frame's pixel centres in its square (`OcclusionSettings::for_frame`).
+    #[arg(long)]
+    occlusion_resolution: Option<String>,
     /// Sample the occlusion buffer at texel centres (not conservative) instead of whole-texel coverage.
     #[arg(long, conflicts_with_all = ["pixel_centres", "masked"])]
     fast_occlusion: bool,
@@ -82,9 +85,10 @@ struct Args {
     /// --validate judges them exactly.
     #[arg(long)]
     light_views: bool,
-    /// Most occluder triangles rasterized per frame.
-    #[arg(long, default_value_t = OcclusionSettings::default().triangle_budget)]
-    occluder_budget: usize,
+    /// Most occluder triangles rasterized per frame (default: 5120 for the buffer at half the frame's size,
+    /// 4096 for the others).
+    #[arg(long)]
+    occluder_budget: Option<usize>,
     /// Judge every frame against the exact ground truth (every object's triangles rasterized at the viewport
     /// resolution): report false negatives, false positives and image error, and fail if a conservative
     /// configuration culled anything visible. In a window the HUD shows them live, for every setting changed.
@@ -259,21 +263,27 @@ pub struct Prepared {
 fn prepare(args: &Args) -> Result<Prepared, String> {
     let (width, height) = parse_resolution(&args.resolution)?;
     let aspect = width as f32 / height as f32;
-    let mode = match (args.fast_occlusion, args.pixel_centres, args.masked) {
-        (true, _, _) => RasterMode::Fast,
-        (_, true, _) => RasterMode::PixelCentres,
-        (_, _, true) => RasterMode::Masked,
-        _ => RasterMode::Conservative,
+    let chosen = if args.fast_occlusion || args.pixel_centres || args.masked || args.occlusion_resolution.is_some() {
+        let mode = match (args.fast_occlusion, args.pixel_centres, args.masked) {
+            (true, _, _) => RasterMode::Fast,
+            (_, true, _) => RasterMode::PixelCentres,
+            (_, _, true) => RasterMode::Masked,
+            _ => RasterMode::Conservative,
+        };
+        let (buffer_width, buffer_height) = match (&args.occlusion_resolution, mode.samples_pixel_centres()) {
+            (_, true) => (width, height),
+            (Some(resolution), false) => parse_resolution(resolution)?,
+            (None, false) => (OcclusionSettings::default().width, OcclusionSettings::default().height),
+        };
+        OcclusionSettings { width: buffer_width, height: buffer_height, mode, ..OcclusionSettings::default() }
+    } else {
+        OcclusionSettings::for_frame(width, height)
     };
-    let (occlusion_width, occlusion_height) =
-        if mode.samples_pixel_centres() { (width, height) } else { parse_resolution(&args.occlusion_resolution)? };
     let occlusion = OcclusionSettings {
         enabled: !args.no_occlusion,
-        width: occlusion_width,
-        height: occlusion_height,
-        mode,
-        triangle_budget: args.occluder_budget,
+        triangle_budget: args.occluder_budget.unwrap_or(chosen.triangle_budget),
         frame: Some((width, height)),
+        ..chosen
     };
 
     let start = Instant::now();

@@ -565,13 +565,18 @@ impl ApplicationHandler for Game {
             WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
                 let before = std::mem::replace(&mut self.size, (size.width, size.height));
                 // A pixel-centre or masked buffer is conservative only for the frame it samples: the frame it
-                // stands for follows the window, and so does a buffer of the frame's size.
+                // stands for follows the window, and so does a buffer of the frame's size or half of it
+                // (`OcclusionSettings::for_frame`).
                 let mut controls = self.controls();
                 let occlusion = &mut controls.occlusion;
-                let resized_buffer =
-                    occlusion.mode.samples_pixel_centres() && (occlusion.width, occlusion.height) == before;
+                let half = |(width, height): (u32, u32)| (width.div_ceil(2), height.div_ceil(2));
+                let buffer = (occlusion.width, occlusion.height);
+                let follows = occlusion.mode.samples_pixel_centres() && occlusion.frame == Some(before);
+                let resized_buffer = occlusion.mode.samples_pixel_centres() && buffer == before;
                 if resized_buffer {
                     (occlusion.width, occlusion.height) = self.size;
+                } else if follows && buffer == half(before) {
+                    (occlusion.width, occlusion.height) = half(self.size);
                 }
                 if resized_buffer || occlusion.frame == Some(before) {
                     occlusion.frame = Some(self.size);

@@ -115,6 +115,7 @@ fn field_cad_tiny_and_static_camera_runs_validate_with_zero_false_negatives() {
         ("tiny", &["--scene", "city:30"][..]),
         ("city static", &["--scene", "city:3000", "--static-camera"][..]),
         ("masked", &["--scene", "city:3000", "--masked"][..]),
+        ("256x144", &["--scene", "city:3000", "--occlusion-resolution", "256x144"][..]),
     ] {
         let (text, rows) = run_validated(name, args, 12);
         check(name, &text, &rows);
