@@ -54,11 +54,14 @@ impl ScreenView {
     /// half a buffer pixel away (two thirds of the frame's resolution is no better than a third). A buffer
     /// larger than the frame gets none, and stands for nothing.
     pub fn for_frame(self, frame: (u32, u32)) -> Self {
-        let reach = |buffer: u32, frame: u32| match (buffer, frame) {
-            (0, _) | (_, 0) => 0.0,
-            _ if buffer >= frame => 0.0,
-            _ if frame.is_multiple_of(buffer) => 0.5 - 0.5 * buffer as f64 / frame as f64,
-            _ => 0.5,
+        let reach = |buffer: u32, frame: u32| {
+            if buffer == 0 || buffer >= frame {
+                0.0
+            } else if frame.is_multiple_of(buffer) {
+                0.5 - 0.5 * buffer as f64 / frame as f64
+            } else {
+                0.5
+            }
         };
         Self { sample_reach: [reach(self.width, frame.0), reach(self.height, frame.1)], ..self }
     }

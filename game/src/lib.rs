@@ -270,12 +270,13 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
             (_, _, true) => RasterMode::Masked,
             _ => RasterMode::Conservative,
         };
-        let (buffer_width, buffer_height) = match (&args.occlusion_resolution, mode.samples_pixel_centres()) {
-            (_, true) => (width, height),
-            (Some(resolution), false) => parse_resolution(resolution)?,
-            (None, false) => (OcclusionSettings::default().width, OcclusionSettings::default().height),
-        };
-        OcclusionSettings { width: buffer_width, height: buffer_height, mode, ..OcclusionSettings::default() }
+        let mut chosen = OcclusionSettings { mode, ..OcclusionSettings::default() };
+        if mode.samples_pixel_centres() {
+            (chosen.width, chosen.height) = (width, height);
+        } else if let Some(resolution) = &args.occlusion_resolution {
+            (chosen.width, chosen.height) = parse_resolution(resolution)?;
+        }
+        chosen
     } else {
         OcclusionSettings::for_frame(width, height)
     };

@@ -15,7 +15,7 @@ use crate::{Args, Prepared};
 use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
+use cullet::pipeline::{CullStats, FrustumVisible, OcclusionSettings, OcclusionState};
 use glam::Vec3;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -569,7 +569,10 @@ impl ApplicationHandler for Game {
                 // (`OcclusionSettings::for_frame`).
                 let mut controls = self.controls();
                 let occlusion = &mut controls.occlusion;
-                let half = |(width, height): (u32, u32)| (width.div_ceil(2), height.div_ceil(2));
+                let half = |(width, height): (u32, u32)| {
+                    let settings = OcclusionSettings::for_frame(width, height);
+                    (settings.width, settings.height)
+                };
                 let buffer = (occlusion.width, occlusion.height);
                 let follows = occlusion.mode.samples_pixel_centres() && occlusion.frame == Some(before);
                 let resized_buffer = occlusion.mode.samples_pixel_centres() && buffer == before;

@@ -56,8 +56,8 @@ enum Building {
     Open { next: usize, covered: Vec<egui::Rect>, size: (u32, u32) },
     /// The pass ended: its output, to tessellate.
     Ended(Pending),
-    /// Its shapes tessellated, with the pass's texture changes: to upload.
-    Tessellated { primitives: Vec<egui::ClippedPrimitive>, textures: egui::TexturesDelta, built: Pending },
+    /// Its shapes tessellated (the pass's texture changes still in its output): to upload.
+    Tessellated { primitives: Vec<egui::ClippedPrimitive>, built: Pending },
 }
 
 /// One pass of egui, not yet uploaded: its output (its shapes taken once tessellated), for what frame size,
@@ -239,8 +239,7 @@ impl HudPainter {
         let mut textures = match std::mem::replace(&mut self.building, Building::Idle) {
             Building::Idle => return,
             Building::Open { .. } => self.context.end_pass().textures_delta,
-            Building::Ended(pending) => pending.output.textures_delta,
-            Building::Tessellated { textures, .. } => textures,
+            Building::Ended(pending) | Building::Tessellated { built: pending, .. } => pending.output.textures_delta,
         };
         self.update_textures(gpu, &mut textures);
     }
@@ -316,23 +315,20 @@ impl HudPainter {
         };
         let shapes = std::mem::take(&mut pending.output.shapes);
         let primitives = self.context.tessellate(shapes, pending.output.pixels_per_point);
-        let textures = std::mem::take(&mut pending.output.textures_delta);
-        self.building = Building::Tessellated { primitives, textures, built: pending };
+        self.building = Building::Tessellated { primitives, built: pending };
         wall_times[1] += start.elapsed();
     }
 
     /// Uploads the tessellated build and its texture changes: the build drawn from now on.
     fn upload(&mut self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, wall_times: &mut [Duration; 3]) {
         let start = Instant::now();
-        let Building::Tessellated { primitives, mut textures, built } =
-            std::mem::replace(&mut self.building, Building::Idle)
-        else {
+        let Building::Tessellated { primitives, built } = std::mem::replace(&mut self.building, Building::Idle) else {
             unreachable!("called only once a pass is tessellated")
         };
-        let Pending { output, covered, size } = built;
+        let Pending { mut output, covered, size } = built;
         let screen =
             egui_wgpu::ScreenDescriptor { size_in_pixels: [size.0, size.1], pixels_per_point: output.pixels_per_point };
-        self.update_textures(gpu, &mut textures);
+        self.update_textures(gpu, &mut output.textures_delta);
         let extra = self.renderer.update_buffers(&gpu.device, &gpu.queue, encoder, &primitives, &screen);
         if !extra.is_empty() {
             // Only paint callbacks return command buffers; the HUD has none, so there is nothing to order.
@@ -377,8 +373,9 @@ impl Drop for HudPainter {
     fn drop(&mut self) {
         match &mut self.building {
             Building::Idle | Building::Open { .. } => {}
-            Building::Ended(pending) => pending.output.textures_delta.clear(),
-            Building::Tessellated { textures, .. } => textures.clear(),
+            Building::Ended(pending) | Building::Tessellated { built: pending, .. } => {
+                pending.output.textures_delta.clear()
+            }
         }
     }
 }
