@@ -949,7 +949,9 @@ fn setup_triangle(v: [DVec3; 3], view: &ScreenView, mode: RasterMode) -> Option<
     }
     // Texel (x, y) spans [x, x+1] x [y, y+1]. The margin covers the f32 evaluation of a plane over the buffer.
     let margin = |a: f64, b: f64, c: f64| EVAL_MARGIN * (a.abs() * width + b.abs() * height + c.abs()) + 1e-9;
-    let reach = view.sample_reach;
+    // A reach below zero or NaN (the field set by hand) would move the tests outward, past the pixel centres
+    // sampled: none is taken.
+    let reach = view.sample_reach.map(|r| r.max(0.0));
     let mut edges = [[0.0f32; 4]; 3];
     for (i, edge) in edges.iter_mut().enumerate() {
         let (p, q) = (v[i], v[(i + 1) % 3]);
@@ -989,6 +991,27 @@ mod tests {
     use crate::{Camera, Occluder, mesh::Mesh};
     use glam::{Affine3A, Quat};
     use proptest::prelude::*;
+
+    /// A view's sample reach moves the pixel-centre tests and depth inward; one below zero or NaN (a field set
+    /// by hand) moves nothing outward.
+    #[test]
+    fn sample_reach_moves_centre_tests_inward_only() {
+        let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+        let view = ScreenView::new(&camera, 64, 36);
+        let triangle = [DVec3::new(3.2, 2.7, 0.5), DVec3::new(40.1, 5.3, 0.4), DVec3::new(12.8, 30.6, 0.3)];
+        let setup = |reach: [f64; 2]| {
+            setup_triangle(triangle, &ScreenView { sample_reach: reach, ..view }, RasterMode::Masked).unwrap().0
+        };
+        let (own, inward) = (setup([0.0; 2]), setup([0.25; 2]));
+        for (own, inward) in own.edges.iter().zip(&inward.edges) {
+            assert!(inward[2] < own[2], "{inward:?} {own:?}");
+        }
+        assert!(inward.depth[2] < own.depth[2]);
+        for bad in [[-0.5, -0.5], [f64::NAN, f64::NAN]] {
+            let bad = setup(bad);
+            assert_eq!((bad.edges, bad.depth), (own.edges, own.depth));
+        }
+    }
 
     /// A box in front is bounded tightly, by its own texels and its nearest corner's depth; one reaching behind
     /// the near plane by the whole buffer; one behind the camera is kept for setup to reject.
