@@ -12,15 +12,16 @@ use bevy_camera::visibility::{
 use bevy_camera::{Camera, Projection};
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::NonSendMarker;
+use bevy_math::UVec2;
 use bevy_transform::components::GlobalTransform;
 use bevy_utils::Parallel;
 use cullet::Occluder;
 use cullet::bounds::BoundsStore;
-use cullet::depth::{DepthBuffer, DepthPyramid, ScreenView};
+use cullet::depth::{DepthBuffer, DepthPyramid};
 use cullet::frustum::{FrustumError, PlaneCoherence, cull_frustum_with_coherence};
 use cullet::occluder::{OccluderInstance, select_occluders};
 use cullet::occlusion::{occlude, retest_occlusion};
-use cullet::pipeline::{BenefitGate, RetestCost};
+use cullet::pipeline::{BenefitGate, OcclusionSettings, RetestCost};
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
 use std::any::TypeId;
@@ -171,8 +172,7 @@ impl CulletView {
         self.stats.occluders = chosen.len();
         let selection_time = start.elapsed();
         // Without a perspective camera (or occluders) the stage costs the selection and a copy.
-        let screen =
-            view.camera.map(|camera| ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height));
+        let screen = view.camera.map(|camera| settings.occlusion.view(&camera));
         let run = occlude(
             store,
             &self.frustum_visible,
@@ -225,7 +225,7 @@ impl CulletView {
         let start = Instant::now();
         match view.camera.filter(|_| self.pyramid.level_count() > 0) {
             Some(camera) => {
-                let screen = ScreenView::new(&camera, settings.occlusion.width, settings.occlusion.height);
+                let screen = settings.occlusion.view(&camera);
                 let sets = (&mut self.visible, &mut self.occluded);
                 retest_occlusion(store, &self.frustum_visible, &screen, &self.pyramid, moved, sets.0, sets.1);
             }
@@ -345,6 +345,25 @@ type MirroredDrawable = (With<Aabb>, Without<NoFrustumCulling>, Without<NoCpuCul
 /// Entities Bevy's check would see that the plugin does not mirror.
 type OtherDrawable = (Without<NoCpuCulling>, Or<(Without<Aabb>, With<NoFrustumCulling>)>);
 
+/// The occlusion settings for a camera whose viewport is `viewport` pixels, where known. A pixel-centre or
+/// masked buffer is conservative only for the frame it samples: it follows the viewport
+/// ([`OcclusionSettings::resized_to`]); where the size is not known (no render target yet) the camera gets
+/// the buffer that is conservative at any size, [`OcclusionSettings::default`]'s, with the same switch and
+/// triangle budget.
+fn occlusion_for(settings: OcclusionSettings, viewport: Option<UVec2>) -> OcclusionSettings {
+    if !settings.mode.samples_pixel_centres() {
+        return settings;
+    }
+    match viewport {
+        Some(size) => settings.resized_to(size.x, size.y),
+        None => OcclusionSettings {
+            enabled: settings.enabled,
+            triangle_budget: settings.triangle_budget,
+            ..OcclusionSettings::default()
+        },
+    }
+}
+
 /// For every active camera: culls the mirrored objects, then writes the visible ones (and the entities Cullet
 /// does not mirror, by Bevy's rules) into `ViewVisibility` and the camera's `VisibleEntities`, sorted.
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
@@ -395,11 +414,7 @@ pub(crate) fn cull_views(
             view.last = None;
         }
         let mut settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
-        // A pixel-centre or masked buffer is conservative only at the resolution drawn: the camera's viewport.
-        let follows_viewport = settings.occlusion.mode.samples_pixel_centres();
-        if let Some(size) = camera.physical_viewport_size().filter(|_| follows_viewport) {
-            (settings.occlusion.width, settings.occlusion.height) = (size.x, size.y);
-        }
+        settings.occlusion = occlusion_for(settings.occlusion, camera.physical_viewport_size());
         view.cull(&cullet, &culled, &settings, !no_occlusion && !no_cpu_culling, |slot| {
             let (occluder, transform, inherited, layers) = occluders.get(cullet.store.entities()[slot]).ok()?;
             let shown =

@@ -149,6 +149,34 @@ fn with_occlusion_on_nothing_visible_is_culled_and_occlusion_pays() {
     );
 }
 
+/// The plugin's default, a masked buffer standing for the camera's viewport (here at its size), hides nothing
+/// the exact rendering at the viewport's resolution shows, and culls more than the 256x144 buffer.
+#[test]
+fn the_default_buffer_for_the_viewport_culls_nothing_visible_at_the_viewports_resolution() {
+    let mut plugin = fixture(3000, Some(CulletSettings::default()));
+    let mut fixed = fixture(3000, Some(settings(true)));
+    let physical_size = bevy_math::UVec2::new(640, 360);
+    let viewport = bevy_camera::Viewport { physical_size, ..Default::default() };
+    plugin.app.world_mut().get_mut::<bevy_camera::Camera>(plugin.camera).unwrap().viewport = Some(viewport);
+    let (mut after_frustum, mut kept, mut kept_by_fixed) = (0, 0, 0);
+    for t in TIMES {
+        plugin.frame(t);
+        fixed.frame(t);
+        let view = plugin.app.world().get::<CulletView>(plugin.camera).unwrap();
+        let depth = view.depth();
+        assert_eq!((depth.width(), depth.height(), depth.texel_size()), (160, 90, 4), "640x360 in 4x4 blocks");
+        let ours = plugin.visible();
+        let exact = plugin.exact(640, 360);
+        let lost: Vec<usize> = (0..ours.len()).filter(|&i| exact[i] && !ours[i]).collect();
+        assert!(lost.is_empty(), "t = {t}: visible objects {lost:?} culled");
+        let stats = *view.stats();
+        (after_frustum, kept) = (after_frustum + stats.after_frustum, kept + stats.after_occlusion);
+        kept_by_fixed += fixed.app.world().get::<CulletView>(fixed.camera).unwrap().stats().after_occlusion;
+    }
+    assert!(kept * 10 < after_frustum * 9, "occlusion culls over a tenth: {kept} of {after_frustum}");
+    assert!(kept < kept_by_fixed, "{kept} kept against the 256x144 buffer's {kept_by_fixed}");
+}
+
 #[test]
 fn with_every_object_kept_each_is_shown_and_listed_once() {
     // Frustum culling off: all 3000 objects kept, which the write splits over several rayon tasks.

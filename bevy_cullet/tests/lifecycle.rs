@@ -10,6 +10,8 @@ use bevy_math::Vec3;
 use bevy_transform::prelude::*;
 use cullet::Occluder;
 use cullet::mesh::Mesh;
+use cullet::pipeline::OcclusionSettings;
+use cullet::raster::RasterMode;
 use std::any::TypeId;
 use support::*;
 
@@ -277,27 +279,48 @@ fn with_the_camera_still_only_the_entities_that_moved_are_re_tested() {
 }
 
 #[test]
-fn pixel_centre_and_masked_buffers_take_the_cameras_viewport_size() {
+fn pixel_centre_and_masked_buffers_follow_the_cameras_viewport() {
     let (mut app, camera, _, hidden_box) = walled();
-    app.world_mut().resource_mut::<CulletSettings>().occlusion.mode = cullet::raster::RasterMode::PixelCentres;
-    let viewport = bevy_camera::Viewport { physical_size: bevy_math::UVec2::new(320, 180), ..Default::default() };
-    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport.clone());
+    let buffer = |app: &bevy_app::App| {
+        let depth = app.world().get::<CulletView>(camera).unwrap().depth();
+        (depth.width(), depth.height(), depth.texel_size())
+    };
+    let set_viewport = |app: &mut bevy_app::App, width, height| {
+        let physical_size = bevy_math::UVec2::new(width, height);
+        let viewport = bevy_camera::Viewport { physical_size, ..Default::default() };
+        app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport);
+    };
+    // The default: a masked buffer (a texel per 4x4 samples) standing for the viewport's pixels, at its size
+    // up to 960x540 samples, then at a whole divisor of it.
+    set_viewport(&mut app, 320, 180);
     app.update();
-    let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
-    assert_eq!((buffer.width(), buffer.height()), (320, 180));
+    assert_eq!(buffer(&app), (80, 45, 4));
     assert!(!visible(&app, hidden_box));
-    // A camera with no size known (no viewport, no render target in this headless app) uses the settings'.
+    set_viewport(&mut app, 1920, 1080);
+    app.update();
+    assert_eq!(buffer(&app), (240, 135, 4));
+    assert!(!visible(&app, hidden_box));
+    // A camera with no size known (no viewport, no render target in this headless app) gets the buffer that is
+    // conservative at any size.
     app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = None;
     app.update();
-    let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
-    assert_eq!((buffer.width(), buffer.height()), (256, 144));
+    assert_eq!(buffer(&app), (256, 144, 1));
     assert!(!visible(&app, hidden_box));
-    // A masked buffer follows the viewport too, with a texel per 4x4 pixels.
-    app.world_mut().resource_mut::<CulletSettings>().occlusion.mode = cullet::raster::RasterMode::Masked;
-    app.world_mut().get_mut::<bevy_camera::Camera>(camera).unwrap().viewport = Some(viewport);
+    // A pixel-centre or masked buffer with no frame takes the viewport's size.
+    let pixel_centres = OcclusionSettings { mode: RasterMode::PixelCentres, ..OcclusionSettings::default() };
+    app.world_mut().resource_mut::<CulletSettings>().occlusion = pixel_centres;
+    set_viewport(&mut app, 320, 180);
     app.update();
-    let buffer = app.world().get::<CulletView>(camera).unwrap().depth();
-    assert_eq!((buffer.width(), buffer.height(), buffer.texel_size()), (80, 45, 4));
+    assert_eq!(buffer(&app), (320, 180, 1));
+    assert!(!visible(&app, hidden_box));
+    app.world_mut().resource_mut::<CulletSettings>().occlusion.mode = RasterMode::Masked;
+    app.update();
+    assert_eq!(buffer(&app), (80, 45, 4));
+    assert!(!visible(&app, hidden_box));
+    // A conservative buffer keeps its size.
+    app.world_mut().resource_mut::<CulletSettings>().occlusion = OcclusionSettings::default();
+    app.update();
+    assert_eq!(buffer(&app), (256, 144, 1));
     assert!(!visible(&app, hidden_box));
 }
 

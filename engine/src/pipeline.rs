@@ -416,22 +416,29 @@ impl OcclusionSettings {
         !self.enabled || self.mode.is_conservative_for(buffer, viewport) || sampled_for_it
     }
 
-    /// The settings to use where the frame's size (width, height, pixels) is known: a masked buffer at half of
-    /// it (rounded up), standing for its pixels ([`OcclusionSettings::frame`]), with 5120 occluder triangles.
-    /// On the city's fly-through at 1920x1080 (the README's run-time-against-error table) it culls 97.2% of
-    /// what is hidden in 0.93x the time of [`OcclusionSettings::default`] (256x144, 94.6%), with no object
-    /// wrongly hidden. The default cannot be this, as it does not know the frame.
+    /// The settings to use where the frame's size (width, height, pixels) is known: a masked buffer standing
+    /// for its pixels ([`OcclusionSettings::frame`]), the frame divided by the smallest whole number that
+    /// leaves at most 960x540 samples (rounded up: the frame's own size up to there, half of 1920x1080, a
+    /// quarter of 3840x2160), with 5120 occluder triangles. On the city's fly-through at 1920x1080 (the
+    /// README's run-time-against-error table) it culls 97.2% of what is hidden in 0.93x the time of
+    /// [`OcclusionSettings::default`] (256x144, 94.6%), with no object wrongly hidden; a whole divisor keeps
+    /// the buffer's samples from reaching as far ([`ScreenView::for_frame`]). The default cannot be this, as it
+    /// does not know the frame.
     ///
     /// ```
     /// use cullet::pipeline::OcclusionSettings;
     /// let settings = OcclusionSettings::for_frame(1920, 1080);
     /// assert_eq!((settings.width, settings.height), (960, 540));
     /// assert!(settings.is_conservative_for((1920, 1080)));
+    /// assert_eq!(OcclusionSettings::for_frame(640, 360).width, 640);
     /// ```
     pub fn for_frame(width: u32, height: u32) -> Self {
+        let samples = |divisor: u32| u64::from(width.div_ceil(divisor)) * u64::from(height.div_ceil(divisor));
+        let estimate = (samples(1) as f64 / FRAME_BUFFER_SAMPLES as f64).sqrt() as u32;
+        let divisor = (estimate.max(1)..).find(|&divisor| samples(divisor) <= FRAME_BUFFER_SAMPLES).unwrap_or(1);
         Self {
-            width: width.div_ceil(2),
-            height: height.div_ceil(2),
+            width: width.div_ceil(divisor),
+            height: height.div_ceil(divisor),
             mode: RasterMode::Masked,
             triangle_budget: 5120,
             frame: Some((width, height)),
@@ -439,11 +446,68 @@ impl OcclusionSettings {
         }
     }
 
+    /// These settings for a frame of `width` x `height` pixels, as when a window or viewport is resized, so that
+    /// they stay conservative for the frame drawn. Settings whose buffer [`OcclusionSettings::for_frame`] chose
+    /// for the old frame get its choice for the new one (their switch and triangle budget kept). Any other
+    /// pixel-centre or masked buffer ([`RasterMode::samples_pixel_centres`]) keeps its relation to the frame:
+    /// one that is the old [`OcclusionSettings::frame`] divided by a whole number and rounded up becomes the
+    /// new frame divided by that number, any other its share of the new frame (rounded up), and one with no
+    /// frame becomes the new frame's size. A conservative or fast buffer keeps its size (the first is
+    /// conservative at any frame size, the second at none). `frame` becomes the new size. A frame with no
+    /// pixels draws nothing: the settings are returned as they are.
+    ///
+    /// ```
+    /// use cullet::pipeline::OcclusionSettings;
+    /// use cullet::raster::RasterMode;
+    /// let resized = OcclusionSettings::for_frame(1920, 1080).resized_to(3840, 2160);
+    /// assert_eq!((resized.width, resized.height, resized.frame), (960, 540, Some((3840, 2160))));
+    /// assert!(resized.is_conservative_for((3840, 2160)));
+    /// let sixth = OcclusionSettings { width: 640, height: 360, mode: RasterMode::Masked, ..resized };
+    /// assert_eq!(sixth.resized_to(1920, 1080).width, 320);
+    /// ```
+    pub fn resized_to(self, width: u32, height: u32) -> Self {
+        if width == 0 || height == 0 {
+            return self;
+        }
+        let old = self.frame.unwrap_or((self.width, self.height));
+        let chosen = Self::for_frame(old.0, old.1);
+        if self.frame.is_some() && (self.width, self.height, self.mode) == (chosen.width, chosen.height, chosen.mode) {
+            let (enabled, triangle_budget) = (self.enabled, self.triangle_budget);
+            return Self { enabled, triangle_budget, ..Self::for_frame(width, height) };
+        }
+        let mut resized = Self { frame: Some((width, height)), ..self };
+        if self.mode.samples_pixel_centres() {
+            (resized.width, resized.height) =
+                (resized_axis(self.width, old.0, width), resized_axis(self.height, old.1, height));
+        }
+        resized
+    }
+
     /// The view the stage rasterizes and tests through for `camera`: the buffer's size, standing for
     /// [`OcclusionSettings::frame`]'s pixels where that is given.
     pub fn view(&self, camera: &Camera) -> ScreenView {
         let view = ScreenView::new(camera, self.width, self.height);
         self.frame.map_or(view, |frame| view.for_frame(frame))
+    }
+}
+
+/// The most samples [`OcclusionSettings::for_frame`] gives its buffer: 960x540, the half of 1920x1080 measured
+/// on the fly-through.
+const FRAME_BUFFER_SAMPLES: u64 = 960 * 540;
+
+/// A buffer's size along one axis for a frame resized from `old` to `new` pixels (see
+/// [`OcclusionSettings::resized_to`]): `new / k` rounded up where `buffer` is `old / k` rounded up for a whole
+/// `k` (so half stays half, as whole-number ratios sample better), otherwise `buffer`'s share of `new`.
+fn resized_axis(buffer: u32, old: u32, new: u32) -> u32 {
+    if buffer == 0 || old == 0 {
+        return new;
+    }
+    let divisor = (f64::from(old) / f64::from(buffer)).round().max(1.0) as u32;
+    if old.div_ceil(divisor) == buffer {
+        new.div_ceil(divisor)
+    } else {
+        let share = (u64::from(new) * u64::from(buffer)).div_ceil(u64::from(old));
+        u32::try_from(share).unwrap_or(u32::MAX).max(1)
     }
 }
 
@@ -947,6 +1011,61 @@ mod tests {
         let own_size = OcclusionSettings { width: 1920, height: 1080, ..masked };
         assert_eq!(own_size.view(&camera).sample_reach, [0.0, 0.0]);
         assert_eq!(OcclusionSettings::default().view(&camera).sample_reach, [0.0, 0.0]);
+    }
+
+    /// The frame's settings take the frame's own size up to 960x540 samples, a whole divisor of it beyond.
+    #[test]
+    fn settings_for_a_frame_divide_it_by_the_smallest_whole_number_that_fits() {
+        let size = |(width, height)| {
+            let settings = OcclusionSettings::for_frame(width, height);
+            assert!(settings.is_conservative_for((width, height)), "{width}x{height}");
+            (settings.width, settings.height)
+        };
+        assert_eq!(size((640, 360)), (640, 360));
+        assert_eq!(size((960, 540)), (960, 540));
+        assert_eq!(size((961, 540)), (481, 270));
+        assert_eq!(size((1920, 1080)), (960, 540));
+        assert_eq!(size((2560, 1440)), (854, 480));
+        assert_eq!(size((3840, 2160)), (960, 540));
+        assert_eq!(size((1, 1)), (1, 1));
+        let (width, height) = size((u32::MAX, u32::MAX));
+        assert!(u64::from(width) * u64::from(height) <= FRAME_BUFFER_SAMPLES);
+    }
+
+    /// A resized frame gets the buffer the frame's settings would choose where they chose it; keeps any other
+    /// pixel-centre or masked buffer in the same relation to it (and conservative for it); leaves a
+    /// conservative buffer's size alone; and ignores a frame with no pixels.
+    #[test]
+    fn resized_settings_follow_the_frame() {
+        let chosen =
+            OcclusionSettings { enabled: false, triangle_budget: 77, ..OcclusionSettings::for_frame(1281, 721) };
+        for (width, height) in [(1920, 1080), (1281, 721), (640, 360), (7, 3), (u32::MAX, 100)] {
+            let resized = chosen.resized_to(width, height);
+            let expected = OcclusionSettings {
+                enabled: false,
+                triangle_budget: 77,
+                ..OcclusionSettings::for_frame(width, height)
+            };
+            assert_eq!(resized, expected);
+            assert_eq!(resized.resized_to(1281, 721), chosen);
+        }
+        // A quarter of the frame stays a quarter; two thirds, no whole divisor, keeps its share.
+        let quarter = OcclusionSettings { width: 480, height: 270, ..OcclusionSettings::for_frame(1920, 1080) };
+        let resized = quarter.resized_to(1281, 721);
+        assert_eq!((resized.width, resized.height, resized.frame), (321, 181, Some((1281, 721))));
+        assert!(resized.is_conservative_for((1281, 721)));
+        let two_thirds = OcclusionSettings { width: 1280, height: 720, ..quarter };
+        let resized = two_thirds.resized_to(960, 540);
+        assert_eq!((resized.width, resized.height), (640, 360));
+        assert!(resized.is_conservative_for((960, 540)));
+        // With no frame, the buffer was the frame's own size.
+        let own_size = OcclusionSettings { mode: RasterMode::PixelCentres, ..OcclusionSettings::default() };
+        let resized = own_size.resized_to(1920, 1080);
+        assert_eq!((resized.width, resized.height, resized.frame), (1920, 1080, Some((1920, 1080))));
+        assert_eq!(resized.view(&Camera::looking_at(glam::Vec3::ZERO, glam::Vec3::NEG_Z)).sample_reach, [0.0; 2]);
+        let conservative = OcclusionSettings::default().resized_to(640, 360);
+        assert_eq!((conservative.width, conservative.height, conservative.frame), (256, 144, Some((640, 360))));
+        assert_eq!(chosen.resized_to(0, 720), chosen);
     }
 
     /// Each way is measured (its first, cold measurement dropped) before they are compared; then the one that

@@ -59,17 +59,18 @@ struct Args {
     #[arg(long)]
     quiet: bool,
     /// Size of the software occlusion depth buffer, `WIDTHxHEIGHT`, sampled by whole-texel coverage (the
-    /// engine's default without a frame, 256x144) or at texel centres with `--fast-occlusion`. Without it (and
-    /// without `--pixel-centres` or `--masked`) the buffer is masked at half the frame's size, each sample
-    /// standing for the frame's pixel centres in its square (`OcclusionSettings::for_frame`).
+    /// engine's default without a frame, 256x144), at texel centres with `--fast-occlusion`, or with
+    /// `--pixel-centres` or `--masked` at most the frame's size, each sample standing for the frame's pixel
+    /// centres in its square. Without it (and without `--pixel-centres` or `--masked`) the buffer is masked,
+    /// standing for the frame's pixels, at the frame's size up to 960x540 samples and at a whole divisor of it
+    /// beyond (half of 1920x1080: `OcclusionSettings::for_frame`).
     #[arg(long)]
     occlusion_resolution: Option<String>,
     /// Sample the occlusion buffer at texel centres (not conservative) instead of whole-texel coverage.
     #[arg(long, conflicts_with_all = ["pixel_centres", "masked"])]
     fast_occlusion: bool,
-    /// Make the occlusion buffer as large as the viewport (`--resolution`, in place of
-    /// `--occlusion-resolution`) and sample it at pixel centres: conservative for the frame drawn, and it
-    /// culls more than the default at a higher cost.
+    /// Make the occlusion buffer as large as the viewport (`--resolution`; or `--occlusion-resolution`, standing
+    /// for the viewport's pixels) and sample it at pixel centres: conservative for the frame drawn.
     #[arg(long, conflicts_with = "masked")]
     pixel_centres: bool,
     /// Like `--pixel-centres`, with the covered pixels kept as coverage masks and one depth per 4x4 block
@@ -85,8 +86,8 @@ struct Args {
     /// --validate judges them exactly.
     #[arg(long)]
     light_views: bool,
-    /// Most occluder triangles rasterized per frame (default: 5120 for the buffer at half the frame's size,
-    /// 4096 for the others).
+    /// Most occluder triangles rasterized per frame (default: 5120 for the buffer standing for the frame's
+    /// pixels, 4096 for the others).
     #[arg(long)]
     occluder_budget: Option<usize>,
     /// Judge every frame against the exact ground truth (every object's triangles rasterized at the viewport
@@ -271,10 +272,16 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
             _ => RasterMode::Conservative,
         };
         let mut chosen = OcclusionSettings { mode, ..OcclusionSettings::default() };
-        if mode.samples_pixel_centres() {
-            (chosen.width, chosen.height) = (width, height);
-        } else if let Some(resolution) = &args.occlusion_resolution {
+        if let Some(resolution) = &args.occlusion_resolution {
             (chosen.width, chosen.height) = parse_resolution(resolution)?;
+            if mode.samples_pixel_centres() && (chosen.width > width || chosen.height > height) {
+                return Err(format!(
+                    "--occlusion-resolution {resolution}: a pixel-centre or masked buffer stands for the frame's \
+                     pixels, so it is no larger than --resolution {width}x{height}"
+                ));
+            }
+        } else if mode.samples_pixel_centres() {
+            (chosen.width, chosen.height) = (width, height);
         }
         chosen
     } else {

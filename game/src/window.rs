@@ -15,7 +15,7 @@ use crate::{Args, Prepared};
 use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::pipeline::{CullStats, FrustumVisible, OcclusionSettings, OcclusionState};
+use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
 use glam::Vec3;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -563,27 +563,13 @@ impl ApplicationHandler for Game {
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
-                let before = std::mem::replace(&mut self.size, (size.width, size.height));
-                // A pixel-centre or masked buffer is conservative only for the frame it samples: the frame it
-                // stands for follows the window, and so does a buffer of the frame's size or half of it
-                // (`OcclusionSettings::for_frame`).
-                let mut controls = self.controls();
-                let occlusion = &mut controls.occlusion;
-                let half = |(width, height): (u32, u32)| {
-                    let settings = OcclusionSettings::for_frame(width, height);
-                    (settings.width, settings.height)
-                };
-                let buffer = (occlusion.width, occlusion.height);
-                let follows = occlusion.mode.samples_pixel_centres() && occlusion.frame == Some(before);
-                let resized_buffer = occlusion.mode.samples_pixel_centres() && buffer == before;
-                if resized_buffer {
-                    (occlusion.width, occlusion.height) = self.size;
-                } else if follows && buffer == half(before) {
-                    (occlusion.width, occlusion.height) = half(self.size);
-                }
-                if resized_buffer || occlusion.frame == Some(before) {
-                    occlusion.frame = Some(self.size);
-                    self.set_controls(controls);
+                self.size = (size.width, size.height);
+                // A pixel-centre or masked buffer is conservative only for the frame it samples: it follows the
+                // window, as does the frame the settings stand for.
+                let controls = self.controls();
+                let occlusion = controls.occlusion.resized_to(size.width, size.height);
+                if occlusion != controls.occlusion {
+                    self.set_controls(Controls { occlusion, ..controls });
                 }
                 if let Some(graphics) = self.graphics.as_mut() {
                     graphics.config.width = size.width;

@@ -114,7 +114,7 @@ fn field_cad_tiny_and_static_camera_runs_validate_with_zero_false_negatives() {
         ("static", &["--scene", "cad:1000", "--static-camera"][..]),
         ("tiny", &["--scene", "city:30"][..]),
         ("city static", &["--scene", "city:3000", "--static-camera"][..]),
-        ("masked", &["--scene", "city:3000", "--masked"][..]),
+        ("masked at half", &["--scene", "city:3000", "--masked", "--occlusion-resolution", "320x180"][..]),
         ("256x144", &["--scene", "city:3000", "--occlusion-resolution", "256x144"][..]),
     ] {
         let (text, rows) = run_validated(name, args, 12);
