@@ -3,8 +3,9 @@
 //!
 //! 1. **Street view:** the 400k-object city from its street camera, 10k occluder triangles, every frustum
 //!    survivor tested; raster, test and total time on 1 and 2 threads at 256x144, 512x288, 1024x576 and
-//!    1920x1080 (Cullet's conservative buffer at each, and its pixel-centre buffer at 1920x1080), and the
-//!    boxes each keeps. Fastest of `CULLET_MOC_RUNS` (default 15) runs.
+//!    1920x1080 (Cullet's conservative buffer at each, its masked buffer at 256x144, its pixel-centre and
+//!    masked buffers at 1920x1080, and its masked buffer at 960x540 standing for 1920x1080 against MOC at
+//!    1920x1080), and the boxes each keeps. Fastest of `CULLET_MOC_RUNS` (default 15) runs.
 //! 2. **Judged paths:** the city's fly-through and truck_town's orbit (automatic occluders), every frame
 //!    judged against the exact rendering: false negatives, culling efficiency and image error of both, each
 //!    given the occluders Cullet's pipeline selected that frame.
@@ -22,7 +23,7 @@ mod street;
 
 use cullet::VisibleSet;
 use cullet::camera::CameraPath;
-use cullet::depth::{DepthPyramid, ScreenView};
+use cullet::depth::DepthPyramid;
 use cullet::pipeline::{CullStats, OcclusionSettings};
 use cullet::raster::{RasterMode, rasterize};
 use cullet::scene::Scene;
@@ -38,17 +39,43 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use street::StreetView;
 
-/// Cullet's configurations compared, each against MOC at the same size: the default conservative buffer at
-/// 256x144, two steps up and the viewport's resolution, and the pixel-centre and masked buffers at the
-/// viewport's.
-const CONFIGS: [(u32, u32, RasterMode); 6] = [
-    (256, 144, RasterMode::Conservative),
-    (512, 288, RasterMode::Conservative),
-    (1024, 576, RasterMode::Conservative),
-    (1920, 1080, RasterMode::Conservative),
-    (1920, 1080, RasterMode::PixelCentres),
-    (1920, 1080, RasterMode::Masked),
-];
+/// Cullet's configurations compared, each against MOC at the size of the frame it stands for (its own where it
+/// names none): the default conservative buffer at 256x144, two steps up and the viewport's resolution; the
+/// masked buffer at 256x144 (sampling the same pixel centres as MOC there); the pixel-centre and masked buffers at
+/// the viewport's; and the masked buffer at half the viewport standing for its pixels (the game's default).
+fn configs() -> [OcclusionSettings; 8] {
+    let at = |width, height, mode| OcclusionSettings { width, height, mode, ..OcclusionSettings::default() };
+    [
+        at(256, 144, RasterMode::Conservative),
+        at(256, 144, RasterMode::Masked),
+        at(512, 288, RasterMode::Conservative),
+        at(1024, 576, RasterMode::Conservative),
+        at(1920, 1080, RasterMode::Conservative),
+        at(1920, 1080, RasterMode::PixelCentres),
+        at(1920, 1080, RasterMode::Masked),
+        OcclusionSettings::for_frame(1920, 1080),
+    ]
+}
+
+/// The size MOC runs at beside `settings`: the frame Cullet's buffer stands for, or its own.
+fn peer_size(settings: &OcclusionSettings) -> (u32, u32) {
+    settings.frame.unwrap_or((settings.width, settings.height))
+}
+
+/// A configuration's name in tables: `960x540 masked for 1920x1080`.
+fn config_name(settings: &OcclusionSettings) -> String {
+    let name = format!("{}x{} {}", settings.width, settings.height, settings.mode.name());
+    match settings.frame {
+        Some((width, height)) => format!("{name} for {width}x{height}"),
+        None => name,
+    }
+}
+
+/// A configuration's CSV cells: `width,height,cullet_mode,frame` (the frame `WxH`, empty where none).
+fn config_cells(settings: &OcclusionSettings) -> String {
+    let frame = settings.frame.map(|(width, height)| format!("{width}x{height}")).unwrap_or_default();
+    format!("{},{},{},{frame}", settings.width, settings.height, settings.mode.name())
+}
 
 fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
@@ -93,7 +120,7 @@ fn street_view(runs: usize) -> String {
         survivors.count()
     );
     println!(
-        "{:<24} {:>7} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "{:<32} {:>7} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "buffer",
         "threads",
         "C raster",
@@ -107,25 +134,26 @@ fn street_view(runs: usize) -> String {
         "M proj"
     );
     let mut csv = String::from(
-        "width,height,cullet_mode,threads,cullet_raster_ms,cullet_test_ms,cullet_total_ms,cullet_kept,moc_raster_ms,\
+        "width,height,cullet_mode,frame,threads,cullet_raster_ms,cullet_test_ms,cullet_total_ms,cullet_kept,moc_raster_ms,\
          moc_testrect_ms,moc_total_ms,moc_kept,moc_project_ms,survivors,occluder_triangles\n",
     );
-    for (width, height, mode) in CONFIGS {
+    for settings in configs() {
         for threads in [1, 2] {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            let view = ScreenView::new(&camera, width, height);
+            let view = settings.view(&camera);
             let mut pyramid = DepthPyramid::default();
             let (mut visible, mut occluded) = (VisibleSet::default(), VisibleSet::default());
             let cullet = pool.install(|| {
                 fastest(runs, || {
                     let start = Instant::now();
-                    rasterize(&view, &selected, mode, &mut pyramid);
+                    rasterize(&view, &selected, settings.mode, &mut pyramid);
                     let raster = start.elapsed();
                     let start = Instant::now();
                     street.test(&view, &pyramid, &mut visible, &mut occluded);
                     (raster, start.elapsed(), visible.count())
                 })
             });
+            let (width, height) = peer_size(&settings);
             let mut peer = Moc::new(width, height, camera.near, threads).unwrap();
             let mut scratch = Occludees::default();
             let mut project = Duration::MAX;
@@ -149,11 +177,9 @@ fn street_view(runs: usize) -> String {
                 format!("{:.3}", ms(project)),
             ];
             let cells: Vec<String> = figures.iter().map(|f| format!("{f:>8}")).collect();
-            let name = format!("{width}x{height} {}", mode.name());
-            println!("{name:<24} {threads:>7} | {}", cells.join(" "));
-            let mode = mode.name();
-            writeln!(csv, "{width},{height},{mode},{threads},{},{},{triangles}", figures.join(","), survivors.count())
-                .unwrap();
+            println!("{:<32} {threads:>7} | {}", config_name(&settings), cells.join(" "));
+            let config = config_cells(&settings);
+            writeln!(csv, "{config},{threads},{},{},{triangles}", figures.join(","), survivors.count()).unwrap();
         }
     }
     csv
@@ -188,19 +214,18 @@ fn judged_paths() -> String {
         paths.push(JudgedPath { name: "truck_town", scene: town, path: town.orbit_path(), frames: 60 });
     }
     let mut csv = String::from(
-        "scene,frames,width,height,cullet_mode,peer,mean_stage_ms,culling_efficiency,false_negatives,\
+        "scene,frames,width,height,cullet_mode,frame,peer,mean_stage_ms,culling_efficiency,false_negatives,\
          frames_with_false_negatives,image_error_pixels_per_frame\n",
     );
     let reference = ReferenceSettings::default();
     for path in paths {
-        let flight = |width, height, mode| {
-            let settings = OcclusionSettings { width, height, mode, ..OcclusionSettings::default() };
+        let flight = |settings| {
             Flight::new(path.path.clone(), 16.0 / 9.0, path.frames, settings, |world| {
                 path.scene.spawn(world);
             })
         };
         let start = Instant::now();
-        let mut truth_flight = flight(256, 144, RasterMode::Conservative);
+        let mut truth_flight = flight(OcclusionSettings::default());
         let truth: Vec<ExactVisibility> = (0..path.frames)
             .map(|frame| {
                 truth_flight.run_frame(frame);
@@ -217,8 +242,9 @@ fn judged_paths() -> String {
             reference.height,
             start.elapsed().as_secs_f64()
         );
-        for (width, height, mode) in CONFIGS {
-            let mut run = flight(width, height, mode);
+        for settings in configs() {
+            let mut run = flight(settings);
+            let (width, height) = peer_size(&settings);
             let mut peer = Moc::new(width, height, run.path.camera_at(0.0, 16.0 / 9.0).near, 2).unwrap();
             let mut scratch = Occludees::default();
             let (mut ours, mut theirs) = (PathMetrics::default(), PathMetrics::default());
@@ -235,10 +261,10 @@ fn judged_paths() -> String {
             for (peer, metrics, time) in [("cullet", &ours, our_time), ("moc", &theirs, their_time)] {
                 let mean = ms(time) / path.frames as f64;
                 println!(
-                    "{:<10} {:>24} {:<6} {:>7.3} ms  efficiency {:5.1}%  false negatives {:5} in {:3} frames  \
+                    "{:<10} {:>32} {:<6} {:>7.3} ms  efficiency {:5.1}%  false negatives {:5} in {:3} frames  \
                      image error {:7.1} px/frame",
                     path.name,
-                    format!("{width}x{height} {}", mode.name()),
+                    config_name(&settings),
                     peer,
                     mean,
                     100.0 * metrics.efficiency(1),
@@ -248,10 +274,10 @@ fn judged_paths() -> String {
                 );
                 writeln!(
                     csv,
-                    "{},{},{width},{height},{},{peer},{mean:.4},{:.4},{},{},{:.1}",
+                    "{},{},{},{peer},{mean:.4},{:.4},{},{},{:.1}",
                     path.name,
                     path.frames,
-                    mode.name(),
+                    config_cells(&settings),
                     metrics.efficiency(1),
                     metrics.false_negatives,
                     metrics.frames_with_false_negatives,
