@@ -249,29 +249,31 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
     let (band_rows, level_widths) = band_levels(pyramid.levels_mut(), BAND_ROWS, bins.len());
     let fused = level_widths.len() - 1;
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
-    band_rows.into_par_iter().zip(bins.par_iter()).enumerate().for_each(|(band, (mut rows, bin))| {
+    // Working memory once per rayon job rather than once per band: it grows to the largest occluder drawn.
+    let scratches = || (Scratch::default(), SetupScratch::default(), vec![0.0; width.div_ceil(BLOCK_COLUMNS)]);
+    let bands = band_rows.into_par_iter().zip(bins.par_iter()).enumerate();
+    bands.for_each_init(scratches, |(scratch, setup_scratch, blocks), (band, (mut rows, bin))| {
         let texels = &mut *rows[0];
         texels.fill(0.0);
+        blocks.fill(0.0);
         let band_y0 = (band * BAND_ROWS) as u32;
         let band_y1 = band_y0 + (texels.len() / width) as u32;
         let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
-        let (mut scratch, mut setup_scratch) = (Scratch::default(), SetupScratch::default());
-        let mut blocks = vec![0.0; width.div_ceil(BLOCK_COLUMNS)];
         for &index in *bin {
             let pending = &pending[index as usize];
-            if band.hides(&blocks, pending.rect, pending.nearest) {
+            if band.hides(blocks, pending.rect, pending.nearest) {
                 continue;
             }
-            let Some(occluder) = pending.setup(view, mode, &mut setup_scratch) else {
+            let Some(occluder) = pending.setup(view, mode, setup_scratch) else {
                 continue;
             };
             match mode {
-                RasterMode::Conservative => raster_union_with_backend(avx2, occluder, band.reborrow(), &mut scratch),
+                RasterMode::Conservative => raster_union_with_backend(avx2, occluder, band.reborrow(), scratch),
                 RasterMode::PixelCentres | RasterMode::Masked | RasterMode::Fast => {
                     raster_centres_with_backend(avx2, &occluder.triangles, band.reborrow())
                 }
             }
-            band.update_blocks(&mut blocks, occluder.rect);
+            band.update_blocks(blocks, occluder.rect);
         }
         reduce_band(&mut rows, &level_widths);
     });
@@ -575,6 +577,9 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
         let tri_rect = band.clip(tri.rect);
         let [[a0, b0, c0, o0], [a1, b1, c1, o1], [a2, b2, c2, o2]] = tri.edges;
         let [p, q, r] = tri.depth;
+        // Reciprocals once a triangle rather than a division a row: they only place the skipped columns, whose
+        // texel of widening covers a relative rounding of far more than the reciprocal's.
+        let inverse = [-1.0 / a0, -1.0 / a1, -1.0 / a2];
         for y in tri_rect.y0..tri_rect.y1 {
             let yf = y as f32;
             let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
@@ -582,11 +587,11 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
             // Columns where the outer tests can pass, widened by a texel for rounding: the loop below still
             // tests every texel, this only skips the ones that cannot pass.
             let (mut lo, mut hi) = (tri_rect.x0 as f32, tri_rect.x1 as f32);
-            for (a, s) in [(a0, s0), (a1, s1), (a2, s2)] {
+            for ((a, s), inverse) in [(a0, s0), (a1, s1), (a2, s2)].into_iter().zip(inverse) {
                 if a > 0.0 {
-                    lo = lo.max(-s / a - 1.0);
+                    lo = lo.max(s * inverse - 1.0);
                 } else if a < 0.0 {
-                    hi = hi.min(-s / a + 2.0);
+                    hi = hi.min(s * inverse + 2.0);
                 }
             }
             // Also skips NaN.
@@ -611,7 +616,7 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
                 for x in x_lo..x_hi {
                     let at = row + (x - rect.x0) as usize;
                     scratch.covered[at] |= centre(x as f32) as u32;
-                    scratch.farthest[at] = scratch.farthest[at].min(overlap_depth(x as f32));
+                    scratch.farthest[at] = farther(overlap_depth(x as f32), scratch.farthest[at]);
                 }
                 continue;
             }
@@ -628,7 +633,7 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
                 }
                 let farthest = scratch.farthest[at..].first_chunk_mut::<8>().expect("8 columns of the row");
                 for (farthest, offset) in farthest.iter_mut().zip(COLUMN_OFFSETS) {
-                    *farthest = farthest.min(overlap_depth(group as f32 + offset));
+                    *farthest = farther(overlap_depth(group as f32 + offset), *farthest);
                 }
                 x += 8;
             }
@@ -642,8 +647,9 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
     for (y, ((covered, blocked), farthest)) in (rect.y0..rect.y1).zip(scratch_rows) {
         let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
         for (((texel, &covered), &blocked), &farthest) in row.iter_mut().zip(covered).zip(blocked).zip(farthest) {
-            // Written unconditionally as a maximum, so that the loop vectorizes.
-            *texel = texel.max(if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY });
+            // Written unconditionally as a maximum, so that the loop vectorizes (no depth is NaN: one `maxps`).
+            let depth = if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY };
+            *texel = if depth > *texel { depth } else { *texel };
         }
     }
 }
