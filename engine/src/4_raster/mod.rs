@@ -155,6 +155,10 @@ struct SetupOccluder {
     /// boundary, so a texel whose centre is covered and that no such segment touches is covered whole. Only
     /// the conservative mode reads them; empty in the others.
     boundary: Vec<[f64; 4]>,
+    /// Where every boundary segment's ends lie on one side of every boundary segment's line (conservative mode
+    /// only): those lines `(a, b, c)`, the union on the side where `a*x + b*y + c >= 0`. The union is then the
+    /// convex region they bound, and [`raster_hull`] draws it from them. Empty otherwise.
+    hull: Vec<[f64; 3]>,
     /// The triangles as the masked mode draws them: consecutive ones sharing an edge paired into one quad
     /// (see [`masked::quads`]). Empty in the other modes.
     quads: Vec<masked::SetupQuad>,
@@ -441,6 +445,8 @@ struct Scratch {
     blocked: Vec<bool>,
     /// The farthest depth of every triangle that may overlap the texel.
     farthest: Vec<f32>,
+    /// Each row's columns drawn.
+    runs: Vec<(u32, u32)>,
 }
 
 /// [`raster_centres`], compiled for AVX2 where `avx2` (detected on this processor): its texel loop then runs 8
@@ -558,11 +564,12 @@ unsafe fn raster_union_avx2(occluder: &SetupOccluder, band: Band<'_>, scratch: &
 
 /// Conservative mode: a texel is written when the occluder's front faces cover its centre and no boundary
 /// segment of their union touches it (so the union covers it whole), with the farthest depth of every
-/// triangle that may overlap it.
+/// triangle that may overlap it. An occluder whose boundary bounds a convex region is drawn from its lines
+/// instead ([`raster_hull`]), where that decides.
 #[inline(always)]
-fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch) {
+fn raster_union(occluder: &SetupOccluder, mut band: Band<'_>, scratch: &mut Scratch) {
     let rect = band.clip(occluder.rect);
-    if rect.is_empty() {
+    if rect.is_empty() || (!occluder.hull.is_empty() && raster_hull(occluder, band.reborrow(), rect, scratch)) {
         return;
     }
     let (w, h) = ((rect.x1 - rect.x0) as usize, (rect.y1 - rect.y0) as usize);
@@ -572,21 +579,112 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
     scratch.blocked.resize(w * h, false);
     scratch.farthest.clear();
     scratch.farthest.resize(w * h, f32::INFINITY);
+    scratch.runs.clear();
+    scratch.runs.resize(h, (rect.x0, rect.x1));
+    let Scratch { covered, farthest, runs, .. } = scratch;
+    draw_triangles::<true>(&occluder.triangles, rect, runs, covered, farthest);
+    for segment in &occluder.boundary {
+        block_segment(segment, rect, w, &mut scratch.blocked);
+    }
+    let scratch_rows =
+        scratch.covered.chunks_exact(w).zip(scratch.blocked.chunks_exact(w)).zip(scratch.farthest.chunks_exact(w));
+    for (y, ((covered, blocked), farthest)) in (rect.y0..rect.y1).zip(scratch_rows) {
+        let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
+        for (((texel, &covered), &blocked), &farthest) in row.iter_mut().zip(covered).zip(blocked).zip(farthest) {
+            // Written unconditionally as a maximum, so that the loop vectorizes (no depth is NaN: one `maxps`).
+            let depth = if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY };
+            *texel = if depth > *texel { depth } else { *texel };
+        }
+    }
+}
 
-    for tri in &occluder.triangles {
-        let tri_rect = band.clip(tri.rect);
+/// Conservative mode for an occluder whose boundary lines bound a convex region ([`SetupOccluder::hull`]).
+/// A texel whose square, grown by the segments' margin, lies inside every boundary line meets no boundary
+/// segment; all such texels of the band lie in one convex region that meets none, so the union of the
+/// triangles, whose only boundary is those segments, covers either all of them whole or none of them. One
+/// whose centre a triangle covers decides: then each is written with the farthest depth of every triangle that
+/// may overlap it. Returns whether that decided (nothing written otherwise: the caller draws the occluder as
+/// any other). Inlined, so that the raster's AVX2 build rounds with one instruction, not a call.
+#[inline(always)]
+fn raster_hull(occluder: &SetupOccluder, band: Band<'_>, rect: TexelRect, scratch: &mut Scratch) -> bool {
+    // Each row's columns `x0..x1` whose grown squares lie inside every line `a*x + b*y + c >= 0`: the line's
+    // least value over the square of texel (x, y), `a*x + k`, is at least 0. Coordinates are bounded
+    // ([`hull_lines`]), so the rounding here is far below the margin.
+    scratch.runs.clear();
+    scratch.runs.resize((rect.y1 - rect.y0) as usize, (rect.x0, rect.x0));
+    for (run, y) in scratch.runs.iter_mut().zip(rect.y0..rect.y1) {
+        let (mut lo, mut hi) = (rect.x0 as f64, rect.x1 as f64 - 1.0);
+        for &[a, b, c] in &occluder.hull {
+            let k = a.min(0.0) + b * y as f64 + b.min(0.0) + c - SEGMENT_GROW * (a.abs() + b.abs());
+            if a > 0.0 {
+                lo = lo.max((-k / a).ceil());
+            } else if a < 0.0 {
+                hi = hi.min((-k / a).floor());
+            } else if k < 0.0 {
+                hi = -1.0;
+            }
+        }
+        if lo <= hi {
+            *run = (lo as u32, hi as u32 + 1);
+        }
+    }
+    let rows = &scratch.runs;
+    let drawn = || rows.iter().enumerate().filter(|(_, run)| run.0 < run.1).map(|(row, _)| row);
+    let Some(middle) = drawn().nth(drawn().count() / 2) else {
+        return true; // No texel of the band is covered whole.
+    };
+    let (x, y) = ((rows[middle].0 + rows[middle].1) / 2, rect.y0 + middle as u32);
+    let (xf, yf) = (x as f32, y as f32);
+    let covers = |tri: &&SetupTriangle| {
+        let inside = |[a, b, c, _]: [f32; 4]| a * xf + (b * yf + c) >= 0.0;
+        (tri.rect.x0..tri.rect.x1).contains(&x)
+            && (tri.rect.y0..tri.rect.y1).contains(&y)
+            && tri.edges.map(inside) == [true; 3]
+    };
+    if !occluder.triangles.iter().any(|tri| covers(&tri)) {
+        return false;
+    }
+    let w = (rect.x1 - rect.x0) as usize;
+    scratch.farthest.clear();
+    scratch.farthest.resize(w * rows.len(), f32::INFINITY);
+    draw_triangles::<false>(&occluder.triangles, rect, rows, &mut [], &mut scratch.farthest);
+    for ((&(x0, x1), y), farthest) in rows.iter().zip(rect.y0..rect.y1).zip(scratch.farthest.chunks_exact(w)) {
+        let row = &mut band.texels[(y - band.y0) as usize * band.width..][x0 as usize..x1 as usize];
+        let farthest = &farthest[(x0 - rect.x0) as usize..(x1 - rect.x0) as usize];
+        for (texel, &depth) in row.iter_mut().zip(farthest) {
+            *texel = if depth > *texel { depth } else { *texel };
+        }
+    }
+    true
+}
+
+/// Tests `triangles` over `rect` (a band's part of an occluder's rectangle; `covered` and `farthest` hold its
+/// texels, row by row), in row `y0 + i` only the columns `runs[i]`: each texel's farthest depth over the
+/// triangles that may overlap it into `farthest`, and where `CENTRES`, whether one covers its centre into
+/// `covered` (unused otherwise).
+#[inline(always)]
+fn draw_triangles<const CENTRES: bool>(
+    triangles: &[SetupTriangle],
+    rect: TexelRect,
+    runs: &[(u32, u32)],
+    covered: &mut [u32],
+    farthest: &mut [f32],
+) {
+    let w = (rect.x1 - rect.x0) as usize;
+    for tri in triangles {
         let [[a0, b0, c0, o0], [a1, b1, c1, o1], [a2, b2, c2, o2]] = tri.edges;
         let [p, q, r] = tri.depth;
         // Reciprocals once a triangle rather than a division a row: they only place the skipped columns, whose
         // texel of widening covers a relative rounding of far more than the reciprocal's.
         let inverse = [-1.0 / a0, -1.0 / a1, -1.0 / a2];
-        for y in tri_rect.y0..tri_rect.y1 {
+        for y in tri.rect.y0.max(rect.y0)..tri.rect.y1.min(rect.y1) {
+            let run = runs[(y - rect.y0) as usize];
             let yf = y as f32;
             let (r0, r1, r2) = (b0 * yf + c0, b1 * yf + c1, b2 * yf + c2);
             let (s0, s1, s2) = (b0 * yf + o0, b1 * yf + o1, b2 * yf + o2);
             // Columns where the outer tests can pass, widened by a texel for rounding: the loop below still
             // tests every texel, this only skips the ones that cannot pass.
-            let (mut lo, mut hi) = (tri_rect.x0 as f32, tri_rect.x1 as f32);
+            let (mut lo, mut hi) = (tri.rect.x0.max(run.0) as f32, tri.rect.x1.min(run.1) as f32);
             for ((a, s), inverse) in [(a0, s0), (a1, s1), (a2, s2)].into_iter().zip(inverse) {
                 if a > 0.0 {
                     lo = lo.max(s * inverse - 1.0);
@@ -598,8 +696,8 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
             if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
                 continue;
             }
-            let x_lo = (lo as u32).max(tri_rect.x0);
-            let x_hi = (hi as u32).min(tri_rect.x1);
+            let x_lo = (lo as u32).max(tri.rect.x0).max(run.0);
+            let x_hi = (hi as u32).min(tri.rect.x1).min(run.1);
             if x_lo >= x_hi {
                 continue;
             }
@@ -615,8 +713,10 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
             if w < 8 {
                 for x in x_lo..x_hi {
                     let at = row + (x - rect.x0) as usize;
-                    scratch.covered[at] |= centre(x as f32) as u32;
-                    scratch.farthest[at] = farther(overlap_depth(x as f32), scratch.farthest[at]);
+                    if CENTRES {
+                        covered[at] |= centre(x as f32) as u32;
+                    }
+                    farthest[at] = farther(overlap_depth(x as f32), farthest[at]);
                 }
                 continue;
             }
@@ -627,29 +727,18 @@ fn raster_union(occluder: &SetupOccluder, band: Band<'_>, scratch: &mut Scratch)
             while x < x_hi {
                 let group = x.min(rect.x1 - 8);
                 let at = row + (group - rect.x0) as usize;
-                let covered = scratch.covered[at..].first_chunk_mut::<8>().expect("8 columns of the row");
-                for (covered, offset) in covered.iter_mut().zip(COLUMN_OFFSETS) {
-                    *covered |= centre(group as f32 + offset) as u32;
+                if CENTRES {
+                    let covered = covered[at..].first_chunk_mut::<8>().expect("8 columns of the row");
+                    for (covered, offset) in covered.iter_mut().zip(COLUMN_OFFSETS) {
+                        *covered |= centre(group as f32 + offset) as u32;
+                    }
                 }
-                let farthest = scratch.farthest[at..].first_chunk_mut::<8>().expect("8 columns of the row");
+                let farthest = farthest[at..].first_chunk_mut::<8>().expect("8 columns of the row");
                 for (farthest, offset) in farthest.iter_mut().zip(COLUMN_OFFSETS) {
                     *farthest = farther(overlap_depth(group as f32 + offset), *farthest);
                 }
                 x += 8;
             }
-        }
-    }
-    for segment in &occluder.boundary {
-        block_segment(segment, rect, w, &mut scratch.blocked);
-    }
-    let scratch_rows =
-        scratch.covered.chunks_exact(w).zip(scratch.blocked.chunks_exact(w)).zip(scratch.farthest.chunks_exact(w));
-    for (y, ((covered, blocked), farthest)) in (rect.y0..rect.y1).zip(scratch_rows) {
-        let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
-        for (((texel, &covered), &blocked), &farthest) in row.iter_mut().zip(covered).zip(blocked).zip(farthest) {
-            // Written unconditionally as a maximum, so that the loop vectorizes (no depth is NaN: one `maxps`).
-            let depth = if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY };
-            *texel = if depth > *texel { depth } else { *texel };
         }
     }
 }
@@ -820,6 +909,7 @@ fn setup_occluder(
     let mut setup = SetupOccluder {
         triangles: Vec::with_capacity(occluder.triangle_count()),
         boundary: Vec::new(),
+        hull: Vec::new(),
         quads: Vec::new(),
         rect: TexelRect::EMPTY,
     };
@@ -879,7 +969,50 @@ fn setup_occluder(
     if mode == RasterMode::Masked {
         setup.quads = masked::quads(&setup.triangles, oriented);
     }
+    setup.hull = hull_lines(&setup.boundary);
     (!setup.triangles.is_empty() && !too_small).then_some(setup)
+}
+
+/// Most boundary segments [`hull_lines`] checks (its check takes their count squared).
+const HULL_MAX_SEGMENTS: usize = 32;
+/// Farthest a boundary segment's end may lie from the screen's origin, in texels, for [`hull_lines`]: keeps the
+/// rounding of [`raster_hull`]'s f64 line tests far below [`SEGMENT_GROW`].
+const HULL_MAX_COORDINATE: f64 = 1e6;
+
+/// The lines of `boundary`'s segments, each `(a, b, c)` with the other segments' ends where `a*x + b*y + c >= 0`
+/// ([`SetupOccluder::hull`]), where all of them lie on one side of each line: a closed boundary that is then
+/// convex. Empty where they do not, where a segment has no length, or where there are more than
+/// [`HULL_MAX_SEGMENTS`] or an end lies beyond [`HULL_MAX_COORDINATE`] (or is not finite). Only how much is
+/// drawn depends on this check: [`raster_hull`] is conservative for any lines it gets.
+fn hull_lines(boundary: &[[f64; 4]]) -> Vec<[f64; 3]> {
+    let bounded = boundary.as_flattened().iter().all(|v| v.abs() <= HULL_MAX_COORDINATE);
+    if boundary.len() < 3 || boundary.len() > HULL_MAX_SEGMENTS || !bounded {
+        return Vec::new();
+    }
+    let ends = || boundary.iter().flat_map(|&[x0, y0, x1, y1]| [(x0, y0), (x1, y1)]);
+    let mut lines = Vec::with_capacity(boundary.len());
+    for &[x0, y0, x1, y1] in boundary {
+        let (a, b) = (y0 - y1, x1 - x0);
+        let c = -(a * x0 + b * y0);
+        // Ends on the line itself (a neighbouring segment's) are rounded to either side by about 1e-16 of the
+        // coordinates' size; this says nothing about soundness, only about which occluders are drawn this way.
+        let tolerance = 1e-9 * (a.abs() + b.abs()) * HULL_MAX_COORDINATE;
+        if a == 0.0 && b == 0.0 {
+            return Vec::new();
+        }
+        let (mut inside, mut outside) = (false, false);
+        for (x, y) in ends() {
+            let side = a * x + b * y + c;
+            inside |= side > tolerance;
+            outside |= side < -tolerance;
+        }
+        match (inside, outside) {
+            (true, false) => lines.push([a, b, c]),
+            (false, true) => lines.push([-a, -b, -c]),
+            _ => return Vec::new(),
+        }
+    }
+    lines
 }
 
 /// Reused buffers of [`setup_occluder`], one per band.
@@ -1048,6 +1181,32 @@ mod tests {
         assert!(behind.is_some() && setup.is_none());
     }
 
+    /// Lines only for a boundary that is convex: an L-shaped outline, a segment of no length, or too few
+    /// segments get none.
+    #[test]
+    fn only_a_convex_boundary_gets_lines() {
+        let outline = |points: &[(f64, f64)]| -> Vec<[f64; 4]> {
+            (0..points.len())
+                .map(|i| {
+                    let (a, b) = (points[i], points[(i + 1) % points.len()]);
+                    [a.0, a.1, b.0, b.1]
+                })
+                .collect()
+        };
+        let square = outline(&[(0.0, 0.0), (4.0, 0.0), (4.0, 4.0), (0.0, 4.0)]);
+        let lines = hull_lines(&square);
+        assert_eq!(lines.len(), 4);
+        // The square's centre is inside every line.
+        assert!(lines.iter().all(|&[a, b, c]| a * 2.0 + b * 2.0 + c > 0.0));
+        let l_shape = outline(&[(0.0, 0.0), (4.0, 0.0), (4.0, 2.0), (2.0, 2.0), (2.0, 4.0), (0.0, 4.0)]);
+        assert!(hull_lines(&l_shape).is_empty());
+        let with_point = [square.clone(), vec![[4.0, 4.0, 4.0, 4.0]]].concat();
+        assert!(hull_lines(&with_point).is_empty());
+        assert!(hull_lines(&square[..2]).is_empty());
+        let far = outline(&[(0.0, 0.0), (4e6, 0.0), (0.0, 4.0)]);
+        assert!(hull_lines(&far).is_empty());
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(64))]
 
@@ -1088,6 +1247,52 @@ mod tests {
                 let (portable, avx2) = (draw(false), draw(true));
                 prop_assert!(portable.iter().zip(&avx2).all(|(a, b)| a.to_bits() == b.to_bits()), "{mode:?}");
             }
+        }
+
+        /// A convex occluder drawn from its boundary's lines writes the texels the segments' test writes, with
+        /// the same depths, but for a few along its outline (the two grow a texel by the same margin, one
+        /// against each segment, the other against its whole line); and a boundary that is not convex gets no
+        /// lines.
+        #[test]
+        fn a_convex_occluder_drawn_from_its_lines_writes_what_its_segments_allow(
+            scale in prop::array::uniform3(0.5f32..20.0),
+            angles in prop::array::uniform3(-3.2f32..3.2),
+            offset in prop::array::uniform3(-15.0f32..15.0),
+        ) {
+            let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+            let occluder = Occluder::new(Mesh::unit_cube(2).triangle_soup());
+            let rotation = Quat::from_euler(glam::EulerRot::XYZ, angles[0], angles[1], angles[2]);
+            let translation = Vec3::from(offset) + Vec3::new(0.0, 0.0, -25.0);
+            let transform = Affine3A::from_scale_rotation_translation(Vec3::from(scale), rotation, translation);
+            let instance = OccluderInstance { occluder: &occluder, transform };
+            let view = ScreenView::new(&camera, 203, 117);
+            let mode = RasterMode::Conservative;
+            let Some(with_lines) = setup_occluder(&view, &instance, mode, &mut SetupScratch::default()) else {
+                return Ok(());
+            };
+            // A box wholly in front of the near plane has a convex outline (one clipped may not).
+            let [low, high] = occluder.local_box();
+            let corners = (0..8).map(|i| Vec3::select(glam::BVec3::new(i & 1 != 0, i & 2 != 0, i & 4 != 0), high, low));
+            let in_front = corners.map(|corner| transform.transform_point3(corner)).all(|p| -p.z > camera.near + 0.1);
+            prop_assert!(with_lines.hull.len() >= 3 || !in_front);
+            let with_segments = SetupOccluder { hull: Vec::new(), ..with_lines.clone() };
+            let draw = |setup: &SetupOccluder| {
+                let mut texels = vec![0.0f32; (view.width * view.height) as usize];
+                for (band, rows) in texels.chunks_mut(BAND_ROWS * view.width as usize).enumerate() {
+                    let y0 = (band * BAND_ROWS) as u32;
+                    let y1 = y0 + (rows.len() / view.width as usize) as u32;
+                    let band = Band { texels: rows, width: view.width as usize, y0, y1 };
+                    raster_union(setup, band, &mut Scratch::default());
+                }
+                texels
+            };
+            let (lines, segments) = (draw(&with_lines), draw(&with_segments));
+            let written = |texels: &[f32]| texels.iter().filter(|&&depth| depth > 0.0).count();
+            let both = lines.iter().zip(&segments).filter(|&(&a, &b)| a > 0.0 && b > 0.0);
+            prop_assert!(both.clone().all(|(a, b)| a.to_bits() == b.to_bits()));
+            let differ = written(&lines) + written(&segments) - 2 * both.count();
+            let outline = (with_lines.rect.x1 - with_lines.rect.x0 + with_lines.rect.y1 - with_lines.rect.y0) as usize;
+            prop_assert!(differ <= outline / 8, "{differ} texels differ along an outline of {outline}");
         }
 
         /// A boundary segment blocks the same texels whether every row of the rectangle is tested or only the
