@@ -604,7 +604,8 @@ fn raster_union(occluder: &SetupOccluder, mut band: Band<'_>, scratch: &mut Scra
 /// triangles, whose only boundary is those segments, covers either all of them whole or none of them. One
 /// whose centre a triangle covers decides: then each is written with the farthest depth of every triangle that
 /// may overlap it. Returns whether that decided (nothing written otherwise: the caller draws the occluder as
-/// any other). Inlined, so that the raster's AVX2 build rounds with one instruction, not a call.
+/// any other). This holds for any lines; that the boundary is convex only makes them draw as much as the
+/// segments would. Inlined, so that the raster's AVX2 build rounds with one instruction, not a call.
 #[inline(always)]
 fn raster_hull(occluder: &SetupOccluder, band: Band<'_>, rect: TexelRect, scratch: &mut Scratch) -> bool {
     // Each row's columns `x0..x1` whose grown squares lie inside every line `a*x + b*y + c >= 0`: the line's
@@ -634,14 +635,14 @@ fn raster_hull(occluder: &SetupOccluder, band: Band<'_>, rect: TexelRect, scratc
         return true; // No texel of the band is covered whole.
     };
     let (x, y) = ((rows[middle].0 + rows[middle].1) / 2, rect.y0 + middle as u32);
+    // Inside a triangle by more than the f32 evaluation can be off (the coefficients' rounding to f32 included),
+    // so that the centre surely lies in it: a test that merely passes could, for a sliver, pass far from it.
     let (xf, yf) = (x as f32, y as f32);
-    let covers = |tri: &&SetupTriangle| {
-        let inside = |[a, b, c, _]: [f32; 4]| a * xf + (b * yf + c) >= 0.0;
-        (tri.rect.x0..tri.rect.x1).contains(&x)
-            && (tri.rect.y0..tri.rect.y1).contains(&y)
-            && tri.edges.map(inside) == [true; 3]
+    let inside = |[a, b, c, _]: [f32; 4]| {
+        let (ax, by) = (a * xf, b * yf);
+        ax + (by + c) > EVAL_MARGIN as f32 * (ax.abs() + by.abs() + c.abs())
     };
-    if !occluder.triangles.iter().any(|tri| covers(&tri)) {
+    if !occluder.triangles.iter().any(|tri| tri.edges.map(inside) == [true; 3]) {
         return false;
     }
     let w = (rect.x1 - rect.x0) as usize;
