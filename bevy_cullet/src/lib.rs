@@ -122,7 +122,7 @@ pub struct CulletSettings {
     /// The software occlusion stage: on or off, its buffer's resolution and mode, and the most occluder
     /// triangles rasterized per view and frame. By default each camera gets [`OcclusionSettings::for_frame`]'s
     /// choice for its viewport: a masked buffer standing for the viewport's pixels, at most 960x540 (on the
-    /// city's fly-through at 1920x1080, 97.2% of what is hidden culled in 0.93x the time of the 256x144
+    /// city's fly-through at 1920x1080, 97.2% of what is hidden culled in about the time of the 256x144
     /// buffer's 94.6%). A pixel-centre or masked buffer ([`cullet::raster::RasterMode::samples_pixel_centres`])
     /// is conservative only for the frame it samples, so each camera's follows its physical viewport
     /// ([`OcclusionSettings::resized_to`]); a camera whose size Bevy does not know yet (no render target) gets

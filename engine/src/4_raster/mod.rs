@@ -1208,6 +1208,17 @@ mod tests {
         assert!(hull_lines(&far).is_empty());
     }
 
+    /// A subdivided cube, scaled, turned and moved from 25 in front of a camera at the origin looking down -Z,
+    /// as the property tests draw it: the camera, the occluder and its transform.
+    fn placed_cube(scale: [f32; 3], angles: [f32; 3], offset: [f32; 3]) -> (Camera, Occluder, Affine3A) {
+        let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+        let occluder = Occluder::new(Mesh::unit_cube(2).triangle_soup());
+        let rotation = Quat::from_euler(glam::EulerRot::XYZ, angles[0], angles[1], angles[2]);
+        let translation = Vec3::from(offset) + Vec3::new(0.0, 0.0, -25.0);
+        let transform = Affine3A::from_scale_rotation_translation(Vec3::from(scale), rotation, translation);
+        (camera, occluder, transform)
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(64))]
 
@@ -1223,11 +1234,7 @@ mod tests {
             if !std::arch::is_x86_feature_detected!("avx2") {
                 return Ok(()); // Nothing to compare with.
             }
-            let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
-            let occluder = Occluder::new(Mesh::unit_cube(2).triangle_soup());
-            let rotation = Quat::from_euler(glam::EulerRot::XYZ, angles[0], angles[1], angles[2]);
-            let translation = Vec3::from(offset) + Vec3::new(0.0, 0.0, -25.0);
-            let transform = Affine3A::from_scale_rotation_translation(Vec3::from(scale), rotation, translation);
+            let (camera, occluder, transform) = placed_cube(scale, angles, offset);
             let instance = OccluderInstance { occluder: &occluder, transform };
             let view = ScreenView::new(&camera, 203, 117);
             for mode in [RasterMode::Conservative, RasterMode::PixelCentres] {
@@ -1260,11 +1267,7 @@ mod tests {
             angles in prop::array::uniform3(-3.2f32..3.2),
             offset in prop::array::uniform3(-15.0f32..15.0),
         ) {
-            let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
-            let occluder = Occluder::new(Mesh::unit_cube(2).triangle_soup());
-            let rotation = Quat::from_euler(glam::EulerRot::XYZ, angles[0], angles[1], angles[2]);
-            let translation = Vec3::from(offset) + Vec3::new(0.0, 0.0, -25.0);
-            let transform = Affine3A::from_scale_rotation_translation(Vec3::from(scale), rotation, translation);
+            let (camera, occluder, transform) = placed_cube(scale, angles, offset);
             let instance = OccluderInstance { occluder: &occluder, transform };
             let view = ScreenView::new(&camera, 203, 117);
             let mode = RasterMode::Conservative;
