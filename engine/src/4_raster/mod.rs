@@ -909,7 +909,7 @@ fn setup_occluder(
     }));
     let mut setup = SetupOccluder {
         triangles: Vec::with_capacity(occluder.triangle_count()),
-        boundary: Vec::new(),
+        boundary: Vec::with_capacity(if mode == RasterMode::Conservative { 8 } else { 0 }),
         hull: Vec::new(),
         quads: Vec::new(),
         rect: TexelRect::EMPTY,
