@@ -419,6 +419,12 @@ pub(crate) fn farther(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
+/// The nearer (greater) of two depths, by the same plain comparison as [`farther`] (one `maxps`).
+#[inline(always)]
+pub(crate) fn nearer(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
 /// `x.floor()` for `0 <= x < 2^32` (and 0 for NaN), without a libm call (baseline x86-64 has no rounding
 /// instruction). An f32 converts exactly.
 #[inline(always)]

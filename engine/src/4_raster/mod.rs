@@ -43,7 +43,7 @@
 //! orthographic view) are skipped: a closed occluder's front faces hide everything its back faces would, and
 //! from inside an occluder nothing is hidden by it.
 
-use crate::depth::{DepthBuffer, DepthPyramid, ScreenView, ceil, farther, floor, reduce_rows};
+use crate::depth::{DepthBuffer, DepthPyramid, ScreenView, ceil, farther, floor, nearer, reduce_rows};
 use crate::frustum::SimdBackend;
 use crate::occluder::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DMat4, DVec3, DVec4, Vec3};
@@ -592,8 +592,7 @@ fn raster_union(occluder: &SetupOccluder, mut band: Band<'_>, scratch: &mut Scra
         let row = &mut band.texels[(y - band.y0) as usize * band.width..][rect.x0 as usize..rect.x1 as usize];
         for (((texel, &covered), &blocked), &farthest) in row.iter_mut().zip(covered).zip(blocked).zip(farthest) {
             // Written unconditionally as a maximum, so that the loop vectorizes (no depth is NaN: one `maxps`).
-            let depth = if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY };
-            *texel = if depth > *texel { depth } else { *texel };
+            *texel = nearer(if covered != 0 && !blocked { farthest } else { f32::NEG_INFINITY }, *texel);
         }
     }
 }
@@ -653,7 +652,7 @@ fn raster_hull(occluder: &SetupOccluder, band: Band<'_>, rect: TexelRect, scratc
         let row = &mut band.texels[(y - band.y0) as usize * band.width..][x0 as usize..x1 as usize];
         let farthest = &farthest[(x0 - rect.x0) as usize..(x1 - rect.x0) as usize];
         for (texel, &depth) in row.iter_mut().zip(farthest) {
-            *texel = if depth > *texel { depth } else { *texel };
+            *texel = nearer(depth, *texel);
         }
     }
     true
@@ -994,13 +993,13 @@ fn hull_lines(boundary: &[[f64; 4]]) -> Vec<[f64; 3]> {
     let mut lines = Vec::with_capacity(boundary.len());
     for &[x0, y0, x1, y1] in boundary {
         let (a, b) = (y0 - y1, x1 - x0);
+        if a == 0.0 && b == 0.0 {
+            return Vec::new();
+        }
         let c = -(a * x0 + b * y0);
         // Ends on the line itself (a neighbouring segment's) are rounded to either side by about 1e-16 of the
         // coordinates' size; this says nothing about soundness, only about which occluders are drawn this way.
         let tolerance = 1e-9 * (a.abs() + b.abs()) * HULL_MAX_COORDINATE;
-        if a == 0.0 && b == 0.0 {
-            return Vec::new();
-        }
         let (mut inside, mut outside) = (false, false);
         for (x, y) in ends() {
             let side = a * x + b * y + c;
