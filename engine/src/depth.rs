@@ -316,25 +316,34 @@ impl DepthPyramid {
             return false;
         };
         let shift = level.texel_shift;
-        let side = 1u32 << shift;
         let (bx0, by0, bx1, by1) = (x0 >> shift, y0 >> shift, (x1 - 1) >> shift, (y1 - 1) >> shift);
         if bx1 - bx0 > 2 || by1 - by0 > 2 {
             return false;
         }
+        // The pixels of `from..to` (clamped) within block `block` of a side of `1 << shift` pixels, as bit
+        // offsets `start..end` of a mask's row (a column's bits) or of its rows.
+        let within = |from: u32, to: u32, block: u32| {
+            let start = block << shift;
+            (from.max(start) - start, to.min(start + (1 << shift)) - start)
+        };
+        // Bits `start..end`, each `stride` apart.
+        let bits = |(start, end): (u32, u32), stride: u32| (1u32 << (end * stride)) - (1u32 << (start * stride));
+        // A 4x4 block's mask (the only size a pyramid keeps partial coverage for) repeats a row's bits every 4.
+        let every_row = 0x1111;
         let width = level.width as usize;
-        (by0..=by1).all(|by| {
-            let rows = y0.max(by * side) - by * side..y1.min(by * side + side) - by * side;
-            (bx0..=bx1).all(|bx| {
+        for by in by0..by1 + 1 {
+            let rows = bits(within(y0, y1, by), 4) as u16;
+            for bx in bx0..bx1 + 1 {
+                let pixels = rows & (bits(within(x0, x1, bx), 1) * every_row) as u16;
                 let i = by as usize * width + bx as usize;
-                if nearest < level.texels[i] {
-                    return true;
+                let hidden =
+                    nearest < level.texels[i] || (nearest < self.partial.0[i] && pixels & !self.partial.1[i] == 0);
+                if !hidden {
+                    return false;
                 }
-                let columns = x0.max(bx * side) - bx * side..x1.min(bx * side + side) - bx * side;
-                let row_bits = ((1u32 << columns.end) - (1u32 << columns.start)) as u16;
-                let pixels = rows.clone().fold(0u16, |bits, row| bits | row_bits << (row * side));
-                nearest < self.partial.0[i] && pixels & !self.partial.1[i] == 0
-            })
-        })
+            }
+        }
+        true
     }
 
     /// All levels, writable, for [`crate::raster::rasterize`].
@@ -467,5 +476,50 @@ mod tests {
         assert_eq!(pyramid.level(1).get(2, 0), 0.25);
         assert_eq!(pyramid.level(1).get(2, 1), 0.5);
         assert_eq!(pyramid.level(3).get(0, 0), 0.25);
+    }
+
+    /// `blocks_hide` against its definition read pixel by pixel: every pixel of the rectangle lies in a block
+    /// whose depth is nearer than `nearest`, or is among the block's partially covered pixels whose depth is.
+    #[test]
+    fn blocks_hide_reads_each_pixel_of_the_rectangle() {
+        let (width, height) = (22, 19); // 6x5 blocks, the last column and row in part past the view
+        let mut pyramid = DepthPyramid::default();
+        let (levels, working, mask) = pyramid.resize_masked_for_overwrite(width, height, 2);
+        let mut seed = 0x9e37_79b9_u32;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for texel in &mut levels[0].texels {
+            *texel = [0.1, 0.5, 0.9][next() as usize % 3];
+        }
+        for (depth, bits) in working.iter_mut().zip(mask.iter_mut()) {
+            *depth = [0.3, 0.7, f32::INFINITY][next() as usize % 3];
+            // Mostly full rows or columns, so that some rectangles fall wholly within the covered pixels.
+            *bits = [0xffff, 0x0fff, 0x7777, 0x00ff, 0x3333, next() as u16][next() as usize % 6];
+        }
+        let (known, partial) = (pyramid.levels[0].texels.clone(), pyramid.partial.clone());
+        let blocks_wide = width.div_ceil(4);
+        let (mut hidden, mut tested) = (0, 0);
+        for (x0, x1) in (0..width).flat_map(|x0| (x0 + 1..=width).map(move |x1| (x0, x1))) {
+            for (y0, y1) in (0..height).flat_map(|y0| (y0 + 1..=height).map(move |y1| (y0, y1))) {
+                for nearest in [0.2, 0.4, 0.6, 0.8] {
+                    let small = (x1 - 1) / 4 - x0 / 4 <= 2 && (y1 - 1) / 4 - y0 / 4 <= 2;
+                    let expected = small
+                        && (y0..y1).all(|y| {
+                            (x0..x1).all(|x| {
+                                let i = ((y / 4) * blocks_wide + x / 4) as usize;
+                                let bit = 1u16 << (4 * (y % 4) + x % 4);
+                                nearest < known[i] || (nearest < partial.0[i] && partial.1[i] & bit != 0)
+                            })
+                        });
+                    assert_eq!(pyramid.blocks_hide([x0, y0, x1, y1], nearest), expected, "{x0}..{x1}, {y0}..{y1}");
+                    (hidden, tested) = (hidden + usize::from(expected), tested + usize::from(small));
+                }
+            }
+        }
+        assert!(hidden * 10 > tested && hidden * 10 < 9 * tested, "{hidden} of {tested} hidden");
     }
 }
