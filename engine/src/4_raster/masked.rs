@@ -290,38 +290,29 @@ impl Blocks<'_> {
             best_x: worst.map(|w| (last - w.0) as f32),
             worst_rows: [0.0; EDGES],
             best_rows: [0.0; EDGES],
+            b: edges.map(|[_, b, _]| b),
+            c: edges.map(|[_, _, c]| c),
+            centre_rows_for: None,
             centre_rows: [[0.0; CENTRES]; EDGES],
             p: quad.depth.map(|[p, _, _]| p),
             depth_x,
             rz: [0.0; 2],
         };
-        // Row offsets within a block row as f32 (exact, as are the rows they are added to: integers below 2^24),
-        // so that each row's values below are computed a register at a time, written as wholes, not lane by lane
-        // (a pair of depths written as two floats and read as one pair stalled the loop's store forwarding).
-        let (b, c) = (edges.map(|[_, b, _]| b), edges.map(|[_, _, c]| c));
+        let (b, c) = (tests.b, tests.c);
         let (worst_y, best_y) = (worst.map(|w| w.1 as f32), worst.map(|w| (last - w.1) as f32));
         let (q, r) = (quad.depth.map(|[_, q, _]| q), quad.depth.map(|[_, _, r]| r));
         for block_row in block_rows {
             let top = self.y0 + block_row * BLOCK;
             let y = top as f32;
-            // Each edge's `b * y + c` at each centre's row, and at the rows of its worst and best corners.
-            let centre_ys: [f32; CENTRES] = std::array::from_fn(|k| y + (k as u32 >> BLOCK_SHIFT) as f32);
-            for (rows, (b, c)) in tests.centre_rows.iter_mut().zip(b.iter().zip(&c)) {
-                for (row, centre_y) in rows.iter_mut().zip(&centre_ys) {
-                    *row = b * centre_y + c;
-                }
-            }
+            // Each edge's `b * y + c` at the rows of its worst and best corners (at each centre's row only where a
+            // block is covered in part: `RowTests::partial_mask`).
             tests.worst_rows = std::array::from_fn(|e| b[e] * (y + worst_y[e]) + c[e]);
             tests.best_rows = std::array::from_fn(|e| b[e] * (y + best_y[e]) + c[e]);
             tests.rz = std::array::from_fn(|i| q[i] * (y + depth_y[i]) + r[i]);
             let outside_rows = self.outside_rows(top);
             let row = block_row as usize * self.blocks_wide;
-            // The pixels of a block the triangle covers in part (none past the view, counted as covered).
-            let partial_mask = |block: u32, left: f32| {
-                let outside = outside_rows | if block == last_column { self.outside_columns } else { 0 };
-                let covered = tests.centre_mask_with_backend(self.avx2, left) & !outside;
-                (covered != 0).then_some(covered | outside)
-            };
+            // The pixels of a block past the view, counted as covered.
+            let outside = |block: u32| outside_rows | if block == last_column { self.outside_columns } else { 0 };
             let mut block = first;
             while block < end {
                 let at = row + block as usize;
@@ -338,7 +329,8 @@ impl Blocks<'_> {
                     let (partial, depth) = unsafe { avx2::draw_lanes(&tests, left, count, known, working, mask) };
                     for k in Bits(partial) {
                         let block = block + k as u32;
-                        if let Some(covered) = partial_mask(block, (block * BLOCK) as f32) {
+                        let left = (block * BLOCK) as f32;
+                        if let Some(covered) = tests.partial_mask(self.avx2, y, left, outside(block)) {
                             merge(&mut known[k], &mut working[k], &mut mask[k], depth[k], covered);
                         }
                     }
@@ -348,7 +340,7 @@ impl Blocks<'_> {
                 let (coverage, depth) = tests.classify(left, self.known[at]);
                 let mask = match coverage {
                     Coverage::Full => Some(FULL),
-                    Coverage::Partial => partial_mask(block, left),
+                    Coverage::Partial => tests.partial_mask(self.avx2, y, left, outside(block)),
                     Coverage::None => None,
                 };
                 if let Some(mask) = mask {
@@ -422,6 +414,12 @@ struct RowTests {
     /// Per edge, `b * y + c` at the row of its worst corner and of its best.
     worst_rows: [f32; EDGES],
     best_rows: [f32; EDGES],
+    /// Each edge's `b` and `c`.
+    b: [f32; EDGES],
+    c: [f32; EDGES],
+    /// The first pixel row of the block row `centre_rows` were computed for; `None` before the row's first
+    /// block covered in part (a third of the rows have none), when they are computed.
+    centre_rows_for: Option<f32>,
     /// Per edge, `b * y + c` at the pixel row of each of a block's centres, in the order of their bits
     /// (`4 * row + column`): laid out as the AVX2 centre test reads them, two registers an edge, rather than
     /// shuffled from four values for each block.
@@ -466,6 +464,29 @@ impl RowTests {
             Coverage::None
         };
         (coverage, depth)
+    }
+
+    /// The pixels the triangle covers of the block at pixel row `y` and column `left` (multiples of 4 below
+    /// 2^24), with those past the view (`outside`) counted as covered; `None` where it covers none inside.
+    /// Computes [`RowTests::centre_rows`] for the row first, where they are not yet. Out of line: inlined into
+    /// the row loop it made the masked raster 4-6% slower (city fly-through, one thread).
+    #[inline(never)]
+    fn partial_mask(&mut self, avx2: bool, y: f32, left: f32, outside: u16) -> Option<u16> {
+        if self.centre_rows_for != Some(y) {
+            // Row offsets within a block row as f32 (exact, as are the rows they are added to: integers below
+            // 2^24), so that each row's values are computed a register at a time, written as wholes, not lane by
+            // lane (a pair of depths written as two floats and read as one pair stalled the loop's store
+            // forwarding).
+            let centre_ys: [f32; CENTRES] = std::array::from_fn(|k| y + (k as u32 >> BLOCK_SHIFT) as f32);
+            for (rows, (b, c)) in self.centre_rows.iter_mut().zip(self.b.iter().zip(&self.c)) {
+                for (row, centre_y) in rows.iter_mut().zip(&centre_ys) {
+                    *row = b * centre_y + c;
+                }
+            }
+            self.centre_rows_for = Some(y);
+        }
+        let covered = self.centre_mask_with_backend(avx2, left) & !outside;
+        (covered != 0).then_some(covered | outside)
     }
 
     /// [`RowTests::centre_mask`], with AVX2 where `avx2` (detected on this processor); both give the same bits.
@@ -673,6 +694,9 @@ mod tests {
                 best_x: worst_x.map(|x| (BLOCK - 1 - x) as f32),
                 worst_rows: std::array::from_fn(|e| rows[e][worst_y[e] as usize]),
                 best_rows: std::array::from_fn(|e| rows[e][(BLOCK - 1 - worst_y[e]) as usize]),
+                b: [0.0; EDGES],
+                c: [0.0; EDGES],
+                centre_rows_for: None,
                 centre_rows: rows.map(|rows| std::array::from_fn(|k| rows[k >> BLOCK_SHIFT])),
                 p: planes.map(|(p, _, _)| p),
                 depth_x: planes.map(|(_, x, _)| x as f32),
