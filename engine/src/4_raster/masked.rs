@@ -76,7 +76,10 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let chunk = blocks_wide * BAND_BLOCK_ROWS;
     let band_blocks = band_levels.into_par_iter().zip(working.par_chunks_mut(chunk)).zip(mask.par_chunks_mut(chunk));
-    band_blocks.zip(bins.par_iter()).enumerate().for_each(|(band, (((mut levels, working), mask), bin))| {
+    // Working memory once per rayon job rather than once per band, as in the texel raster.
+    let scratches = || (SetupScratch::default(), Vec::new());
+    let bands = band_blocks.zip(bins.par_iter()).enumerate();
+    bands.for_each_init(scratches, |(scratch, summary), (band, (((mut levels, working), mask), bin))| {
         let known = &mut *levels[0];
         known.fill(0.0);
         working.fill(f32::INFINITY);
@@ -93,7 +96,10 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
             outside_columns: outside_columns(view.width),
             avx2,
         };
-        draw_band_with_backend(avx2, &mut blocks, bin, view, pending);
+        // The farthest known depth of each group of block columns over the band's rows: none yet.
+        summary.clear();
+        summary.resize(blocks_wide.div_ceil(BLOCK_COLUMNS), 0.0);
+        draw_band_with_backend(avx2, &mut blocks, bin, view, pending, scratch, summary);
         reduce_band(&mut levels, &level_widths);
     });
     pyramid.reduce_from(fused);
@@ -107,12 +113,14 @@ fn draw_band_with_backend(
     bin: &[u32],
     view: &ScreenView,
     pending: &[PendingOccluder],
+    scratch: &mut SetupScratch,
+    summary: &mut [f32],
 ) {
     match avx2 {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `avx2` is set only where AVX2 was detected.
-        true => unsafe { draw_band_avx2(blocks, bin, view, pending) },
-        _ => draw_band(blocks, bin, view, pending),
+        true => unsafe { draw_band_avx2(blocks, bin, view, pending, scratch, summary) },
+        _ => draw_band(blocks, bin, view, pending, scratch, summary),
     }
 }
 
@@ -122,8 +130,15 @@ fn draw_band_with_backend(
 /// The processor must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn draw_band_avx2(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &[PendingOccluder]) {
-    draw_band(blocks, bin, view, pending)
+unsafe fn draw_band_avx2(
+    blocks: &mut Blocks<'_>,
+    bin: &[u32],
+    view: &ScreenView,
+    pending: &[PendingOccluder],
+    scratch: &mut SetupScratch,
+    summary: &mut [f32],
+) {
+    draw_band(blocks, bin, view, pending, scratch, summary)
 }
 
 /// A set-up triangle, or two sharing an edge, as the masked raster draws them (see [`quads`]).
@@ -197,22 +212,28 @@ fn well_oriented(t: &[DVec3; 3]) -> bool {
 }
 
 /// Draws the occluders of `bin` (indices into `pending`, nearest first) into a band's blocks, skipping those
-/// already hidden there, and setting up the others if no band has yet.
+/// already hidden there, and setting up the others if no band has yet (in `scratch`). `summary` holds the
+/// farthest known depth of each group of [`BLOCK_COLUMNS`] block columns over the band's rows (see
+/// [`update_summary`]), zero for a band not drawn yet.
 #[inline(always)]
-fn draw_band(blocks: &mut Blocks<'_>, bin: &[u32], view: &ScreenView, pending: &[PendingOccluder]) {
-    let mut scratch = SetupScratch::default();
-    // The farthest known depth of each group of block columns over the band's rows.
-    let mut summary = vec![0.0; blocks.blocks_wide.div_ceil(BLOCK_COLUMNS)];
+fn draw_band(
+    blocks: &mut Blocks<'_>,
+    bin: &[u32],
+    view: &ScreenView,
+    pending: &[PendingOccluder],
+    scratch: &mut SetupScratch,
+    summary: &mut [f32],
+) {
     for &index in bin {
         let pending = &pending[index as usize];
-        if blocks.hides(&summary, pending.rect, pending.nearest) {
+        if blocks.hides(summary, pending.rect, pending.nearest) {
             continue;
         }
-        for quad in pending.setup(view, RasterMode::Masked, &mut scratch).map_or(&[][..], |o| &o.quads) {
+        for quad in pending.setup(view, RasterMode::Masked, scratch).map_or(&[][..], |o| &o.quads) {
             blocks.draw(quad);
         }
         // Known depths only grow nearer, so the summary stays a bound until the next update.
-        update_summary(&mut summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect));
+        update_summary(summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect));
     }
 }
 
