@@ -1,8 +1,11 @@
 //! Run time against error: sweeps the software occlusion buffer's resolution, its mode and the occluder
-//! budget over the city's fly-through (and the pixel-centre mode at the viewport's resolution, 1920x1080), judging every frame against the exact ground truth, and writes
-//! `target/tradeoff/tradeoff.csv` and `target/tradeoff/tradeoff.png` (the Pareto front). Intel's Masked
-//! Occlusion Culling is a series of its own where it is built (see `build.rs`): at each resolution and the
-//! viewport's, given each frame the frustum survivors and occluders of Cullet's default configuration.
+//! budget over the city's fly-through (and the pixel-centre mode at the viewport's resolution, 1920x1080),
+//! judging every frame against the exact ground truth, and writes `target/tradeoff/tradeoff.csv` and
+//! `target/tradeoff/tradeoff.png` (the Pareto front). Intel's Masked Occlusion Culling is a series of its own
+//! where it is built (see `build.rs`): at each resolution and the viewport's, given each frame the frustum
+//! survivors and occluders of Cullet's default configuration. Last, the default and the settings for the
+//! 1920x1080 frame (`OcclusionSettings::for_frame`) are timed against each other in alternating passes, on
+//! rayon's threads and on one (CPU time), into `target/tradeoff/paired.csv`.
 //!
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
 //! `CULLET_TRADEOFF_FRAMES` (default 200) size the run.
@@ -37,6 +40,8 @@ const MASKED_BELOW_FRAME_BUDGETS: [usize; 5] = [2048, 4096, 5120, 6144, 8192];
 /// deterministic). Each round times every configuration once, so that a slow stretch of the machine slows one
 /// pass of each rather than every pass of a few.
 const TIMED_ROUNDS: usize = 3;
+/// Alternating passes of each of the two configurations [`paired`] compares.
+const PAIRED_PASSES: usize = 8;
 
 /// One configuration's results over the path.
 struct Row {
@@ -212,11 +217,62 @@ fn main() {
     let default = rows.iter().find(|r| r.is_default()).unwrap();
     println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
 
+    let mut paired_csv = String::from("threads,passes,default_us,for_frame_us,median_ratio\n");
+    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    for threads in [rayon::current_num_threads(), 1] {
+        let pool = if threads == 1 { Some(&one_thread) } else { None };
+        let (default, for_frame, ratio) = paired(&flight, frames, pool);
+        println!(
+            "default against for_frame(1920, 1080), {threads} thread(s), {PAIRED_PASSES} alternating passes: fastest \
+             {default:.1} and {for_frame:.1} us/frame, median ratio {ratio:.3}"
+        );
+        writeln!(paired_csv, "{threads},{PAIRED_PASSES},{default:.1},{for_frame:.1},{ratio:.4}").unwrap();
+    }
+
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tradeoff");
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("tradeoff.csv"), csv(&rows)).unwrap();
+    std::fs::write(dir.join("paired.csv"), paired_csv).unwrap();
     plot(&rows, &dir.join("tradeoff.png"), objects, frames).unwrap();
     println!("wrote {}", dir.canonicalize().unwrap().display());
+}
+
+/// The default settings against those for the 1920x1080 frame (`OcclusionSettings::for_frame`), the new
+/// default wherever the frame is known: their mean time a frame (bounds, frustum, raster and occlusion test)
+/// over the path in [`PAIRED_PASSES`] passes each, alternating which goes first, so that a slow stretch of the
+/// machine slows both. On `pool` where given, else on rayon's global one. Returns each one's fastest pass and
+/// the median of the passes' ratios (for_frame's time over the default's).
+fn paired(
+    flight: &(impl Fn(OcclusionSettings) -> Flight + Sync),
+    frames: u32,
+    pool: Option<&rayon::ThreadPool>,
+) -> (f64, f64, f64) {
+    let pass_us = |settings: OcclusionSettings| {
+        let run = || {
+            let mut run = flight(settings);
+            let total = (0..frames).map(|frame| {
+                let stats = run.run_frame(frame);
+                (stats.bounds_time + stats.frustum_time + stats.raster_time + stats.occlusion_time).as_secs_f64()
+            });
+            total.sum::<f64>() / frames.max(1) as f64 * 1e6
+        };
+        pool.map_or_else(run, |pool| pool.install(run))
+    };
+    let (default, for_frame) = (OcclusionSettings::default(), OcclusionSettings::for_frame(1920, 1080));
+    let (mut fastest, mut ratios) = ((f64::INFINITY, f64::INFINITY), Vec::new());
+    for pass in 0..PAIRED_PASSES {
+        let (a, b) = if pass % 2 == 0 {
+            let a = pass_us(default);
+            (a, pass_us(for_frame))
+        } else {
+            let b = pass_us(for_frame);
+            (pass_us(default), b)
+        };
+        fastest = (fastest.0.min(a), fastest.1.min(b));
+        ratios.push(b / a);
+    }
+    ratios.sort_by(f64::total_cmp);
+    (fastest.0, fastest.1, ratios[ratios.len() / 2])
 }
 
 fn print_row(row: &Row) {
