@@ -85,6 +85,9 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
         working.fill(f32::INFINITY);
         mask.fill(0);
         let y0 = (band * band_rows) as u32;
+        // No known depth in the band yet.
+        summary.clear();
+        summary.resize(blocks_wide.div_ceil(BLOCK_COLUMNS), 0.0);
         let mut blocks = Blocks {
             known,
             working,
@@ -95,11 +98,9 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
             view: (view.width, view.height),
             outside_columns: outside_columns(view.width),
             avx2,
+            summary,
         };
-        // The farthest known depth of each group of block columns over the band's rows: none yet.
-        summary.clear();
-        summary.resize(blocks_wide.div_ceil(BLOCK_COLUMNS), 0.0);
-        draw_band_with_backend(avx2, &mut blocks, bin, view, pending, scratch, summary);
+        draw_band_with_backend(avx2, &mut blocks, bin, view, pending, scratch);
         reduce_band(&mut levels, &level_widths);
     });
     pyramid.reduce_from(fused);
@@ -114,13 +115,12 @@ fn draw_band_with_backend(
     view: &ScreenView,
     pending: &[PendingOccluder],
     scratch: &mut SetupScratch,
-    summary: &mut [f32],
 ) {
     match avx2 {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `avx2` is set only where AVX2 was detected.
-        true => unsafe { draw_band_avx2(blocks, bin, view, pending, scratch, summary) },
-        _ => draw_band(blocks, bin, view, pending, scratch, summary),
+        true => unsafe { draw_band_avx2(blocks, bin, view, pending, scratch) },
+        _ => draw_band(blocks, bin, view, pending, scratch),
     }
 }
 
@@ -136,9 +136,8 @@ unsafe fn draw_band_avx2(
     view: &ScreenView,
     pending: &[PendingOccluder],
     scratch: &mut SetupScratch,
-    summary: &mut [f32],
 ) {
-    draw_band(blocks, bin, view, pending, scratch, summary)
+    draw_band(blocks, bin, view, pending, scratch)
 }
 
 /// A set-up triangle, or two sharing an edge, as the masked raster draws them (see [`quads`]).
@@ -212,9 +211,7 @@ fn well_oriented(t: &[DVec3; 3]) -> bool {
 }
 
 /// Draws the occluders of `bin` (indices into `pending`, nearest first) into a band's blocks, skipping those
-/// already hidden there, and setting up the others if no band has yet (in `scratch`). `summary` holds the
-/// farthest known depth of each group of [`BLOCK_COLUMNS`] block columns over the band's rows (see
-/// [`update_summary`]), zero for a band not drawn yet.
+/// already hidden there, and setting up the others if no band has yet (in `scratch`).
 #[inline(always)]
 fn draw_band(
     blocks: &mut Blocks<'_>,
@@ -222,18 +219,18 @@ fn draw_band(
     view: &ScreenView,
     pending: &[PendingOccluder],
     scratch: &mut SetupScratch,
-    summary: &mut [f32],
 ) {
     for &index in bin {
         let pending = &pending[index as usize];
-        if blocks.hides(summary, pending.rect, pending.nearest) {
+        if blocks.hides(pending.rect, pending.nearest) {
             continue;
         }
         for quad in pending.setup(view, RasterMode::Masked, scratch).map_or(&[][..], |o| &o.quads) {
             blocks.draw(quad);
         }
         // Known depths only grow nearer, so the summary stays a bound until the next update.
-        update_summary(summary, blocks.known, blocks.blocks_wide, blocks.columns(pending.rect));
+        let columns = blocks.columns(pending.rect);
+        update_summary(blocks.summary, blocks.known, blocks.blocks_wide, columns);
     }
 }
 
@@ -254,20 +251,23 @@ struct Blocks<'a> {
     outside_columns: u16,
     /// AVX2 was detected on this processor.
     avx2: bool,
+    /// The farthest known depth of each group of [`BLOCK_COLUMNS`] block columns over the band's rows (see
+    /// [`update_summary`]).
+    summary: &'a mut [f32],
 }
 
 impl Blocks<'_> {
     /// Whether every block under `rect` (pixels) within the band already knows a depth nearer than `nearest`,
-    /// so that an occluder no nearer than that can add nothing there. First reads `summary` (see
-    /// [`update_summary`]); where it cannot tell, the blocks.
+    /// so that an occluder no nearer than that can add nothing there. First reads the summary; where it cannot
+    /// tell, the blocks.
     #[inline(always)]
-    fn hides(&self, summary: &[f32], rect: TexelRect, nearest: f32) -> bool {
+    fn hides(&self, rect: TexelRect, nearest: f32) -> bool {
         let (y0, y1) = (rect.y0.max(self.y0), rect.y1.min(self.y1));
         if y0 >= y1 {
             return true;
         }
         let columns = self.columns(rect);
-        if summary_hides(summary, columns.clone(), nearest) {
+        if summary_hides(self.summary, columns.clone(), nearest) {
             return true;
         }
         let rows = ((y0 - self.y0) >> BLOCK_SHIFT) as usize..((y1 - self.y0).div_ceil(BLOCK)) as usize;
