@@ -979,17 +979,17 @@ const HULL_MAX_SEGMENTS: usize = 32;
 /// rounding of [`raster_hull`]'s f64 line tests far below [`SEGMENT_GROW`].
 const HULL_MAX_COORDINATE: f64 = 1e6;
 
-/// The lines of `boundary`'s segments, each `(a, b, c)` with the other segments' ends where `a*x + b*y + c >= 0`
-/// ([`SetupOccluder::hull`]), where all of them lie on one side of each line: a closed boundary that is then
-/// convex. Empty where they do not, where a segment has no length, or where there are more than
-/// [`HULL_MAX_SEGMENTS`] or an end lies beyond [`HULL_MAX_COORDINATE`] (or is not finite). Only how much is
-/// drawn depends on this check: [`raster_hull`] is conservative for any lines it gets.
+/// The lines of `boundary`'s segments, each `(a, b, c)` with the other segments' first ends where
+/// `a*x + b*y + c >= 0` ([`SetupOccluder::hull`]), where all of them lie on one side of each line: a closed
+/// boundary (every end of a segment the first end of another) that is then convex. Empty where they do not,
+/// where a segment has no length, or where there are more than [`HULL_MAX_SEGMENTS`] or an end lies beyond
+/// [`HULL_MAX_COORDINATE`] (or is not finite). Only how much is drawn depends on this check: [`raster_hull`] is
+/// conservative for any lines it gets, so the first ends, half the points, serve as well as all of them.
 fn hull_lines(boundary: &[[f64; 4]]) -> Vec<[f64; 3]> {
     let bounded = boundary.as_flattened().iter().all(|v| v.abs() <= HULL_MAX_COORDINATE);
     if boundary.len() < 3 || boundary.len() > HULL_MAX_SEGMENTS || !bounded {
         return Vec::new();
     }
-    let ends = || boundary.iter().flat_map(|&[x0, y0, x1, y1]| [(x0, y0), (x1, y1)]);
     let mut lines = Vec::with_capacity(boundary.len());
     for &[x0, y0, x1, y1] in boundary {
         let (a, b) = (y0 - y1, x1 - x0);
@@ -1001,7 +1001,7 @@ fn hull_lines(boundary: &[[f64; 4]]) -> Vec<[f64; 3]> {
         // coordinates' size; this says nothing about soundness, only about which occluders are drawn this way.
         let tolerance = 1e-9 * (a.abs() + b.abs()) * HULL_MAX_COORDINATE;
         let (mut inside, mut outside) = (false, false);
-        for (x, y) in ends() {
+        for &[x, y, _, _] in boundary {
             let side = a * x + b * y + c;
             inside |= side > tolerance;
             outside |= side < -tolerance;
