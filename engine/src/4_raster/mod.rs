@@ -211,17 +211,22 @@ pub fn rasterize(
     mode: RasterMode,
     pyramid: &mut DepthPyramid,
 ) -> RasterStats {
-    let mut bounded: Vec<(f32, TexelRect, &OccluderInstance)> = occluders
+    let bounded: Vec<(f32, TexelRect, &OccluderInstance)> = occluders
         .par_iter()
         .with_min_len(64)
         .filter_map(|instance| screen_bound(view, instance).map(|(rect, nearest)| (nearest, rect, instance)))
         .collect();
-    // Nearest first, so that occluders hidden behind nearer ones can be skipped. Sorted before the setup's
-    // cell is added, so the sort moves a third of the bytes.
-    bounded.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-    let pending: Vec<PendingOccluder> = bounded
+    // Nearest first, so that occluders hidden behind nearer ones can be skipped: sorted as one integer each, the
+    // depth's key above the index, which moves 8 bytes an occluder instead of 32 (street view: 2.5% of the raster).
+    let mut order: Vec<u64> =
+        bounded.iter().enumerate().map(|(i, b)| u64::from(nearest_first_key(b.0)) << 32 | i as u64).collect();
+    order.sort_unstable();
+    let pending: Vec<PendingOccluder> = order
         .into_iter()
-        .map(|(nearest, rect, instance)| PendingOccluder { instance, rect, nearest, setup: OnceLock::new() })
+        .map(|key| {
+            let (nearest, rect, instance) = bounded[key as u32 as usize];
+            PendingOccluder { instance, rect, nearest, setup: OnceLock::new() }
+        })
         .collect();
     if mode == RasterMode::Masked {
         masked::rasterize_blocks(view, &pending, pyramid);
@@ -237,6 +242,13 @@ pub fn rasterize(
         triangles_rejected: triangles_in.saturating_sub(triangles_rasterized),
         occluders_hidden: pending.iter().filter(|occluder| occluder.setup.get().is_none()).count(),
     }
+}
+
+/// A key that orders depths nearest (largest) first, as `f32::total_cmp` reversed does: the total order's
+/// integer form (negative values' bits flipped, the others' sign bit set), flipped.
+fn nearest_first_key(depth: f32) -> u32 {
+    let bits = depth.to_bits();
+    !(if bits >> 31 == 1 { !bits } else { bits | 1 << 31 })
 }
 
 /// Draws `pending` (nearest first) into a buffer of one texel per pixel of `view`, level 0 of `pyramid`, and
@@ -1183,6 +1195,15 @@ mod tests {
 
     /// Lines only for a boundary that is convex: an L-shaped outline, a segment of no length, or too few
     /// segments get none.
+    #[test]
+    fn nearest_first_keys_order_depths_as_total_cmp_reversed() {
+        let depths =
+            [f32::NAN, f32::INFINITY, 1e30, 1.0, 0.5, f32::MIN_POSITIVE, 1e-45, 0.0, -0.0, -1.0, f32::NEG_INFINITY];
+        for (a, b) in depths.iter().flat_map(|a| depths.iter().map(move |b| (a, b))) {
+            assert_eq!(nearest_first_key(*a).cmp(&nearest_first_key(*b)), b.total_cmp(a), "{a} {b}");
+        }
+    }
+
     #[test]
     fn only_a_convex_boundary_gets_lines() {
         let outline = |points: &[(f64, f64)]| -> Vec<[f64; 4]> {
