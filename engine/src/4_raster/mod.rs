@@ -330,11 +330,15 @@ struct Bins {
 }
 
 impl Bins {
-    /// The occluders whose rectangles reach each band of `band_rows` rows of a buffer `height` rows high.
+    /// The occluders whose rectangles reach each band of `band_rows` rows (a power of two) of a buffer `height`
+    /// rows high.
     fn new(occluders: &[PendingOccluder], height: u32, band_rows: usize) -> Self {
+        debug_assert!(band_rows.is_power_of_two());
         let bands = (height as usize).div_ceil(band_rows);
+        // Shifts, not divisions by a size known only at run time.
+        let shift = band_rows.trailing_zeros();
         let rows = |occluder: &PendingOccluder| {
-            (occluder.rect.y0 as usize / band_rows)..(occluder.rect.y1 as usize).div_ceil(band_rows).min(bands)
+            (occluder.rect.y0 as usize >> shift)..((occluder.rect.y1 as usize + band_rows - 1) >> shift).min(bands)
         };
         let mut starts = vec![0; bands + 1];
         for occluder in occluders {
