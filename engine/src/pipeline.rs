@@ -420,11 +420,10 @@ impl OcclusionSettings {
     /// for its pixels ([`OcclusionSettings::frame`]), the frame divided by the smallest whole number that
     /// leaves at most 960x540 samples (rounded up: the frame's own size up to there, half of 1920x1080, a
     /// quarter of 3840x2160), with 5120 occluder triangles. On the city's fly-through at 1920x1080 (the
-    /// README's run-time-against-error table) it culls 97.2% of what is hidden in about the time of
-    /// [`OcclusionSettings::default`] (256x144, 94.6%; 0.93x to 1.01x in two runs), with no object wrongly
-    /// hidden; a whole divisor keeps
-    /// the buffer's samples from reaching as far ([`ScreenView::for_frame`]). The default cannot be this, as it
-    /// does not know the frame.
+    /// README's run-time-against-error table) it culls 97.2% of what is hidden in the CPU time of
+    /// [`OcclusionSettings::default`] (256x144, 94.6%; 0.998x on one thread, timed pass for pass), with no
+    /// object wrongly hidden; a whole divisor keeps the buffer's samples from reaching as far
+    /// ([`ScreenView::for_frame`]). The default cannot be this, as it does not know the frame.
     ///
     /// ```
     /// use cullet::pipeline::OcclusionSettings;

@@ -438,8 +438,9 @@ struct RowTests {
     /// Each edge's `b` and `c`.
     b: [f32; EDGES],
     c: [f32; EDGES],
-    /// The first pixel row of the block row `centre_rows` were computed for; `None` before the row's first
-    /// block covered in part (a third of the rows have none), when they are computed.
+    /// The first pixel row of the block row `centre_rows` were last computed for (`None` before the first): a
+    /// third of the rows have no block covered in part, and [`RowTests::partial_mask`] computes them only for
+    /// one that has.
     centre_rows_for: Option<f32>,
     /// Per edge, `b * y + c` at the pixel row of each of a block's centres, in the order of their bits
     /// (`4 * row + column`): laid out as the AVX2 centre test reads them, two registers an edge, rather than

@@ -1197,8 +1197,6 @@ mod tests {
         assert!(behind.is_some() && setup.is_none());
     }
 
-    /// Lines only for a boundary that is convex: an L-shaped outline, a segment of no length, or too few
-    /// segments get none.
     #[test]
     fn nearest_first_keys_order_depths_as_total_cmp_reversed() {
         let depths =
@@ -1208,6 +1206,8 @@ mod tests {
         }
     }
 
+    /// Lines only for a boundary that is convex: an L-shaped outline, a segment of no length, or too few
+    /// segments get none.
     #[test]
     fn only_a_convex_boundary_gets_lines() {
         let outline = |points: &[(f64, f64)]| -> Vec<[f64; 4]> {
