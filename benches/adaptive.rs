@@ -15,7 +15,9 @@
 //! run gives the same count), and writes `target/adaptive/instructions.csv`. It takes about 20 minutes.
 
 use cullet::draw_cost::SlotTriangles;
-use cullet::pipeline::{AdaptiveSettings, OcclusionSettings, OcclusionState};
+use cullet::pipeline::CameraCuller;
+
+use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::scene::Scene;
 use cullet::scene::flight::Flight;
 use cullet::{CameraPath, scene};
@@ -63,7 +65,7 @@ fn fly(scene: &Scene, path: &CameraPath, config: &Config) -> (Duration, f64) {
         let start = Instant::now();
         cull_frame(&mut flight, frame);
         cpu += start.elapsed();
-        triangles += slot_triangles.sum(&flight.world.resource::<OcclusionState>().visible);
+        triangles += slot_triangles.sum(flight.world.resource::<CameraCuller>().visible());
     }
     (cpu / FRAMES, triangles as f64 / f64::from(FRAMES))
 }

@@ -7,7 +7,7 @@
 use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum};
 use bevy_shape::ViewFrustum;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use cullet::frustum::{PlaneCoherence, SimdBackend, cull_frustum_coherent, cull_frustum_with};
+use cullet::frustum::{FrustumOptions, PlaneCoherence, SimdBackend, cull_frustum};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Frustum, VisibleSet};
 use rayon::prelude::*;
@@ -88,21 +88,36 @@ fn frustum(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("cullet", n), |b| {
             b.iter(|| {
                 for frustum in &fixture.cullet_frusta {
-                    black_box(cull_frustum_with(&fixture.store, frustum, SimdBackend::Auto, &mut visible));
+                    black_box(cull_frustum(
+                        &fixture.store,
+                        frustum,
+                        FrustumOptions { backend: SimdBackend::Auto, ..Default::default() },
+                        &mut visible,
+                    ));
                 }
             })
         });
         group.bench_function(BenchmarkId::new("cullet-shuffled", n), |b| {
             b.iter(|| {
                 for frustum in &fixture.cullet_frusta {
-                    black_box(cull_frustum_with(&fixture.shuffled, frustum, SimdBackend::Auto, &mut visible));
+                    black_box(cull_frustum(
+                        &fixture.shuffled,
+                        frustum,
+                        FrustumOptions { backend: SimdBackend::Auto, ..Default::default() },
+                        &mut visible,
+                    ));
                 }
             })
         });
         group.bench_function(BenchmarkId::new("cullet-scalar", n), |b| {
             b.iter(|| {
                 for frustum in &fixture.cullet_frusta {
-                    black_box(cull_frustum_with(&fixture.store, frustum, SimdBackend::Scalar, &mut visible));
+                    black_box(cull_frustum(
+                        &fixture.store,
+                        frustum,
+                        FrustumOptions { backend: SimdBackend::Scalar, ..Default::default() },
+                        &mut visible,
+                    ));
                 }
             })
         });
@@ -130,7 +145,12 @@ fn threads(c: &mut Criterion) {
             pool.install(|| {
                 b.iter(|| {
                     for frustum in &fixture.cullet_frusta {
-                        black_box(cull_frustum_with(&fixture.store, frustum, SimdBackend::Auto, &mut visible));
+                        black_box(cull_frustum(
+                            &fixture.store,
+                            frustum,
+                            FrustumOptions { backend: SimdBackend::Auto, ..Default::default() },
+                            &mut visible,
+                        ));
                     }
                 })
             })
@@ -176,7 +196,12 @@ fn coherence(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("all-planes", name), |b| {
             b.iter(|| {
                 for frustum in &frusta {
-                    black_box(cull_frustum_with(store, frustum, SimdBackend::Auto, &mut visible));
+                    black_box(cull_frustum(
+                        store,
+                        frustum,
+                        FrustumOptions { backend: SimdBackend::Auto, ..Default::default() },
+                        &mut visible,
+                    ));
                 }
             })
         });
@@ -184,7 +209,16 @@ fn coherence(c: &mut Criterion) {
             b.iter(|| {
                 let mut coherence = PlaneCoherence::default();
                 for frustum in &frusta {
-                    black_box(cull_frustum_coherent(store, frustum, SimdBackend::Auto, &mut visible, &mut coherence));
+                    black_box(cull_frustum(
+                        store,
+                        frustum,
+                        FrustumOptions {
+                            backend: SimdBackend::Auto,
+                            coherence: Some(&mut coherence),
+                            ..Default::default()
+                        },
+                        &mut visible,
+                    ));
                 }
             })
         });

@@ -10,10 +10,10 @@
 //! must remove to pay); and on cities of 10 to 100 000 objects, the cluster pass against none (the candidate
 //! clusters under which it cannot pay).
 use cullet::CameraPath;
+use cullet::culler::OcclusionSettings;
 use cullet::gpu::cluster_cull::ClusterVerdict;
 use cullet::gpu::triangle_cull::TriangleVerdict;
 use cullet::gpu::{GpuContext, GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, GpuPassTimes};
-use cullet::pipeline::OcclusionSettings;
 use cullet::scene::Scene;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;

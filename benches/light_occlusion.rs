@@ -12,9 +12,9 @@
 
 use cullet::draw_cost::SlotTriangles;
 use cullet::frustum::LightSource;
-use cullet::pipeline::{
-    AdaptiveSettings, CullStats, LightOcclusionSettings, LightViews, LightViewsVisible, OcclusionSettings,
-};
+use cullet::pipeline::{CullStats, LightOcclusionSettings, LightViews, LightViewsVisible};
+
+use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use glam::Vec3;

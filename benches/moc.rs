@@ -24,7 +24,9 @@ mod street;
 use cullet::VisibleSet;
 use cullet::camera::CameraPath;
 use cullet::depth::DepthPyramid;
-use cullet::pipeline::{CullStats, OcclusionSettings};
+use cullet::pipeline::CullStats;
+
+use cullet::culler::OcclusionSettings;
 use cullet::raster::{RasterMode, rasterize};
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};

@@ -21,10 +21,12 @@
 
 use bevy_ecs::schedule::SingleThreadedExecutor;
 use cullet::depth::{DepthPyramid, ScreenView};
-use cullet::frustum::cull_frustum;
-use cullet::occluder::{Occluder, OccluderInstance, select_occluders};
+use cullet::frustum::{FrustumOptions, cull_frustum};
+use cullet::occluders::{Occluder, OccluderInstance, select_occluders};
 use cullet::occlusion::test_occlusion;
-use cullet::pipeline::{AdaptiveSettings, CullStats, OcclusionSettings};
+use cullet::pipeline::CullStats;
+
+use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::raster::rasterize;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
@@ -130,7 +132,7 @@ fn time_parts(city: &CityScene, flight: &Flight) -> [f64; 3] {
     let camera = city.benchmark_cameras()[0].1;
     let settings = OcclusionSettings::default();
     let mut frustum_visible = VisibleSet::default();
-    cull_frustum(store, &camera.frustum().expect("a valid camera"), &mut frustum_visible);
+    cull_frustum(store, &camera.frustum().expect("a valid camera"), FrustumOptions::default(), &mut frustum_visible);
     let occluder_of = |slot: usize| {
         let entity = store.entities()[slot];
         let occluder = flight.world.get::<Occluder>(entity)?;

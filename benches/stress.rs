@@ -5,8 +5,8 @@
 //!
 //! `cargo bench -p cullet-benches --bench stress`
 
+use cullet::culler::OcclusionSettings;
 use cullet::gpu::GpuContext;
-use cullet::pipeline::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use cullet_truth::stress::{cases, gpu_false_negatives, run_case};

@@ -13,7 +13,9 @@
 #[path = "moc/mod.rs"]
 mod moc;
 
-use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
+use cullet::pipeline::{CameraCuller, CullStats};
+
+use cullet::culler::OcclusionSettings;
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
@@ -166,11 +168,11 @@ fn main() {
             run.run_frame(frame);
             let mut metrics = stage_metrics(&run.world, &truth[frame as usize]);
             if settings.enabled {
-                let state = run.world.resource::<OcclusionState>();
+                let state = run.world.resource::<CameraCuller>();
                 let culled = metrics.stages[0].kept - metrics.stages[1].kept;
                 let ideal_culled = match budget_ideal {
                     Some(true) => ideal[&settings.triangle_budget][frame as usize],
-                    _ if state.occluder_slots.is_empty() => 0,
+                    _ if state.occluder_slots().is_empty() => 0,
                     _ => occlusion_ideal(&run.world, &reference).ideal_culled,
                 };
                 ideal_this_budget.push(ideal_culled);

@@ -4,7 +4,9 @@
 
 use cullet::camera::CameraPath;
 use cullet::mesh::Mesh;
-use cullet::pipeline::{AdaptiveSettings, CullStats, OcclusionSettings};
+use cullet::pipeline::CullStats;
+
+use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::scene::flight::Flight;
 use cullet::scene::{Scene, SceneObject};
 use cullet::{Camera, ObjectTransform, Occluder};
@@ -94,7 +96,9 @@ fn occlusion_that_removes_nothing_is_skipped_then_reprobed() {
     assert!((0..12).all(|_| !paying.run_with_camera(camera(), 0.0).occlusion_gated));
 }
 
-/// The built-in scenes along their paths, default (adaptive) pipeline: zero false negatives.
+/// The built-in scenes along their paths, with the default gating and with gating that skips the occlusion
+/// stage at once: zero false negatives, the repeated frame reused, and the stage skipped where it had
+/// occluders to skip.
 #[test]
 fn gating_adds_no_false_negatives_on_the_built_in_scenes() {
     let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(3000));
@@ -103,12 +107,32 @@ fn gating_adds_no_false_negatives_on_the_built_in_scenes() {
         ("field", cullet::scene::field::field(3000).0, cullet::scene::field::field(3000).1),
         ("cad", cullet::scene::cad::cad(2000).0, cullet::scene::cad::cad(2000).1),
     ];
+    // Gating that engages at once: every frame counts as one of too little benefit, so after two the occlusion
+    // stage is skipped for five frames, then re-probed.
+    let eager =
+        AdaptiveSettings { min_occlusion_benefit: 1.0, low_benefit_frames: 2, reprobe_every: 5, ..Default::default() };
+    let mut gated_scenes = 0;
     for (name, scene, path) in scenes {
-        // The path, then its last frame twice more: reused, and judged again.
-        let frames = 24;
-        let metrics = cullet_test_support::fly_and_judge(&scene, path, frames, (0..frames).chain([frames - 1; 2]));
-        println!("{name}: {metrics:?}");
+        for adaptive in [AdaptiveSettings::default(), eager] {
+            // The path, then its last frame twice more: reused (or only what moved re-tested), and judged again.
+            let frames = 24;
+            let run = (0..frames).chain([frames - 1; 2]);
+            let (metrics, stats) = cullet_test_support::fly_and_judge_with(&scene, path.clone(), frames, run, adaptive);
+            println!("{name}: {metrics:?}");
+            let last = &stats[stats.len() - 2..];
+            let reused = |stats: &&CullStats| stats.reused || stats.retested > 0;
+            if adaptive == AdaptiveSettings::default() {
+                assert!(last.iter().all(|stats| reused(&stats)), "{name}: the repeated frame is reused");
+            }
+            if adaptive == eager && stats.iter().any(|stats| stats.occluders > 0) {
+                let gated = stats.iter().filter(|stats| stats.occlusion_gated).count();
+                assert!(gated >= 5, "{name}: the occlusion stage was skipped in {gated} frames");
+                assert!(stats.iter().any(|stats| stats.occluders > 0 && !stats.occlusion_gated));
+                gated_scenes += 1;
+            }
+        }
     }
+    assert!(gated_scenes >= 2, "gating engaged in {gated_scenes} scenes");
 }
 
 /// Plane coherence in the pipeline: along the city's path, the frustum stage keeps exactly the objects the
@@ -124,7 +148,7 @@ fn plane_coherence_keeps_exactly_what_all_planes_keep() {
         (0..60)
             .map(|frame| {
                 flight.run_frame(frame);
-                flight.world.resource::<cullet::pipeline::FrustumVisible>().0.clone()
+                flight.world.resource::<cullet::pipeline::CameraCuller>().frustum_visible().clone()
             })
             .collect::<Vec<_>>()
     };
@@ -152,9 +176,9 @@ fn only_moved_objects_are_retested_and_keep_what_a_full_run_keeps() {
             .map(|frame| {
                 let stats = flight.run_frame(frame);
                 let world = &flight.world;
-                let occlusion = world.resource::<cullet::pipeline::OcclusionState>();
-                let frustum = world.resource::<cullet::pipeline::FrustumVisible>().0.clone();
-                (stats, frustum, occlusion.visible.clone(), occlusion.occluded.clone())
+                let occlusion = world.resource::<cullet::pipeline::CameraCuller>();
+                let frustum = world.resource::<cullet::pipeline::CameraCuller>().frustum_visible().clone();
+                (stats, frustum, occlusion.visible().clone(), occlusion.occluded().clone())
             })
             .collect::<Vec<_>>()
     };
@@ -190,4 +214,41 @@ fn only_moved_objects_are_retested_and_keep_what_a_full_run_keeps() {
     flight.world.entity_mut(wall).insert(moved_wall);
     let after = flight.run_with_camera(camera(), 0.0);
     assert_eq!((after.reused, after.retested), (false, 0), "{after:?}");
+}
+
+/// The pipeline's stages through the culler interface keep, frame after frame, exactly what the ECS pipeline
+/// keeps with the same settings (one core, two wrappers), and the judge finds no false negative in either
+/// culler, frustum-only included.
+#[test]
+fn cullers_through_the_interface_keep_what_the_pipeline_keeps() {
+    use cullet::culler::{Culler, StageCuller, ViewSettings};
+    use cullet_truth::{JudgeSettings, ReferenceSettings, judge_culler};
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(3000));
+    let frames = 20;
+    let mut flight = Flight::new(city.flythrough(), 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
+        city.spawn(world);
+    });
+    let mut stages = StageCuller::new("pipeline", ViewSettings::default());
+    let mut frustum_only = StageCuller::frustum_only();
+    let judge = JudgeSettings {
+        reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
+        occlusion_ideal: false,
+    };
+    let mut culled_by_occlusion = 0;
+    for frame in 0..frames {
+        let stats = flight.run_frame(frame);
+        let (world, camera) = (&flight.world, *flight.world.resource::<Camera>());
+        let pipeline = world.resource::<cullet::pipeline::CameraCuller>();
+        let judged = judge_culler(&mut stages, world, &camera, &city.scene.meshes, &judge);
+        assert_eq!(stages.view().frustum_visible(), pipeline.frustum_visible(), "frame {frame}: frustum");
+        assert_eq!(stages.view().visible(), pipeline.visible(), "frame {frame}: occlusion");
+        assert_eq!(stages.view().stats().after_occlusion, stats.after_occlusion);
+        assert!(judged.metrics.false_negatives.is_empty(), "frame {frame}: {:?}", judged.metrics.false_negatives);
+        culled_by_occlusion += stats.after_frustum - stats.after_occlusion;
+        let judged = judge_culler(&mut frustum_only, world, &camera, &city.scene.meshes, &judge);
+        assert!(judged.metrics.false_negatives.is_empty());
+        assert_eq!(frustum_only.view().visible(), pipeline.frustum_visible(), "frame {frame}: frustum only");
+        assert!(stages.is_conservative((640, 360)) && frustum_only.is_conservative((640, 360)));
+    }
+    assert!(culled_by_occlusion > 0, "the occlusion stage culls on this path");
 }

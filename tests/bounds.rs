@@ -3,7 +3,7 @@
 
 use bevy_ecs::prelude::*;
 use cullet::bounds::{BoundsRejected, GroupBounds, LocalBounds, ObjectTransform, Static, WorldBounds};
-use cullet::pipeline::{self, CullStats, FrustumVisible};
+use cullet::pipeline::{self, CameraCuller, CullStats};
 use cullet::{BoundsError, BoundsStore, Camera};
 use glam::{Affine3A, DVec3, Quat, Vec3};
 use proptest::prelude::*;
@@ -203,7 +203,7 @@ fn invalid_bounds_are_rejected_with_the_entity_named() {
     frame(&mut world, &mut schedule);
     assert_eq!(world.resource::<BoundsStore>().entities(), &[good]);
     assert!(world.get::<BoundsRejected>(good).is_none());
-    assert!(world.resource::<FrustumVisible>().0.contains(0));
+    assert!(world.resource::<CameraCuller>().frustum_visible().contains(0));
 }
 
 proptest! {

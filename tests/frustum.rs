@@ -1,7 +1,7 @@
 //! Frustum culling against an exact f64 reference: conservative everywhere, identical across SIMD backends,
 //! and stable at extreme cameras.
 
-use cullet::frustum::{PlaneCoherence, SimdBackend, cull_frustum_coherent, cull_frustum_with};
+use cullet::frustum::{FrustumOptions, PlaneCoherence, SimdBackend, cull_frustum};
 use cullet::{BoundsStore, Camera, DepthConvention, Frustum, VisibleSet};
 use cullet_test_support::{reference_keeps, reference_planes, store_of};
 use glam::Vec3;
@@ -13,8 +13,14 @@ fn cull_and_check(store: &BoundsStore, camera: &Camera) -> VisibleSet {
     let frustum = camera.frustum().expect("valid camera");
     let mut scalar = VisibleSet::default();
     let mut simd = VisibleSet::default();
-    let scalar_count = cull_frustum_with(store, &frustum, SimdBackend::Scalar, &mut scalar);
-    let simd_count = cull_frustum_with(store, &frustum, SimdBackend::Avx2, &mut simd);
+    let scalar_count = cull_frustum(
+        store,
+        &frustum,
+        FrustumOptions { backend: SimdBackend::Scalar, ..Default::default() },
+        &mut scalar,
+    );
+    let simd_count =
+        cull_frustum(store, &frustum, FrustumOptions { backend: SimdBackend::Avx2, ..Default::default() }, &mut simd);
     assert_eq!(scalar, simd, "SIMD and scalar backends disagree");
     assert_eq!(scalar_count, simd_count);
     assert_eq!(scalar_count, scalar.count());
@@ -217,8 +223,18 @@ fn plane_coherence_gives_the_same_bits_as_the_full_test() {
         let camera = camera_at(Vec3::new(frame as f32, 2.0, 0.0), Vec3::new(angle.sin(), -0.05, -angle.cos()));
         let frustum = camera.frustum().unwrap();
         let (mut plain, mut coherent) = (VisibleSet::default(), VisibleSet::default());
-        let plain_count = cull_frustum_with(&store, &frustum, SimdBackend::Auto, &mut plain);
-        let coherent_count = cull_frustum_coherent(&store, &frustum, SimdBackend::Auto, &mut coherent, &mut coherence);
+        let plain_count = cull_frustum(
+            &store,
+            &frustum,
+            FrustumOptions { backend: SimdBackend::Auto, ..Default::default() },
+            &mut plain,
+        );
+        let coherent_count = cull_frustum(
+            &store,
+            &frustum,
+            FrustumOptions { backend: SimdBackend::Auto, coherence: Some(&mut coherence), ..Default::default() },
+            &mut coherent,
+        );
         assert_eq!(plain, coherent, "frame {frame}");
         assert_eq!(plain_count, coherent_count);
         remembered += coherence.blocks_with_plane();

@@ -10,9 +10,12 @@ use cullet::gpu::hzb::Hzb;
 use cullet::gpu::interface::GpuView;
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
-use cullet::gpu::{GpuContext, GpuError, STORAGE_BUFFERS_PER_STAGE, context_for_tests};
+use cullet::gpu::{GpuContext, GpuError, STORAGE_BUFFERS_PER_STAGE};
 use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating};
-use cullet::pipeline::{FrustumVisible, OcclusionSettings, OcclusionState};
+use cullet::pipeline::CameraCuller;
+use cullet_test_support::context_for_tests;
+
+use cullet::culler::OcclusionSettings;
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
@@ -66,10 +69,10 @@ impl Setup {
     ) -> (GpuFrameOutput, Vec<u32>, DepthBuffer) {
         self.flight.world.insert_resource(camera);
         self.flight.schedule.run(&mut self.flight.world);
-        let state = self.flight.world.resource::<OcclusionState>();
+        let state = self.flight.world.resource::<CameraCuller>();
         let survivors = match frustum_survivors {
-            true => &self.flight.world.resource::<FrustumVisible>().0,
-            false => &state.visible,
+            true => &self.flight.world.resource::<CameraCuller>().frustum_visible(),
+            false => &state.visible(),
         };
         let visible: Vec<u32> = survivors.iter().map(|s| s as u32).collect();
         let depth = state.depth().clone();

@@ -1,7 +1,7 @@
 //! The whole CPU pipeline against the exact ground truth over the city's camera path: no conservative stage
 //! ever culls an object that owns a pixel of the full-resolution (1920x1080) reference rendering.
 
-use cullet::pipeline::OcclusionSettings;
+use cullet::culler::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
 use cullet_truth::{JudgeSettings, PathMetrics, judge_frame};

@@ -4,12 +4,12 @@
 
 use bevy_ecs::entity::Entity;
 use cullet::bounds::LocalBounds;
+use cullet::culler::OcclusionSettings;
 use cullet::depth::{DepthPyramid, ScreenView};
-use cullet::frustum::cull_frustum;
+use cullet::frustum::{FrustumOptions, cull_frustum};
 use cullet::mesh::Mesh;
-use cullet::occluder::OccluderInstance;
+use cullet::occluders::OccluderInstance;
 use cullet::occlusion;
-use cullet::pipeline::OcclusionSettings;
 use cullet::raster::{RasterMode, rasterize};
 use cullet::{BoundsStore, Camera, VisibleSet};
 use cullet_truth::occluders::ExactOccluderDepth;
@@ -50,7 +50,7 @@ fn cull_through(
 ) -> (VisibleSet, VisibleSet) {
     let store = store_of(boxes);
     let mut frustum_visible = VisibleSet::default();
-    cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+    cull_frustum(&store, &camera.frustum().unwrap(), FrustumOptions::default(), &mut frustum_visible);
     let visible = occlude(&store, &frustum_visible, &view, occluders, mode);
     (frustum_visible, visible)
 }
@@ -190,7 +190,7 @@ fn with_no_occluder_or_no_screen_every_frustum_survivor_is_kept() {
     let boxes = [(Vec3::new(0.0, 0.0, -5.0), Vec3::ONE), (Vec3::new(0.0, 0.0, 30.0), Vec3::ONE)];
     let store = store_of(&boxes);
     let mut frustum_visible = VisibleSet::default();
-    cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+    cull_frustum(&store, &camera.frustum().unwrap(), FrustumOptions::default(), &mut frustum_visible);
     assert_eq!(frustum_visible.count(), 1, "the box behind the camera is outside the frustum");
     let walls = [wall((-5.0, -5.0), (5.0, 5.0), 0.0)];
     let meshes = meshes_of(&walls);
@@ -670,7 +670,7 @@ fn the_random_scenes_do_occlude() {
 #[test]
 fn city_street_view_is_occluded_conservatively() {
     use bevy_ecs::prelude::*;
-    use cullet::pipeline::{self, CullStats, OcclusionState};
+    use cullet::pipeline::{self, CameraCuller, CullStats};
     use cullet::scene::city::{CityParams, CityScene};
 
     let city = CityScene::generate(CityParams::with_objects(20_000));
@@ -685,8 +685,8 @@ fn city_street_view_is_occluded_conservatively() {
     let occluders = city_occluders(&city);
     let reference = exact_depth(&camera, &occluders, (1920, 1080));
     let store = world.resource::<cullet::BoundsStore>();
-    let state = world.resource::<OcclusionState>();
-    for slot in state.occluded.iter() {
+    let state = world.resource::<CameraCuller>();
+    for slot in state.occluded().iter() {
         let bounds = store.get(slot).unwrap();
         assert!(
             !reference.box_visible(bounds.center, bounds.half_extent),
@@ -695,7 +695,7 @@ fn city_street_view_is_occluded_conservatively() {
         );
     }
     assert_eq!(entities.len(), 20_000);
-    let frustum_visible = &world.resource::<pipeline::FrustumVisible>().0;
+    let frustum_visible = world.resource::<pipeline::CameraCuller>().frustum_visible();
     let hidden = frustum_visible
         .iter()
         .filter(|&slot| {

@@ -8,10 +8,10 @@
 //! and bounds, empty meshes and out-of-range indices are refused or dropped with a typed error, nothing
 //! panics, and the rest of the scene is culled as before.
 
-use cullet::gpu::context_for_tests;
 use cullet::mesh::Mesh;
 use cullet::scene::{Scene, SceneObject};
 use cullet::{BoundsError, BoundsStore};
+use cullet_test_support::context_for_tests;
 use cullet_truth::stress::{F32_AGREEMENT, cases, gpu_false_negatives, run_case};
 use glam::{Affine3A, Vec3};
 

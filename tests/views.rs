@@ -3,13 +3,13 @@
 //! planes down to 1e-4, orthographic views with huge extents, and cameras far from the origin.
 
 use cullet::frustum::{
-    Light, SimdBackend, View, cascade_clip_from_relative, cascade_frustum, cube_face_cameras, cull_frustum, cull_views,
-    cull_views_with,
+    FrustumOptions, Light, SimdBackend, View, cascade_clip_from_relative, cascade_frustum, cube_face_cameras,
+    cull_frustum, cull_views, cull_views_with,
 };
 use cullet::{BoundsStore, Camera, DepthConvention, Frustum, VisibleSet};
 use cullet_test_support::store_of;
-use cullet_truth::shadows::{ExactLight, caster_needed, half_spaces, moved};
-use cullet_truth::stress::exact_half_spaces;
+use cullet_truth::half_spaces::{exact_half_spaces, half_spaces, moved};
+use cullet_truth::shadows::{ExactLight, caster_needed};
 use glam::{DVec4, Vec3};
 use proptest::prelude::*;
 
@@ -67,7 +67,7 @@ fn cull_and_check(store: &BoundsStore, camera: &Camera, plain: &[Frustum], light
     assert_eq!(scalar, visible, "the scalar and SIMD backends disagree");
     for ((frustum, set), &count) in plain.iter().zip(&visible).zip(&counts) {
         let mut single = VisibleSet::default();
-        assert_eq!(cull_frustum(store, frustum, &mut single), count);
+        assert_eq!(cull_frustum(store, frustum, FrustumOptions::default(), &mut single), count);
         assert_eq!(&single, set, "one pass over many views differs from a pass of its own");
     }
     let receivers = exact_half_spaces(camera);
@@ -261,7 +261,7 @@ fn the_pipeline_culls_light_views_with_the_camera() {
     let counts = cull_views(store, &views, &mut expected);
     let results = &world.resource::<LightViewsVisible>().0;
     assert_eq!(results.len(), 2 + 6);
-    assert_eq!(world.resource::<FrustumVisible>().0, expected[0]);
+    assert_eq!(world.resource::<CameraCuller>().frustum_visible(), &expected[0]);
     for (result, (set, &count)) in results.iter().zip(expected[1..].iter().zip(&counts[1..])) {
         assert_eq!((&result.visible, result.kept), (set, count));
     }
@@ -304,7 +304,9 @@ fn cull_with_light_occlusion(
     judge_size: u32,
 ) -> usize {
     use cullet::frustum::LightSource;
-    use cullet::pipeline::{CullStats, LightOcclusionSettings, LightViews, OcclusionSettings};
+    use cullet::pipeline::{CullStats, LightOcclusionSettings, LightViews};
+
+    use cullet::culler::OcclusionSettings;
     use cullet::scene::flight::Flight;
     use cullet_truth::shadows::light_view_false_negatives;
     let path = cullet::CameraPath { fov_y_deg: 60.0, near: 0.1, far: None, keys: Vec::new() };

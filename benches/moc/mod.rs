@@ -6,8 +6,8 @@
 //! occludees as screen rectangles with their nearest clip w. Its depth is 1/w, so the camera's depth
 //! convention does not matter to it. Where MOC was not built, [`Moc::new`] says why.
 
-use cullet::occluder::OccluderInstance;
-use cullet::pipeline::{FrustumVisible, OcclusionState};
+use cullet::occluders::OccluderInstance;
+use cullet::pipeline::CameraCuller;
 use cullet::{BoundsStore, Camera, ObjectTransform, Occluder, VisibleSet};
 use cullet_truth::judge::STAGES;
 use cullet_truth::{ExactVisibility, FrameMetrics};
@@ -61,7 +61,7 @@ impl MocFrame {
     /// Judges this frame of `world` (the one MOC culled in [`cull_world`]) against the exact visibility
     /// `truth`: the frustum stage, then MOC in place of Cullet's occlusion stage.
     pub fn judge(&self, world: &bevy_ecs::world::World, truth: &ExactVisibility) -> FrameMetrics {
-        let survivors = &world.resource::<FrustumVisible>().0;
+        let survivors = &world.resource::<CameraCuller>().frustum_visible();
         FrameMetrics::new(truth, &[(STAGES[0], survivors), (STAGES[1], &self.visible)])
     }
 }
@@ -321,8 +321,8 @@ pub fn cull(
 pub fn world_occluders(world: &bevy_ecs::world::World) -> Vec<OccluderInstance<'_>> {
     let store = world.resource::<BoundsStore>();
     world
-        .resource::<OcclusionState>()
-        .occluder_slots
+        .resource::<CameraCuller>()
+        .occluder_slots()
         .iter()
         .filter_map(|&slot| {
             let entity = store.entities()[slot as usize];
@@ -339,6 +339,6 @@ pub fn world_occluders(world: &bevy_ecs::world::World) -> Vec<OccluderInstance<'
 pub fn cull_world(moc: &mut Moc, world: &bevy_ecs::world::World, threads: usize, scratch: &mut Occludees) -> MocFrame {
     let camera = world.resource::<Camera>();
     let store = world.resource::<BoundsStore>();
-    let survivors = &world.resource::<FrustumVisible>().0;
+    let survivors = &world.resource::<CameraCuller>().frustum_visible();
     cull(moc, camera, store, survivors, &world_occluders(world), threads, scratch)
 }

@@ -3,8 +3,8 @@
 
 use bevy_ecs::entity::Entity;
 use cullet::depth::{DepthPyramid, ScreenView};
-use cullet::frustum::cull_frustum;
-use cullet::occluder::{Occluder, OccluderInstance, select_occluders};
+use cullet::frustum::{FrustumOptions, cull_frustum};
+use cullet::occluders::{Occluder, OccluderInstance, select_occluders};
 use cullet::occlusion::{OcclusionStats, test_occlusion};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Camera, ObjectTransform, VisibleSet};
@@ -36,7 +36,7 @@ impl StreetView {
         }
         let camera = city.benchmark_cameras()[0].1;
         let mut frustum_visible = VisibleSet::default();
-        cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+        cull_frustum(&store, &camera.frustum().unwrap(), FrustumOptions::default(), &mut frustum_visible);
         Self { store, camera, frustum_visible, occluders }
     }
 

@@ -30,7 +30,7 @@ use bevy_cullet::{CulletSettings, CulletSystems, CulletView, spawn_scene};
 use bevy_ecs::prelude::*;
 use bevy_transform::TransformSystems;
 use clap::Parser;
-use cullet::pipeline::OcclusionSettings;
+use cullet::culler::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};

@@ -3,7 +3,9 @@
 use bevy_camera::Projection;
 use bevy_camera::primitives::Aabb;
 use bevy_transform::components::GlobalTransform;
-use cullet::frustum::{DepthConvention, Frustum, FrustumError};
+use cullet::camera::DepthConvention;
+use cullet::culler::ViewInput;
+use cullet::frustum::Frustum;
 use cullet::{Camera, LocalBounds};
 use glam::{Affine3A, DMat4, DQuat, Mat4, Vec3};
 
@@ -25,32 +27,20 @@ pub(crate) fn local_bounds(aabb: &Aabb) -> LocalBounds {
     }
 }
 
-/// What Cullet sees of a Bevy camera.
-pub(crate) struct View {
-    /// The culling frustum (camera-relative planes), or why there is none.
-    pub frustum: Result<Frustum, FrustumError>,
-    /// The Cullet camera of a perspective projection: the occlusion stage needs one. `None` for orthographic
-    /// and custom projections, which get frustum culling only.
-    pub camera: Option<Camera>,
-    /// Inputs the view is computed from, to tell an unchanged view: eye position and `clip_from_world`.
-    pub key: [f32; 19],
-}
-
-/// The view of a camera at `transform` with `projection`.
+/// What Cullet sees of a camera at `transform` with `projection`: the culling frustum (camera-relative planes)
+/// or why there is none, and the Cullet camera of a perspective projection, which the occlusion stage needs
+/// (orthographic and custom projections get frustum culling only).
 ///
 /// A perspective projection becomes a Cullet [`Camera`] with Bevy's field of view, aspect ratio, near plane,
 /// and Bevy's culling far plane (infinite where it is not finite or not beyond near), reversed depth. Other
 /// projections give a frustum from their `clip_from_view` matrix, which Bevy lays out with reversed depth.
 /// Scale in the camera's transform is ignored, as Bevy's renderer expects none.
-pub(crate) fn view_of(transform: &GlobalTransform, projection: &Projection) -> View {
+pub(crate) fn view_of(transform: &GlobalTransform, projection: &Projection) -> ViewInput {
     let (_, rotation, translation) = transform.to_scale_rotation_translation();
     let position = vec3(translation);
     let forward = vec3(rotation * bevy_math::Vec3::NEG_Z);
     let up = vec3(rotation * bevy_math::Vec3::Y);
     let clip_from_view = Mat4::from_cols_array(&projection.get_clip_from_view().to_cols_array());
-    let mut key = [0.0; 19];
-    key[..3].copy_from_slice(&position.to_array());
-    key[3..].copy_from_slice(&(clip_from_view * affine_inverse(transform)).to_cols_array()[..16]);
     if let Projection::Perspective(perspective) = projection {
         let far = (perspective.far.is_finite() && perspective.far > perspective.near).then_some(perspective.far);
         let camera = Camera {
@@ -63,17 +53,12 @@ pub(crate) fn view_of(transform: &GlobalTransform, projection: &Projection) -> V
             far,
             depth: DepthConvention::Reversed,
         };
-        return View { frustum: camera.frustum(), camera: Some(camera), key };
+        return ViewInput::of_camera(&camera);
     }
     let view_from_relative = DMat4::from_quat(DQuat::from_array(rotation.to_array().map(f64::from))).inverse();
     let clip_from_relative = clip_from_view.as_dmat4() * view_from_relative;
-    View {
+    ViewInput {
         frustum: Frustum::from_clip_from_relative_f64(position, clip_from_relative, DepthConvention::Reversed),
         camera: None,
-        key,
     }
-}
-
-fn affine_inverse(transform: &GlobalTransform) -> Mat4 {
-    Mat4::from(affine(transform).inverse())
 }

@@ -1,7 +1,7 @@
-//! Stages 2 to 5 for every Bevy camera: Cullet's frustum test, occluder raster and occlusion test, then the
-//! survivors written to Bevy's `ViewVisibility` and `VisibleEntities`.
+//! Stages 2 to 5 for every Bevy camera, through a [`ViewCuller`] each: Cullet's frustum test, occluder raster
+//! and occlusion test, then the survivors written to Bevy's `ViewVisibility` and `VisibleEntities`.
 
-use crate::convert::{self, View};
+use crate::convert;
 use crate::mirror::CulletStore;
 use crate::{CulletSettings, NoCulletOcclusion};
 use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum, Sphere};
@@ -16,77 +16,40 @@ use bevy_math::UVec2;
 use bevy_transform::components::GlobalTransform;
 use bevy_utils::Parallel;
 use cullet::Occluder;
-use cullet::bounds::BoundsStore;
-use cullet::depth::{DepthBuffer, DepthPyramid};
-use cullet::frustum::{FrustumError, PlaneCoherence, cull_frustum_with_coherence};
-use cullet::occluder::{OccluderInstance, select_occluders};
-use cullet::occlusion::{occlude, retest_occlusion};
-use cullet::pipeline::{BenefitGate, OcclusionSettings, RetestCost};
+use cullet::culler::{OcclusionSettings, ViewCuller, ViewFrame, ViewSettings, ViewStats as CullStats};
+use cullet::depth::DepthBuffer;
+use cullet::occluders::OccluderInstance;
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
 use std::any::TypeId;
 use std::time::{Duration, Instant};
 
-/// Counts and times of one camera's last culled frame.
+/// Counts and times of one camera's last culled frame: Cullet's stages ([`cullet::culler::ViewStats`], which
+/// it dereferences to), then the write of what they kept.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ViewStats {
-    /// Entities in Cullet's store (mirrored ones).
-    pub objects: usize,
-    /// Of those, kept by the frustum stage.
-    pub after_frustum: usize,
-    /// Of those, kept by the occlusion stage (equal to `after_frustum` where it did not run).
-    pub after_occlusion: usize,
+    /// The frustum and occlusion stages' counts and times, over the mirrored entities.
+    pub cull: CullStats,
     /// Entities made visible in this view, mirrored or not, after `InheritedVisibility`, `RenderLayers` and
     /// `VisibilityRange`.
     pub visible: usize,
-    /// Occluders chosen to rasterize.
-    pub occluders: usize,
-    /// Of those, skipped before setup as hidden behind nearer ones wherever they reach.
-    pub occluders_hidden: usize,
-    /// Occluder triangles rasterized (none of the hidden occluders').
-    pub occluder_triangles: usize,
-    /// Whether this frame reused the last frame's result (same view, settings, bounds and occluders).
-    pub reused: bool,
-    /// Mirrored entities re-tested alone this frame because only they moved: the view, the settings, which
-    /// entities are stored where and every occluder were unchanged, so the occlusion test re-tested just these
-    /// against last frame's depth buffer (whose occluder counts stand), and the frustum stage either them too
-    /// or every entity, whichever last cost less ([`cullet::pipeline::RetestCost`]). 0 when the frame ran in
-    /// full or was reused.
-    pub retested: usize,
-    /// Whether the occlusion stage was skipped this frame because it had removed too little lately
-    /// ([`crate::CulletSettings::adaptive`]): everything the frustum kept stayed visible.
-    pub occlusion_gated: bool,
-    /// Frustum stage time.
-    pub frustum_time: Duration,
-    /// Occluder selection and raster time.
-    pub raster_time: Duration,
-    /// Occlusion test time.
-    pub occlusion_time: Duration,
     /// Time spent writing `ViewVisibility` and `VisibleEntities`.
     pub write_time: Duration,
-    /// Why the frustum stage kept everything, if the camera gave no valid frustum.
-    pub frustum_error: Option<FrustumError>,
 }
 
-/// What a camera's result depends on besides the store: its view's key, the settings, occlusion on.
-type ViewKey = ([f32; 19], CulletSettings, bool);
+impl std::ops::Deref for ViewStats {
+    type Target = CullStats;
 
-/// Cullet's state for one camera: its result, the occluder buffer it culled with, and its stats. The plugin
-/// adds it to every `Camera`.
+    fn deref(&self) -> &CullStats {
+        &self.cull
+    }
+}
+
+/// Cullet's state for one camera: its [`ViewCuller`] (the result, the occluder buffer it culled with) and its
+/// stats. The plugin adds it to every `Camera`.
 #[derive(Component, Default, Debug)]
 pub struct CulletView {
-    frustum_visible: VisibleSet,
-    coherence: PlaneCoherence,
-    pyramid: DepthPyramid,
-    /// Store slots kept by both stages.
-    visible: VisibleSet,
-    occluded: VisibleSet,
-    /// What the last cull was computed from: the view, and the store's generation and layout generation.
-    last: Option<(ViewKey, u64, u64)>,
-    /// When occlusion is skipped for removing too little.
-    occlusion_gate: BenefitGate,
-    /// Whether the frustum stage re-tests moved entities one by one or in a full pass.
-    retest_cost: RetestCost,
+    culler: ViewCuller,
     stats: ViewStats,
 }
 
@@ -99,146 +62,13 @@ impl CulletView {
     /// The occluder depth buffer of the last frame (`1/w` of the farthest occluder per texel, 0 for none);
     /// empty where occlusion did not run.
     pub fn depth(&self) -> &DepthBuffer {
-        self.pyramid.base()
+        self.culler.depth()
     }
 
     /// Store slots ([`crate::CulletStore::store`]) kept by the frustum and occlusion stages, before Bevy's
     /// per-entity rules.
     pub fn kept(&self) -> &VisibleSet {
-        &self.visible
-    }
-
-    /// Runs the frustum and occlusion stages for `view`, or reuses the last result, or re-tests only the
-    /// entities that moved.
-    fn cull<'a>(
-        &mut self,
-        cullet: &CulletStore,
-        view: &View,
-        settings: &CulletSettings,
-        occlusion: bool,
-        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
-    ) {
-        let store = &cullet.store;
-        let key = (view.key, *settings, occlusion);
-        let (generation, layout) = (store.generation(), store.layout_generation());
-        let adaptive = &settings.adaptive;
-        let last = self.last.replace((key, generation, layout));
-        let same_view = adaptive.reuse_unchanged
-            && last.is_some_and(|(last_key, _, last_layout)| last_key == key && last_layout == layout)
-            && self.visible.len() == store.len();
-        self.stats.reused = same_view && last.is_some_and(|(_, last_generation, _)| last_generation == generation);
-        self.stats.retested = 0;
-        if self.stats.reused {
-            return;
-        }
-        let occlusion = occlusion && settings.occlusion.enabled;
-        let was_gated = self.stats.occlusion_gated;
-        self.stats.occlusion_gated = occlusion && self.occlusion_gate.skip_this_frame();
-        // Only entities without occluders moved since the last cull: the planes and the depth buffer stand.
-        let gate_unchanged = was_gated == self.stats.occlusion_gated;
-        let moved = cullet.moves.as_ref().filter(|moves| {
-            same_view
-                && gate_unchanged
-                && last.is_some_and(|(_, last_generation, _)| (moves.from, moves.to) == (last_generation, generation))
-                && moves.slots.iter().all(|&slot| !store.occluders().contains(slot as usize))
-        });
-        match (moved, &view.frustum) {
-            (Some(moves), Ok(frustum)) if settings.frustum => {
-                let start = Instant::now();
-                let coherence = adaptive.plane_coherence.then_some(&mut self.coherence);
-                self.retest_cost.retest_frustum(store, frustum, &moves.slots, coherence, &mut self.frustum_visible);
-                (self.stats.after_frustum, self.stats.frustum_time) = (self.frustum_visible.count(), start.elapsed());
-            }
-            _ => self.frustum_stage(store, view, settings),
-        }
-        if let Some(moves) = moved {
-            self.retest_occlusion(store, view, settings, &moves.slots);
-            return;
-        }
-        let start = Instant::now();
-        let chosen: Vec<OccluderInstance> = match (&view.camera, occlusion && !self.stats.occlusion_gated) {
-            (Some(camera), true) => select_occluders(
-                store,
-                &self.frustum_visible,
-                camera.position,
-                settings.occlusion.triangle_budget,
-                occluder_of,
-            )
-            .into_iter()
-            .map(|(_, instance)| instance)
-            .collect(),
-            _ => Vec::new(),
-        };
-        self.stats.occluders = chosen.len();
-        let selection_time = start.elapsed();
-        // Without a perspective camera (or occluders) the stage costs the selection and a copy.
-        let screen = view.camera.map(|camera| settings.occlusion.view(&camera));
-        let run = occlude(
-            store,
-            &self.frustum_visible,
-            screen.as_ref(),
-            &chosen,
-            settings.occlusion.mode,
-            &mut self.pyramid,
-            &mut self.visible,
-            &mut self.occluded,
-        );
-        let stats = &mut self.stats;
-        (stats.occluder_triangles, stats.occluders_hidden) =
-            (run.raster.triangles_rasterized, run.raster.occluders_hidden);
-        stats.after_occlusion = run.test.visible;
-        (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
-        // A frame that rasterized nothing says nothing of what occlusion is worth here.
-        if !chosen.is_empty() {
-            let removed = stats.after_frustum - stats.after_occlusion;
-            let (frames, reprobe) = (adaptive.low_benefit_frames, adaptive.reprobe_every);
-            let min_benefit = adaptive.min_occlusion_benefit;
-            self.occlusion_gate.record(removed, stats.after_frustum, min_benefit, frames, reprobe);
-        }
-    }
-
-    /// The frustum stage for `view`, over the whole store.
-    fn frustum_stage(&mut self, store: &BoundsStore, view: &View, settings: &CulletSettings) {
-        let start = Instant::now();
-        self.stats.objects = store.len();
-        self.stats.frustum_error = None;
-        match &view.frustum {
-            Ok(frustum) if settings.frustum => {
-                let coherence = settings.adaptive.plane_coherence.then_some(&mut self.coherence);
-                cull_frustum_with_coherence(store, frustum, coherence, &mut self.frustum_visible);
-                self.retest_cost.record_full(start.elapsed(), store.len());
-            }
-            Ok(_) => self.frustum_visible = VisibleSet::all(store.len()),
-            Err(error) => {
-                tracing::warn!("bevy_cullet keeps every object of a view: {error}");
-                self.stats.frustum_error = Some(*error);
-                self.frustum_visible = VisibleSet::all(store.len());
-            }
-        }
-        self.stats.after_frustum = self.frustum_visible.count();
-        self.stats.frustum_time = start.elapsed();
-    }
-
-    /// Re-tests the store slots `moved` alone against last frame's depth buffer, which still holds for `view`
-    /// and `settings`, after the frustum stage; every other slot keeps its result.
-    fn retest_occlusion(&mut self, store: &BoundsStore, view: &View, settings: &CulletSettings, moved: &[u32]) {
-        let start = Instant::now();
-        match view.camera.filter(|_| self.pyramid.level_count() > 0) {
-            Some(camera) => {
-                let screen = settings.occlusion.view(&camera);
-                let sets = (&mut self.visible, &mut self.occluded);
-                retest_occlusion(store, &self.frustum_visible, &screen, &self.pyramid, moved, sets.0, sets.1);
-            }
-            // Nothing was rasterized: what the frustum keeps is visible.
-            None => {
-                for &slot in moved {
-                    self.visible.set(slot as usize, self.frustum_visible.contains(slot as usize));
-                }
-            }
-        }
-        let stats = &mut self.stats;
-        stats.after_occlusion = self.visible.count();
-        (stats.raster_time, stats.occlusion_time, stats.retested) = (Duration::ZERO, start.elapsed(), moved.len());
+        self.culler.visible()
     }
 }
 
@@ -387,9 +217,8 @@ pub(crate) fn cull_views(
     // there at once.
     _main_thread: NonSendMarker,
 ) {
-    // Whether an occluder's mesh, visibility or layers changed: a scan of every occluder's change ticks (0.12 ms a
-    // frame with the 1e6 city's 120,000 occluders), so asked only for a camera whose view is the one it last
-    // culled: any other camera culls in full anyway.
+    // Whether an occluder's mesh, visibility or layers changed: a scan of every occluder's change ticks, so asked
+    // only for a camera whose view is the one it last culled: any other camera culls in full anyway.
     let mut occluders_changed = None;
     for (
         camera_entity,
@@ -409,13 +238,19 @@ pub(crate) fn cull_views(
         }
         let view_layers = layers.unwrap_or_default();
         let culled = convert::view_of(transform, projection);
-        let same_view = view.last.as_ref().is_some_and(|((key, ..), ..)| *key == culled.key);
-        if same_view && *occluders_changed.get_or_insert_with(|| !changed_occluders.is_empty()) {
-            view.last = None;
-        }
-        let mut settings = CulletSettings { frustum: settings.frustum && !no_cpu_culling, ..*settings };
-        settings.occlusion = occlusion_for(settings.occlusion, camera.physical_viewport_size());
-        view.cull(&cullet, &culled, &settings, !no_occlusion && !no_cpu_culling, |slot| {
+        let mut occlusion = occlusion_for(settings.occlusion, camera.physical_viewport_size());
+        occlusion.enabled &= !no_occlusion && !no_cpu_culling;
+        let frame_settings =
+            ViewSettings { frustum: settings.frustum && !no_cpu_culling, occlusion, adaptive: settings.adaptive };
+        let same_view = view.culler.last_view() == Some(culled);
+        let frame = ViewFrame {
+            view: culled,
+            settings: frame_settings,
+            moves: cullet.moves.as_ref(),
+            changed: same_view && *occluders_changed.get_or_insert_with(|| !changed_occluders.is_empty()),
+        };
+        let view = &mut *view;
+        view.stats.cull = *view.culler.cull(&cullet.store, &frame, |slot| {
             let (occluder, transform, inherited, layers) = occluders.get(cullet.store.entities()[slot]).ok()?;
             let shown =
                 inherited.is_none_or(|inherited| inherited.get()) && view_layers.intersects(layers.unwrap_or_default());
@@ -443,7 +278,7 @@ pub(crate) fn cull_views(
         // words are split directly: collecting the kept entities first took a fifth of the write.
         let entities = cullet.store.entities();
         let mut mirrored = drawables.p0();
-        view.visible.words().par_chunks(WRITE_WORDS).enumerate().for_each_init(
+        view.culler.visible().words().par_chunks(WRITE_WORDS).enumerate().for_each_init(
             || queues.borrow_local_mut(),
             |queue, (chunk, words)| {
                 queue.begin_chunk();
@@ -508,9 +343,8 @@ pub(crate) fn cull_views(
         }
         // Bevy's renderer diffs these lists in O(n), which needs them sorted. In store order they already are
         // where the store holds its entities in their order (as the mirror leaves entities spawned together,
-        // until a despawn moves the last one into a hole); telling costs a read of each list. Sorting them anyway took
-        // 0.14 ms a frame for 63,000 entities at 1e6, 0.7 ms for 391,000 (the stable sort merging the threads'
-        // runs). Otherwise they are long sorted runs, which the stable sort merges.
+        // until a despawn moves the last one into a hole); telling costs a read of each list, sorting them anyway
+        // far more. Otherwise they are long sorted runs, which the stable sort merges.
         for list in visible_entities.entities.values_mut().filter(|list| !list.is_sorted()) {
             list.sort();
         }

@@ -49,10 +49,9 @@
 //! ```no_run
 //! rayon::ThreadPoolBuilder::new().use_current_thread().build_global().expect("rayon's global pool, once");
 //! ```
-//! It then works on each stage at once instead of waking a pool thread to start it, which wakes the next; on
-//! a 2-core VM a woken thread took 0.05 ms to 1 ms and more to join, often after the stage was over. In the
-//! plugin's bench at 1e6 objects that line cut the occlusion test from 2.3 to 1.5 ms a frame and the whole
-//! check by a fifth (`cargo bench -p bevy_cullet --bench visibility`, which does it).
+//! It then works on each stage at once instead of waking a pool thread to start it, which wakes the next: a
+//! woken thread can join after the stage is over. The plugin's bench (`cargo bench -p bevy_cullet --bench
+//! visibility`) does it; its README measures what it saves.
 //!
 //! # Example
 //! ```
@@ -97,7 +96,7 @@ use bevy_camera::visibility::{VisibilitySystems, check_visibility_cpu_culling};
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleCleanupPolicy;
 use bevy_transform::TransformSystems;
-use cullet::pipeline::{AdaptiveSettings, OcclusionSettings};
+use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::scene::auto_occluders::AutoOccluderSettings;
 
 /// Replaces Bevy's CPU visibility check with Cullet's culling; see the [crate documentation](crate).

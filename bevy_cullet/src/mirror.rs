@@ -9,7 +9,7 @@ use bevy_ecs::prelude::*;
 use bevy_transform::components::GlobalTransform;
 use bevy_utils::Parallel;
 use cullet::Occluder;
-use cullet::bounds::BoundsStore;
+use cullet::bounds::{BoundsStore, StoreMoves};
 
 /// The objects the plugin culls: the bounds of every mirrored entity, and the entities Cullet refused.
 #[derive(Resource, Default, Debug)]
@@ -22,19 +22,7 @@ pub struct CulletStore {
     /// Entities to mirror again whatever changed (they lost `NoFrustumCulling` or `NoCpuCulling`).
     pending: Vec<Entity>,
     /// What the last mirroring changed in place; `None` when too many slots changed to list.
-    pub(crate) moves: Option<Moves>,
-    /// The store's generation when the mirroring last ended.
-    mirrored_generation: u64,
-}
-
-/// The slots whose bounds one mirroring overwrote in place (increasing), with the store's generation before
-/// and after it. A camera that culled at `from` and sees the store at `to`, with the same layout, needs to
-/// re-test only these slots: every other slot holds the bounds it culled.
-#[derive(Debug, Default)]
-pub(crate) struct Moves {
-    pub(crate) from: u64,
-    pub(crate) to: u64,
-    pub(crate) slots: Vec<u32>,
+    pub(crate) moves: Option<StoreMoves>,
 }
 
 impl CulletStore {
@@ -111,10 +99,7 @@ pub(crate) fn mirror_bounds(
     }
     // Taken every frame, so that the list covers exactly the changes since the last mirroring (removals in
     // between change the layout, which the cameras compare too).
-    let from = cullet.mirrored_generation;
-    let (to, slots) = (cullet.store.generation(), cullet.store.take_moved_slots());
-    cullet.moves = slots.map(|slots| Moves { from, to, slots });
-    cullet.mirrored_generation = to;
+    cullet.moves = cullet.store.take_moves();
 }
 
 /// One entity to mirror: entity, local bounds, transform; and whether it carries an occluder.

@@ -7,7 +7,7 @@ use bevy_camera::primitives::{Aabb, Frustum};
 use bevy_camera::visibility::{NoFrustumCulling, ViewVisibility, VisibleEntities};
 use bevy_cullet::{CulletSettings, CulletStore, CulletView, spawn_scene};
 use bevy_ecs::prelude::*;
-use cullet::pipeline::OcclusionSettings;
+use cullet::culler::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet_truth::{ReferenceObject, ReferenceSettings, render_ids};
 use std::any::TypeId;

@@ -9,8 +9,8 @@ use bevy_ecs::prelude::*;
 use bevy_math::Vec3;
 use bevy_transform::prelude::*;
 use cullet::Occluder;
+use cullet::culler::OcclusionSettings;
 use cullet::mesh::Mesh;
-use cullet::pipeline::OcclusionSettings;
 use cullet::raster::RasterMode;
 use std::any::TypeId;
 use support::*;
@@ -218,7 +218,7 @@ fn frames_without_occlusion_leave_the_skipped_stage_as_it_was() {
 #[test]
 fn with_the_camera_still_only_the_entities_that_moved_are_re_tested() {
     let full = CulletSettings {
-        adaptive: cullet::pipeline::AdaptiveSettings { reuse_unchanged: false, ..Default::default() },
+        adaptive: cullet::culler::AdaptiveSettings { reuse_unchanged: false, ..Default::default() },
         ..Default::default()
     };
     let mut apps = [app(Some(CulletSettings::default())), app(Some(full))];

@@ -6,7 +6,7 @@
 //! It runs on the main thread alone, so that callgrind, which counts per thread from the toggle, sees all work.
 //! `cargo build --release -p cullet --example frustum_coherence`
 use cullet::bounds::WorldBounds;
-use cullet::frustum::{PlaneCoherence, SimdBackend, cull_frustum_coherent, cull_frustum_with};
+use cullet::frustum::{FrustumOptions, PlaneCoherence, SimdBackend, cull_frustum};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::{BoundsStore, Frustum, VisibleSet};
 
@@ -15,7 +15,7 @@ use cullet::{BoundsStore, Frustum, VisibleSet};
 fn all_planes(store: &BoundsStore, frusta: &[Frustum]) -> Vec<VisibleSet> {
     let mut sets = vec![VisibleSet::default(); frusta.len()];
     for (frustum, visible) in frusta.iter().zip(&mut sets) {
-        cull_frustum_with(store, frustum, SimdBackend::Auto, visible);
+        cull_frustum(store, frustum, FrustumOptions { backend: SimdBackend::Auto, ..Default::default() }, visible);
     }
     sets
 }
@@ -26,7 +26,12 @@ fn coherent(store: &BoundsStore, frusta: &[Frustum]) -> Vec<VisibleSet> {
     let mut coherence = PlaneCoherence::default();
     let mut sets = vec![VisibleSet::default(); frusta.len()];
     for (frustum, visible) in frusta.iter().zip(&mut sets) {
-        cull_frustum_coherent(store, frustum, SimdBackend::Auto, visible, &mut coherence);
+        cull_frustum(
+            store,
+            frustum,
+            FrustumOptions { backend: SimdBackend::Auto, coherence: Some(&mut coherence), ..Default::default() },
+            visible,
+        );
     }
     sets
 }

@@ -26,7 +26,12 @@ fn main() {
         let start = Instant::now();
         let mut kept = 0;
         for _ in 0..20 {
-            kept = cullet::frustum::cull_frustum(&store, &frustum, &mut visible);
+            kept = cullet::frustum::cull_frustum(
+                &store,
+                &frustum,
+                cullet::frustum::FrustumOptions::default(),
+                &mut visible,
+            );
         }
         println!(
             "{name}: out {out} in {inside} crossing {crossing}; kept {kept}; {:.3} ms",

@@ -3,9 +3,9 @@
 //! `cargo run --release -p cullet --example occlusion_profile [objects]`
 use cullet::BoundsStore;
 use cullet::depth::{DepthPyramid, ScreenView};
-use cullet::frustum::cull_frustum;
-use cullet::occluder::OccluderInstance;
-use cullet::occluder::select_occluders;
+use cullet::frustum::{FrustumOptions, cull_frustum};
+use cullet::occluders::OccluderInstance;
+use cullet::occluders::select_occluders;
 use cullet::occlusion::test_occlusion;
 use cullet::raster::{RasterMode, rasterize};
 use cullet::scene::city::{CityParams, CityScene};
@@ -27,7 +27,7 @@ fn main() {
     }
     for (name, camera) in city.benchmark_cameras() {
         let mut frustum_visible = cullet::VisibleSet::default();
-        cull_frustum(&store, &camera.frustum().unwrap(), &mut frustum_visible);
+        cull_frustum(&store, &camera.frustum().unwrap(), FrustumOptions::default(), &mut frustum_visible);
         let by_slot: std::collections::HashMap<usize, (&cullet::Occluder, glam::Affine3A)> =
             occluders.iter().map(|(slot, occluder, transform)| (*slot, (occluder, *transform))).collect();
         let view = ScreenView::new(&camera, 256, 144);

@@ -63,7 +63,7 @@ fn main() -> Result<(), GpuError> {
             entry_point: Some("vs"),
             compilation_options: Default::default(),
             // `positions`: three f32 a vertex, at location 0.
-            buffers: &[Some(cullet::gpu::draw::POSITION_LAYOUT)],
+            buffers: &[Some(cullet::gpu::indirect::POSITION_LAYOUT)],
         },
         primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
         // The camera's default depth is reversed: nearer is greater, cleared to 0.

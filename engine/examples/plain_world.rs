@@ -34,7 +34,7 @@ fn main() {
 
     let stats = *world.resource::<CullStats>();
     let store = world.resource::<BoundsStore>();
-    let visible = &world.resource::<OcclusionState>().visible;
+    let visible = &world.resource::<CameraCuller>().visible();
     let visible_entities: Vec<Entity> = visible.iter().map(|slot| store.entities()[slot]).collect();
     println!(
         "{} objects: {} in the frustum ({:.0} us), {} after occlusion by {} occluders ({:.0} us raster, {:.0} us test)",

@@ -1,10 +1,21 @@
 //! The camera the pipeline culls for, and camera paths (timed keys interpolated smoothly).
 
-use crate::frustum::{DepthConvention, Frustum, FrustumError};
 use bevy_ecs::prelude::*;
 use glam::dcamera::rh::proj::{directx, opengl};
 use glam::dcamera::rh::view;
 use glam::{DMat4, DVec3, Mat4, Vec3};
+
+/// How clip-space depth maps the near and far planes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum DepthConvention {
+    /// `0 <= z <= w`, near at 0 (Direct3D, Vulkan, wgpu).
+    Standard,
+    /// `0 <= z <= w`, near at 1, far (possibly infinite) at 0: the most precise choice for floating-point depth.
+    #[default]
+    Reversed,
+    /// `-w <= z <= w`, near at -1 (OpenGL).
+    NegativeOneToOne,
+}
 
 /// A perspective camera. Its matrices are camera-relative (eye at the origin) so that culling and rendering
 /// stay precise far from the world origin; see [`crate::bounds`].
@@ -113,13 +124,36 @@ impl Camera {
         self.clip_from_relative() * Mat4::from_translation(-self.position)
     }
 
-    /// The camera-relative culling frustum, its planes extracted from the f64 matrices.
+    /// Whether every field is in its documented range: a finite position, a finite non-zero `forward`, a
+    /// finite `up`, `fov_y` in (0, pi), a finite `aspect` > 0, a finite `near` > 0 and a finite `far` beyond
+    /// `near` (or none).
     ///
     /// # Errors
-    /// [`FrustumError`] for a camera whose matrices are not finite or degenerate (a zero `forward`, a field of
-    /// view outside (0, pi), a zero aspect); the frustum stage then keeps every object and reports it.
-    pub fn frustum(&self) -> Result<Frustum, FrustumError> {
-        Frustum::from_clip_from_relative_f64(self.position, self.clip_from_relative_f64(), self.depth)
+    /// The first field out of range, named.
+    pub fn validate(&self) -> Result<(), &'static str> {
+        let finite = |v: Vec3| v.is_finite();
+        if !finite(self.position) {
+            return Err("position is not finite");
+        }
+        if !finite(self.forward) || self.forward == Vec3::ZERO {
+            return Err("forward is not a finite non-zero direction");
+        }
+        if !finite(self.up) {
+            return Err("up is not finite");
+        }
+        if !(self.fov_y > 0.0 && self.fov_y < std::f32::consts::PI) {
+            return Err("fov_y is not in (0, pi)");
+        }
+        if !(self.aspect.is_finite() && self.aspect > 0.0) {
+            return Err("aspect is not finite and positive");
+        }
+        if !(self.near.is_finite() && self.near > 0.0) {
+            return Err("near is not finite and positive");
+        }
+        if self.far.is_some_and(|far| !(far.is_finite() && far > self.near)) {
+            return Err("far is not finite and beyond near");
+        }
+        Ok(())
     }
 }
 

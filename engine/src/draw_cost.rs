@@ -9,7 +9,7 @@ use crate::bounds::BoundsStore;
 use crate::gpu::GpuFrameOutput;
 use crate::mesh::Mesh;
 use crate::mesh::MeshRef;
-use crate::pipeline::{FrustumVisible, OcclusionState};
+use crate::pipeline::CameraCuller;
 use crate::visible::VisibleSet;
 use bevy_ecs::world::World;
 
@@ -33,8 +33,8 @@ impl DrawSavings {
     /// pass ran) the GPU passes saved nothing.
     pub fn of_frame(world: &World, triangles: &SlotTriangles, gpu: Option<&GpuFrameOutput>) -> Self {
         let total = triangles.total;
-        let after_frustum = triangles.sum(&world.resource::<FrustumVisible>().0);
-        let after_occlusion = triangles.sum(&world.resource::<OcclusionState>().visible);
+        let after_frustum = triangles.sum(world.resource::<CameraCuller>().frustum_visible());
+        let after_occlusion = triangles.sum(world.resource::<CameraCuller>().visible());
         let (clusters, triangles) = gpu.map_or((0, 0), |output| {
             let c = output.counters;
             // Without the triangle pass, the clusters kept are drawn whole and it removed nothing.

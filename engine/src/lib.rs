@@ -1,14 +1,14 @@
 //! # Cullet
 //!
 //! A data-oriented visibility-culling engine. Each frame, objects flow one way through the stages, each a
-//! module of its own (their files are numbered in that order in `engine/src`):
+//! module of its own, in this order:
 //!
 //! 1. [`bounds`]: world-space bounding boxes as linear SoA arrays in a `bevy_ecs` resource, updated only where
 //!    transforms changed;
 //! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset; many
 //!    views (cameras, shadow cascades, cube faces) in one pass with [`frustum::cull_views`], a light view
 //!    keeping only the shadow casters whose shadows the camera can see;
-//! 3. [`occluder`]: the artist occluders, and which of them to rasterize this frame;
+//! 3. [`occluders`]: the artist occluders, and which of them to rasterize this frame;
 //! 4. [`raster`]: those occluders rasterized into a small conservative [`depth::DepthBuffer`], reduced to its
 //!    farthest-depth [`depth::DepthPyramid`];
 //! 5. [`occlusion`]: each frustum survivor's box tested against that pyramid; each light view (a sun's
@@ -17,6 +17,8 @@
 //!    normal cones and an HZB primed from the occluder buffer, compacted, and drawn with one
 //!    multi-draw-indirect.
 //!
+//! [`culler`] culls one view through stages 2 to 5 ([`culler::ViewCuller`], a plain type that the pipeline and
+//! the Bevy plugin both wrap) and defines the interface every culler implements ([`culler::Culler`]).
 //! [`pipeline`] wires stages 1 to 5 into a `bevy_ecs` schedule: [`install`] is the one call that sets a world
 //! up for culling. `gpu::GpuCuller::for_world` builds the GPU half for a scene. [`prelude`] has what a user
 //! names.
@@ -38,8 +40,8 @@
 //! # Threads
 //! The stages run on rayon's global pool. The thread that runs the schedule waits while they do, unless it is
 //! one of rayon's: then it starts each stage's work itself instead of waking a pool thread, which must wake
-//! the next. On a 2-core VM each wake took 0.05 ms to over 1 ms, which the sample game's frustum stage and
-//! occlusion test paid every frame. Make it one first thing in `main`, as the game does:
+//! the next, and a wake can take longer than a stage (docs/performance.md measures it). Make it one first thing
+//! in `main`, as the game does:
 //! ```no_run
 //! rayon::ThreadPoolBuilder::new().use_current_thread().build_global().expect("rayon's global pool, once");
 //! ```
@@ -62,21 +64,16 @@
 
 #![warn(missing_docs)]
 
-#[path = "1_bounds/mod.rs"]
 pub mod bounds;
-#[path = "2_frustum/mod.rs"]
 pub mod frustum;
 #[cfg(feature = "gpu")]
-#[path = "6_gpu/mod.rs"]
 pub mod gpu;
-#[path = "3_occluder.rs"]
-pub mod occluder;
-#[path = "5_occlusion.rs"]
+pub mod occluders;
 pub mod occlusion;
-#[path = "4_raster/mod.rs"]
 pub mod raster;
 
 pub mod camera;
+pub mod culler;
 pub mod depth;
 #[cfg(feature = "gpu")]
 pub mod draw_cost;
@@ -86,10 +83,10 @@ pub mod scene;
 pub mod visible;
 
 pub use bounds::{BoundsError, BoundsStore, LocalBounds, ObjectTransform, Static, WorldBounds};
-pub use camera::{Camera, CameraPath};
-pub use frustum::{DepthConvention, Frustum, SimdBackend};
+pub use camera::{Camera, CameraPath, DepthConvention};
+pub use frustum::{Frustum, SimdBackend};
 pub use mesh::{MeshRef, ObjectColor};
-pub use occluder::Occluder;
+pub use occluders::Occluder;
 pub use pipeline::{PipelineSettings, install};
 pub use visible::VisibleSet;
 
@@ -97,15 +94,19 @@ pub use visible::VisibleSet;
 /// GPU culler where feature `gpu` is on.
 pub mod prelude {
     pub use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
-    pub use crate::camera::{Camera, CameraPath};
-    pub use crate::frustum::{DepthConvention, Light, LightSource, View, cull_views};
+    pub use crate::camera::{Camera, CameraPath, DepthConvention};
+    pub use crate::culler::{
+        AdaptiveSettings, CullScene, Culled, Culler, OcclusionSettings, StageCuller, ViewCuller, ViewFrame, ViewInput,
+        ViewSettings, ViewStats,
+    };
+    pub use crate::frustum::{Light, LightSource, View, cull_views};
     #[cfg(feature = "gpu")]
     pub use crate::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError, GpuGating};
     pub use crate::mesh::{Mesh, MeshRef, ObjectColor};
-    pub use crate::occluder::Occluder;
+    pub use crate::occluders::Occluder;
     pub use crate::pipeline::{
-        AdaptiveSettings, CullStage, CullStats, FrustumSettings, FrustumVisible, LightOcclusionSettings, LightViews,
-        LightViewsVisible, OcclusionSettings, OcclusionState, PipelineSettings, install,
+        CameraCuller, CullStage, CullStats, FrustumSettings, LightOcclusionSettings, LightViews, LightViewsVisible,
+        PipelineSettings, install,
     };
     pub use crate::raster::RasterMode;
     pub use crate::visible::VisibleSet;

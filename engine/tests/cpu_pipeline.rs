@@ -32,7 +32,7 @@ fn run(world: &mut World, schedule: &mut Schedule) -> CullStats {
 
 fn visible(world: &World, entity: Entity) -> bool {
     let slot = world.resource::<BoundsStore>().slot_of(entity).expect("stored");
-    world.resource::<OcclusionState>().visible.contains(slot)
+    world.resource::<CameraCuller>().visible().contains(slot)
 }
 
 #[test]
@@ -58,7 +58,10 @@ fn frustum_and_occlusion_decide_a_known_scene() {
         assert_eq!(visible(&world, entity), expected, "{name}");
     }
     assert!(
-        world.resource::<FrustumVisible>().0.contains(world.resource::<BoundsStore>().slot_of(behind_wall).unwrap())
+        world
+            .resource::<CameraCuller>()
+            .frustum_visible()
+            .contains(world.resource::<BoundsStore>().slot_of(behind_wall).unwrap())
     );
 }
 
@@ -88,4 +91,78 @@ fn moves_and_despawns_are_followed() {
     run(&mut world, &mut schedule);
     assert_eq!(world.resource::<BoundsStore>().slot_of(bad), None);
     assert!(world.get::<BoundsRejected>(bad).is_some());
+}
+
+/// The scene of the bad-input tests: the wall, and 2,001 boxes in a grid behind and beside it.
+fn crowded_world() -> (World, Schedule) {
+    let (mut world, schedule) = world();
+    for i in 0..2001 {
+        let (x, z) = ((i % 69) as f32 - 34.0, -(30.0 + (i / 69) as f32 * 2.0));
+        world.spawn((UNIT, at(Vec3::new(x * 2.0, 2.0, z))));
+    }
+    (world, schedule)
+}
+
+/// A camera the docs call invalid is refused by every stage: the frame keeps every object, and the error says
+/// why. A valid camera over the same scene culls.
+#[test]
+fn an_invalid_camera_culls_nothing_anywhere() {
+    let (mut world, mut schedule) = crowded_world();
+    let valid = run(&mut world, &mut schedule);
+    assert_eq!(valid.objects, 2002);
+    assert!(valid.after_occlusion < valid.after_frustum, "the wall hides some: {valid:?}");
+    let good = *world.resource::<Camera>();
+    for (name, camera) in [
+        ("fov_y 4", Camera { fov_y: 4.0, ..good }),
+        ("fov_y 0", Camera { fov_y: 0.0, ..good }),
+        ("near 0", Camera { near: 0.0, ..good }),
+        ("near -1", Camera { near: -1.0, ..good }),
+        ("aspect NaN", Camera { aspect: f32::NAN, ..good }),
+        ("far before near", Camera { far: Some(0.05), ..good }),
+        ("no forward", Camera { forward: Vec3::ZERO, ..good }),
+    ] {
+        world.insert_resource(camera);
+        let stats = run(&mut world, &mut schedule);
+        assert!(
+            matches!(stats.frustum_error, Some(cullet::frustum::FrustumError::InvalidCamera(_))),
+            "{name}: {:?}",
+            stats.frustum_error
+        );
+        assert_eq!((stats.after_frustum, stats.after_occlusion), (2002, 2002), "{name}");
+        assert_eq!(world.resource::<CameraCuller>().visible().count(), 2002, "{name}");
+    }
+    world.insert_resource(good);
+    assert_eq!(run(&mut world, &mut schedule).after_occlusion, valid.after_occlusion);
+}
+
+/// An occlusion buffer past the documented bounds is refused with an error instead of allocated; the frame
+/// keeps what the frustum kept. The light views' buffer likewise.
+#[test]
+fn oversized_occlusion_buffers_are_refused() {
+    let (mut world, mut schedule) = crowded_world();
+    world.insert_resource(OcclusionSettings { width: 100_000, height: 100_000, ..OcclusionSettings::default() });
+    let stats = run(&mut world, &mut schedule);
+    assert!(matches!(stats.occlusion_error, Some(cullet::culler::SettingsError::BufferTooLarge { .. })));
+    assert_eq!(stats.after_occlusion, stats.after_frustum);
+    assert_eq!(stats.occluders, 0);
+    for (width, height) in [(0, 144), (20_000, 1), (4097, 4097)] {
+        let settings = OcclusionSettings { width, height, ..OcclusionSettings::default() };
+        assert!(settings.validate().is_err(), "{width}x{height}");
+    }
+    assert!(OcclusionSettings { frame: Some((0, 1080)), ..OcclusionSettings::default() }.validate().is_err());
+
+    world.insert_resource(OcclusionSettings::default());
+    world.insert_resource(LightOcclusionSettings {
+        size: 100_000,
+        min_casters: 0,
+        ..LightOcclusionSettings::default()
+    });
+    world.insert_resource(LightViews(vec![LightSource::Sun {
+        direction: Vec3::new(0.3, -1.0, 0.2),
+        splits: vec![0.1, 20.0, 80.0],
+    }]));
+    let stats = run(&mut world, &mut schedule);
+    assert!(stats.occlusion_error.is_none() && stats.after_occlusion < stats.after_frustum);
+    assert!(stats.light_occlusion_error.is_some());
+    assert_eq!(stats.light_view_occluded, 0);
 }

@@ -1,5 +1,7 @@
 //! Shared helpers of Cullet's integration tests: exact (f64) references that the fast paths are judged against.
 
+#![forbid(unsafe_code)]
+
 use bevy_ecs::entity::Entity;
 use cullet::bounds::LocalBounds;
 use cullet::{BoundsStore, Camera, WorldBounds};
@@ -46,7 +48,7 @@ pub fn reference_clip_from_relative(camera: &Camera) -> DMat4 {
 /// The frustum's half-spaces `(n, d)` (inside where `n · p + d >= 0`, p camera-relative), in f64, with planes at
 /// infinity left out. Not normalized: the box test below does not need it.
 pub fn reference_planes(camera: &Camera) -> Vec<DVec4> {
-    cullet_truth::stress::exact_half_spaces(camera)
+    cullet_truth::half_spaces::exact_half_spaces(camera)
 }
 
 /// Exact box-versus-planes test in f64: kept unless the box lies entirely outside one plane.
@@ -65,23 +67,51 @@ pub fn fly_and_judge(
     frame_count: u32,
     frames: impl IntoIterator<Item = u32>,
 ) -> cullet_truth::PathMetrics {
+    fly_and_judge_with(scene, path, frame_count, frames, cullet::culler::AdaptiveSettings::default()).0
+}
+
+/// [`fly_and_judge`] with `adaptive` gating; also returns each frame's stats, in the order run.
+pub fn fly_and_judge_with(
+    scene: &cullet::scene::Scene,
+    path: cullet::CameraPath,
+    frame_count: u32,
+    frames: impl IntoIterator<Item = u32>,
+    adaptive: cullet::culler::AdaptiveSettings,
+) -> (cullet_truth::PathMetrics, Vec<cullet::pipeline::CullStats>) {
     use cullet_truth::{JudgeSettings, ReferenceSettings, judge_frame};
-    let occlusion = cullet::pipeline::OcclusionSettings::default();
+    let occlusion = cullet::culler::OcclusionSettings::default();
     let mut flight = cullet::scene::flight::Flight::new(path, 16.0 / 9.0, frame_count, occlusion, |world| {
         scene.spawn(world);
     });
+    flight.world.insert_resource(adaptive);
+    let mut stats = Vec::new();
     let settings = JudgeSettings {
         reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
         occlusion_ideal: false,
     };
     let mut metrics = cullet_truth::PathMetrics::default();
     for frame in frames {
-        flight.run_frame(frame);
+        stats.push(flight.run_frame(frame));
         let judged = judge_frame(&flight.world, &scene.meshes, &settings).metrics;
         if let Some(missed) = judged.false_negatives.first() {
             panic!("frame {frame}: object {} is visible but {} culled it", missed.object, missed.stage);
         }
         metrics.add(&judged);
     }
-    metrics
+    (metrics, stats)
+}
+
+/// Opens a [`cullet::gpu::GpuContext`] for a test, or says why it cannot: with `CULLET_REQUIRE_GPU` set (as CI sets it)
+/// a missing GPU fails the test; otherwise the test is skipped with a visible message.
+pub fn context_for_tests() -> Option<cullet::gpu::GpuContext> {
+    match cullet::gpu::GpuContext::new() {
+        Ok(context) => Some(context),
+        Err(error) if std::env::var_os("CULLET_REQUIRE_GPU").is_some() => {
+            panic!("CULLET_REQUIRE_GPU is set but no usable GPU: {error}")
+        }
+        Err(error) => {
+            eprintln!("SKIPPED: GPU test needs a GPU adapter ({error}); install Mesa's lavapipe to run it");
+            None
+        }
+    }
 }

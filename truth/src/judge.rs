@@ -5,8 +5,9 @@ use crate::metrics::{FrameMetrics, OcclusionIdeal};
 use crate::occluders::ExactOccluderDepth;
 use crate::render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
 use bevy_ecs::world::World;
+use cullet::culler::{CullScene, Culler};
 use cullet::mesh::Mesh;
-use cullet::pipeline::{FrustumVisible, OcclusionState};
+use cullet::pipeline::CameraCuller;
 use cullet::{BoundsStore, Camera, LocalBounds, MeshRef, ObjectTransform, Occluder};
 use glam::Vec3;
 
@@ -66,16 +67,32 @@ pub fn judge_frame(world: &World, meshes: &[Mesh], settings: &JudgeSettings) -> 
     Judgement { metrics, truth }
 }
 
+/// Runs `culler` on the frame of `world` (its bounds up to date: the pipeline's bounds stage has run) seen
+/// through `camera`, and judges what each of its stages kept against the exact rendering of every object's
+/// mesh from that camera. Any [`Culler`] is judged so, on the same scenes, paths and frames as the pipeline.
+pub fn judge_culler(
+    culler: &mut dyn Culler,
+    world: &World,
+    camera: &Camera,
+    meshes: &[Mesh],
+    settings: &JudgeSettings,
+) -> Judgement {
+    let culled = culler.cull(&CullScene::new(world), camera);
+    let truth = render_ids(camera, &reference_objects(world, meshes), &settings.reference);
+    let metrics = FrameMetrics::new(&truth.visibility(), &culled.stages);
+    Judgement { metrics, truth }
+}
+
 /// The exact rendering of `world`'s objects (IDs are store slots) from its [`Camera`].
 pub fn render_world(world: &World, meshes: &[Mesh], reference: &ReferenceSettings) -> IdBuffer {
     render_ids(world.resource::<Camera>(), &reference_objects(world, meshes), reference)
 }
 
-/// The frustum stage ([`FrustumVisible`]) and the occlusion stage ([`OcclusionState::visible`]) of `world`'s
+/// The frustum stage ([`CameraCuller::frustum_visible`]) and the occlusion stage ([`CameraCuller::visible`]) of `world`'s
 /// last frame against `truth`.
 pub fn stage_metrics(world: &World, truth: &ExactVisibility) -> FrameMetrics {
-    let frustum = &world.resource::<FrustumVisible>().0;
-    let occlusion = &world.resource::<OcclusionState>().visible;
+    let frustum = &world.resource::<CameraCuller>().frustum_visible();
+    let occlusion = &world.resource::<CameraCuller>().visible();
     FrameMetrics::new(truth, &[(STAGES[0], frustum), (STAGES[1], occlusion)])
 }
 
@@ -84,14 +101,14 @@ pub fn stage_metrics(world: &World, truth: &ExactVisibility) -> FrameMetrics {
 pub fn occlusion_ideal(world: &World, reference: &ReferenceSettings) -> OcclusionIdeal {
     let camera = world.resource::<Camera>();
     let store = world.resource::<BoundsStore>();
-    let frustum = &world.resource::<FrustumVisible>().0;
-    let state = world.resource::<OcclusionState>();
-    let culled = frustum.count() - state.visible.count();
-    if state.occluder_slots.is_empty() {
+    let frustum = &world.resource::<CameraCuller>().frustum_visible();
+    let state = world.resource::<CameraCuller>();
+    let culled = frustum.count() - state.visible().count();
+    if state.occluder_slots().is_empty() {
         return OcclusionIdeal { culled, ideal_culled: 0 };
     }
     let occluders: Vec<(&[Vec3], glam::Affine3A)> = state
-        .occluder_slots
+        .occluder_slots()
         .iter()
         .filter_map(|&slot| {
             let entity = store.entities()[slot as usize];

@@ -12,13 +12,16 @@
 //! - [`metrics`]: false negatives (with the stage that culled them), false positives, culling efficiency per
 //!   stage, occlusion efficiency against the ideal, and image error; per frame and over a camera path.
 //! - [`judge`]: all of the above for a `bevy_ecs` world that has just run the culling schedule.
+//! - [`half_spaces`]: a view's frustum as exact f64 half-spaces, which the other modules test against.
 //! - [`shadows`]: which shadow casters a light view needs, decided exactly: their shadows can reach the
 //!   camera's view, and the light sees them ([`render::render_light_view`], the exact rendering from the light
 //!   at the shadow map's texel centres).
 //! - [`stress`]: scenes and cameras at the edges of the numeric range, judged on the CPU and GPU paths.
 
+#![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod half_spaces;
 pub mod judge;
 pub mod metrics;
 pub mod occluders;
@@ -27,6 +30,6 @@ pub mod shadows;
 pub mod stress;
 mod triangle;
 
-pub use judge::{JudgeSettings, judge_frame};
+pub use judge::{JudgeSettings, judge_culler, judge_frame};
 pub use metrics::{FrameMetrics, PathMetrics};
 pub use render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};

@@ -15,13 +15,14 @@
 //! from the light at a texel whose ray goes on into `V ∩ C`, meets both conditions, so the two together judge
 //! at least as strictly as it.
 
+use crate::half_spaces::{exact_half_spaces, half_spaces, moved};
 use crate::judge::reference_objects;
 use crate::render::render_light_view;
 use bevy_ecs::world::World;
 use cullet::frustum::LightSource;
 use cullet::mesh::Mesh;
 use cullet::pipeline::{LightViews, LightViewsVisible};
-use cullet::{BoundsStore, Camera, DepthConvention};
+use cullet::{BoundsStore, Camera};
 use glam::{DMat4, DVec3, DVec4};
 use rayon::prelude::*;
 
@@ -32,32 +33,6 @@ pub enum ExactLight {
     Directional(DVec3),
     /// A point light at this position.
     Point(DVec3),
-}
-
-/// The half-spaces `(n, d)` of a clip-from-relative matrix, inside where `n · p + d >= 0` for `p` in the
-/// matrix's input frame; planes at infinity left out; not normalized.
-pub fn half_spaces(clip_from_relative: DMat4, depth: DepthConvention) -> Vec<DVec4> {
-    let m = clip_from_relative.transpose();
-    let (r0, r1, r3) = (m.x_axis, m.y_axis, m.w_axis);
-    let (near, far) = depth_half_spaces(clip_from_relative, depth);
-    [near, r3 + r0, r3 - r0, r3 + r1, r3 - r1, far].into_iter().filter(|p| p.truncate().length() > 0.0).collect()
-}
-
-/// The near and far half-spaces `(n, d)` of a clip-from-relative matrix with depth convention `depth`, as in
-/// [`half_spaces`] (a far plane at infinity has `n = 0`).
-pub(crate) fn depth_half_spaces(clip_from_relative: DMat4, depth: DepthConvention) -> (DVec4, DVec4) {
-    let m = clip_from_relative.transpose();
-    let (r2, r3) = (m.z_axis, m.w_axis);
-    match depth {
-        DepthConvention::Standard => (r2, r3 - r2),
-        DepthConvention::Reversed => (r3 - r2, r2),
-        DepthConvention::NegativeOneToOne => (r3 + r2, r3 - r2),
-    }
-}
-
-/// `half_spaces` given relative to the point `from`, re-expressed relative to the point `to`.
-pub fn moved(half_spaces: &[DVec4], from: DVec3, to: DVec3) -> Vec<DVec4> {
-    half_spaces.iter().map(|p| DVec4::from((p.truncate(), p.w + p.truncate().dot(to - from)))).collect()
 }
 
 /// Whether a light view needs the box `min..=max` as a shadow caster (the module's definition). `view` and
@@ -132,7 +107,7 @@ pub fn light_view_false_negatives(world: &World, meshes: &[Mesh], size: u32) -> 
     };
     let (store, camera) = (world.resource::<BoundsStore>(), world.resource::<Camera>());
     let origin = camera.position.as_dvec3();
-    let receivers = crate::stress::exact_half_spaces(camera);
+    let receivers = exact_half_spaces(camera);
     let mut objects = None;
     results
         .0

@@ -8,13 +8,16 @@
 //! combined extremes. [`run_case`] culls one frame on the CPU and judges it; [`gpu_false_negatives`] checks
 //! the GPU passes of the same frame against the same judgement.
 
+use crate::half_spaces::exact_half_spaces;
 use crate::judge::{judge_frame, render_world};
 use crate::{JudgeSettings, ReferenceSettings};
 use cullet::camera::CameraPath;
-use cullet::frustum::DepthConvention;
+use cullet::camera::DepthConvention;
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError};
 use cullet::mesh::Mesh;
-use cullet::pipeline::{CullStats, OcclusionSettings, OcclusionState};
+use cullet::pipeline::{CameraCuller, CullStats};
+
+use cullet::culler::OcclusionSettings;
 use cullet::scene::flight::Flight;
 use cullet::scene::{Scene, SceneObject};
 use cullet::{Camera, Occluder};
@@ -285,13 +288,6 @@ pub fn projection_error(camera: &Camera) -> f64 {
     (exact - rounded).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs())) / scale.max(f64::MIN_POSITIVE)
 }
 
-/// The frustum's half-spaces `(n, d)` in f64 from the camera's exact clip matrix, inside where
-/// `n · p + d >= 0` (p camera-relative), planes at infinity left out; not normalized (sign tests do not need it).
-/// The exact reference both for the stress report and for the frustum tests.
-pub fn exact_half_spaces(camera: &Camera) -> Vec<DVec4> {
-    crate::shadows::half_spaces(camera.clip_from_relative_f64(), camera.depth)
-}
-
 /// [`exact_half_spaces`] normalized to unit normals.
 fn exact_planes(camera: &Camera) -> Vec<DVec4> {
     exact_half_spaces(camera).into_iter().map(|p| p / p.truncate().length()).collect()
@@ -321,7 +317,7 @@ pub fn gpu_false_negatives(case: &StressCase, flight: &mut Flight, context: &Gpu
         .collect();
     let reference = ReferenceSettings { width: case.width, height: case.height, ..ReferenceSettings::default() };
     let truth = render_world(&flight.world, &case.scene.meshes, &reference);
-    let kept = &flight.world.resource::<OcclusionState>().visible;
+    let kept = &flight.world.resource::<CameraCuller>().visible();
     let instances = culler.scene().instances();
     Ok(truth
         .visible_triangles()

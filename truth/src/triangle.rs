@@ -5,7 +5,7 @@
 //! distance towards the light for an orthographic light view (as in `cullet::depth`); either is affine in
 //! screen space.
 
-use crate::shadows::depth_half_spaces;
+use crate::half_spaces::depth_half_spaces;
 use cullet::frustum::LightView;
 use cullet::{Camera, DepthConvention};
 use glam::{Affine3A, DAffine3, DMat4, DVec3, DVec4, Vec3};

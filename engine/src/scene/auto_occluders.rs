@@ -10,7 +10,7 @@
 
 use super::Scene;
 use crate::mesh::Mesh;
-use crate::occluder::Occluder;
+use crate::occluders::Occluder;
 use glam::Vec3;
 use std::collections::HashMap;
 

@@ -5,7 +5,7 @@
 use super::{Scene, SceneObject};
 use crate::camera::{CameraKey, CameraPath};
 use crate::mesh::Mesh;
-use crate::occluder::Occluder;
+use crate::occluders::Occluder;
 use glam::{Affine3A, Quat, Vec3};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;

@@ -7,7 +7,7 @@
 use super::{Scene, SceneObject};
 use crate::camera::{Camera, CameraKey, CameraPath};
 use crate::mesh::Mesh;
-use crate::occluder::Occluder;
+use crate::occluders::Occluder;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec3};
 use rand::{RngExt, SeedableRng};

@@ -4,7 +4,9 @@
 use super::Velocity;
 use crate::bounds::ObjectTransform;
 use crate::camera::CameraPath;
-use crate::pipeline::{self, AdaptiveSettings, CullStage, CullStats, OcclusionSettings, PipelineSettings};
+use crate::pipeline::{self, CullStage, CullStats, PipelineSettings};
+
+use crate::culler::{AdaptiveSettings, OcclusionSettings};
 use bevy_ecs::prelude::*;
 
 /// Seconds simulated by the current frame.

@@ -5,7 +5,7 @@
 //! are static).
 
 use super::Scene;
-use crate::occluder::Occluder;
+use crate::occluders::Occluder;
 use base64::Engine as _;
 use serde_json::{Value, json};
 use std::collections::HashMap;

@@ -19,7 +19,7 @@
 
 use super::{Scene, SceneObject};
 use crate::mesh::Mesh;
-use crate::occluder::Occluder;
+use crate::occluders::Occluder;
 use base64::Engine as _;
 use glam::{Affine3A, Mat4, Vec3};
 use std::path::{Path, PathBuf};

@@ -29,7 +29,7 @@ pub use flight::{Flight, FrameDelta};
 use crate::bounds::{LocalBounds, ObjectTransform, Static};
 use crate::camera::{CameraKey, CameraPath};
 use crate::mesh::{Mesh, MeshRef, ObjectColor};
-use crate::occluder::Occluder;
+use crate::occluders::Occluder;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Vec3};
 

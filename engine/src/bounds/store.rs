@@ -1,0 +1,708 @@
+//! The [`BoundsStore`]: world bounds of every culled object as seven linear `f32` arrays, padded for SIMD.
+//!
+//! # Invariant: the SoA layout
+//! The arrays are private, and every method that changes their length changes all seven together, so that at
+//! all times:
+//! - every array has the same length, [`BoundsStore::padded_len`], a multiple of [`SOA_PADDING`];
+//! - `padded_len` is [`BoundsStore::len`] rounded up to a multiple of [`SOA_PADDING`];
+//! - the group flags and the occluder bitset cover `padded_len` slots.
+//!
+//! The SIMD kernels of the frustum stage read 8 lanes at a time without bounds checks: they rely on this
+//! invariant, which `insert` and `remove` establish and check (`BoundsStore::check_layout`) whenever they
+//! resize the arrays. Every bound written passed [`WorldBounds::validate`] or came from
+//! [`WorldBounds::from_local`], whose results satisfy it by construction.
+
+use super::components::{BoundsError, LocalBounds, ObjectTransform, WorldBounds};
+use super::groups::{GROUPS_PER_SUPERGROUP, GroupBounds, outward_range};
+use crate::visible::VisibleSet;
+use bevy_ecs::entity::EntityHashMap;
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Vec3};
+use rayon::prelude::*;
+use std::time::Duration;
+
+/// Every SoA array's length is a multiple of this: one 64-bit word of a visibility bitset, and one group of
+/// the culling hierarchy ([`GroupBounds`]).
+pub const SOA_PADDING: usize = 64;
+
+/// [`BoundsStore::update_many`] writes in parallel from this many objects on.
+const PARALLEL_WRITES_FROM: usize = 1024;
+
+/// Slots of one supergroup.
+const SUPERGROUP_SLOTS: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
+
+// A group's written marks are one word ([`SlotsMut::write`]).
+const _: () = assert!(SOA_PADDING == u64::BITS as usize);
+
+/// The whole store borrowed apart into what the writers of its slots change ([`BoundsStore::parts_mut`]).
+struct StoreParts<'a> {
+    /// In the order of [`BoundsStore::soa`]'s arrays.
+    arrays: [&'a mut [f32]; 7],
+    groups: &'a mut [GroupBounds],
+    supergroups: &'a mut [GroupBounds],
+    occluder_radii: &'a mut [f32],
+    /// The written marks' words.
+    written: &'a mut [u64],
+    occluders: &'a VisibleSet,
+}
+
+/// The store's slots from the first of a supergroup on (or all of them), to write them: their seven arrays,
+/// and their groups' boxes, occluder radii and written words (one word a group); and the box of the supergroup
+/// whose slots are written through it. Supergroups share none of it, so each can be written at once through
+/// its own.
+struct SlotsMut<'a> {
+    /// In the order of [`BoundsStore::soa`]'s arrays.
+    arrays: [&'a mut [f32]; 7],
+    groups: &'a mut [GroupBounds],
+    occluder_radii: &'a mut [f32],
+    written: &'a mut [u64],
+    supergroup: &'a mut GroupBounds,
+}
+
+impl SlotsMut<'_> {
+    /// Stores `bounds` in slot `at` (counted from the first of these slots, and in the supergroup whose box this
+    /// holds), that of an occluder or not: the arrays and the written mark; the group's occluder radius and box,
+    /// and so the supergroup's, grow to hold it at once.
+    #[inline(always)] // in the parallel pass's loop: a call per write cost 5% more instructions there
+    fn write(&mut self, at: usize, bounds: &WorldBounds, occluder: bool) {
+        let [cx, cy, cz, ex, ey, ez, r] = &mut self.arrays;
+        (cx[at], cy[at], cz[at]) = bounds.center.into();
+        (ex[at], ey[at], ez[at]) = bounds.half_extent.into();
+        r[at] = bounds.radius;
+        let group = at / SOA_PADDING;
+        self.written[group] |= 1 << (at % SOA_PADDING);
+        if occluder {
+            self.occluder_radii[group] = self.occluder_radii[group].max(bounds.radius);
+        }
+        if !self.groups[group].contains(bounds) {
+            self.groups[group].grow(bounds);
+            *self.supergroup = self.supergroup.union(&self.groups[group]);
+        }
+    }
+}
+
+/// Read-only views of the store's seven SoA arrays, each [`BoundsStore::padded_len`] long; slot `i` of each is
+/// the object in store slot `i` (padding slots hold zeros).
+#[derive(Clone, Copy, Debug)]
+pub struct SoaSlices<'a> {
+    /// Centre x of each object's world AABB.
+    pub center_x: &'a [f32],
+    /// Centre y.
+    pub center_y: &'a [f32],
+    /// Centre z.
+    pub center_z: &'a [f32],
+    /// Half-extent x.
+    pub extent_x: &'a [f32],
+    /// Half-extent y.
+    pub extent_y: &'a [f32],
+    /// Half-extent z.
+    pub extent_z: &'a [f32],
+    /// Radius of the bounding sphere around the centre.
+    pub radius: &'a [f32],
+}
+
+impl<'a> SoaSlices<'a> {
+    /// The seven arrays in field order.
+    pub fn all(&self) -> [&'a [f32]; 7] {
+        [self.center_x, self.center_y, self.center_z, self.extent_x, self.extent_y, self.extent_z, self.radius]
+    }
+}
+
+/// World-space bounds of every object as parallel `f32` arrays, one per coordinate, padded with empty slots to a
+/// multiple of [`SOA_PADDING`] so SIMD blocks and bitset words never run past the end.
+///
+/// Slot `i` of every array and of `entities` describes the same object. Padding slots hold zeros and are masked
+/// out of every result by [`BoundsStore::len`]. The arrays are read through [`BoundsStore::soa`] and written
+/// only by the store's own methods, which validate every bound (see the module's invariant):
+///
+/// ```compile_fail,E0616
+/// let mut store = cullet::BoundsStore::default();
+/// store.extent_x = Vec::new(); // private: the SIMD kernels rely on every array having the padded length
+/// ```
+///
+/// # Example
+/// ```
+/// use bevy_ecs::entity::Entity;
+/// use cullet::bounds::{BoundsStore, WorldBounds};
+/// use glam::Vec3;
+///
+/// let mut store = BoundsStore::default();
+/// let entity = Entity::PLACEHOLDER;
+/// let slot = store.insert(entity, &WorldBounds::new(entity, Vec3::ZERO, Vec3::ONE)?)?;
+/// assert_eq!(store.get(slot).unwrap().center, Vec3::ZERO);
+/// assert_eq!(store.soa().center_x.len(), 64, "padded to a whole SIMD word");
+/// assert!(store.get(1).is_none());
+/// # Ok::<(), cullet::BoundsError>(())
+/// ```
+#[derive(Resource, Default, Debug, Clone)]
+pub struct BoundsStore {
+    center_x: Vec<f32>,
+    center_y: Vec<f32>,
+    center_z: Vec<f32>,
+    extent_x: Vec<f32>,
+    extent_y: Vec<f32>,
+    extent_z: Vec<f32>,
+    radius: Vec<f32>,
+    /// Per group of [`SOA_PADDING`] slots, a box containing every object of the group (see [`GroupBounds`]).
+    groups: Vec<GroupBounds>,
+    /// Per run of [`GROUPS_PER_SUPERGROUP`] groups, a box containing them all: the level above the groups.
+    supergroups: Vec<GroupBounds>,
+    /// Per group, at least the largest radius among its occluders (0 without one): grown at once, tightened
+    /// with the group's box. With the group's box it bounds how well any of its occluders can rank.
+    occluder_radii: Vec<f32>,
+    /// Groups whose box may be looser than needed since an object moved or left; tightened by
+    /// [`BoundsStore::tighten_groups`].
+    loose_groups: std::collections::VecDeque<u32>,
+    /// Per group: queued in `loose_groups`.
+    loose_flags: Vec<bool>,
+    /// Set where the object carries an [`Occluder`]. Lets occluder selection find candidates with a bitwise
+    /// AND against the frustum stage's output instead of a scan of every occluder. Sized to the padded length.
+    occluders: VisibleSet,
+    entities: Vec<Entity>,
+    slots: EntityHashMap<u32>,
+    /// Slots written (inserted, updated, or filled by a swap-remove) since the last
+    /// [`BoundsStore::take_written_slots`]: what a consumer mirroring the store (the GPU instances) must copy.
+    written: VisibleSet,
+    /// Objects whose bounds were recomputed (inserted or updated) by the last bounds stage ([`crate::pipeline::CullStage::Bounds`]) run.
+    pub(crate) recomputed_last_sync: usize,
+    /// Wall time of the last bounds stage ([`crate::pipeline::CullStage::Bounds`]) run.
+    pub(crate) last_sync_time: Duration,
+    /// Every rejection since the last [`BoundsStore::take_errors`].
+    pub(crate) errors: Vec<BoundsError>,
+    /// Counts every change of the stored bounds or occluder marks: equal generations mean equal contents.
+    generation: u64,
+    /// Counts changes of which objects are stored where, and of occluder marks: inserts of new objects,
+    /// removals, occluder marks set or cleared. Equal layouts differ at most in the bounds of `moved` slots.
+    layout_generation: u64,
+    /// Slots whose bounds were overwritten in place since the last [`BoundsStore::take_moved_slots`]
+    /// (duplicates possible); `None` once there were too many to be worth listing.
+    moved: Option<Vec<u32>>,
+    /// The generation at the last [`BoundsStore::take_moves`].
+    moves_taken_at: u64,
+}
+
+/// The slots whose bounds changed in place between two generations of a store, increasing
+/// ([`BoundsStore::take_moves`]). A view culled at generation `from` that sees the store at `to`, with the
+/// same layout, needs to re-test only these slots: every other slot holds the bounds it culled.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct StoreMoves {
+    /// The generation the moves start from.
+    pub from: u64,
+    /// The generation they lead to.
+    pub to: u64,
+    /// The slots that moved.
+    pub slots: Vec<u32>,
+}
+
+impl BoundsStore {
+    /// Number of stored objects (not counting padding).
+    pub fn len(&self) -> usize {
+        self.entities.len()
+    }
+
+    /// Whether no object is stored.
+    pub fn is_empty(&self) -> bool {
+        self.entities.is_empty()
+    }
+
+    /// Length of every SoA array: [`Self::len`] rounded up to a multiple of [`SOA_PADDING`].
+    pub fn padded_len(&self) -> usize {
+        self.center_x.len()
+    }
+
+    /// The entity stored in each slot.
+    pub fn entities(&self) -> &[Entity] {
+        &self.entities
+    }
+
+    /// The slot of `entity`, if it is stored.
+    pub fn slot_of(&self, entity: Entity) -> Option<usize> {
+        self.slots.get(&entity).map(|&slot| slot as usize)
+    }
+
+    /// The seven SoA arrays, each [`BoundsStore::padded_len`] long.
+    pub fn soa(&self) -> SoaSlices<'_> {
+        SoaSlices {
+            center_x: &self.center_x,
+            center_y: &self.center_y,
+            center_z: &self.center_z,
+            extent_x: &self.extent_x,
+            extent_y: &self.extent_y,
+            extent_z: &self.extent_z,
+            radius: &self.radius,
+        }
+    }
+
+    /// The bounds stored in `slot`, or `None` past [`BoundsStore::len`].
+    pub fn get(&self, slot: usize) -> Option<WorldBounds> {
+        (slot < self.len()).then(|| self.get_unchecked_slot(slot))
+    }
+
+    /// The bounds in `slot`, which must be below `padded_len` (panics otherwise; a plain indexing check).
+    fn get_unchecked_slot(&self, slot: usize) -> WorldBounds {
+        WorldBounds {
+            center: Vec3::new(self.center_x[slot], self.center_y[slot], self.center_z[slot]),
+            half_extent: Vec3::new(self.extent_x[slot], self.extent_y[slot], self.extent_z[slot]),
+            radius: self.radius[slot],
+        }
+    }
+
+    /// Objects whose bounds the last bounds stage ([`crate::pipeline::CullStage::Bounds`]) run recomputed.
+    pub fn recomputed_last_sync(&self) -> usize {
+        self.recomputed_last_sync
+    }
+
+    /// Wall time of the last bounds stage ([`crate::pipeline::CullStage::Bounds`]) run.
+    pub fn last_sync_time(&self) -> Duration {
+        self.last_sync_time
+    }
+
+    /// The error for `slot` past [`BoundsStore::len`].
+    fn check_slot(&self, slot: usize) -> Result<(), BoundsError> {
+        if slot < self.len() { Ok(()) } else { Err(BoundsError::SlotOutOfRange { slot, len: self.len() }) }
+    }
+
+    /// Marks whether the object in `slot` carries an occluder.
+    ///
+    /// # Errors
+    /// [`BoundsError::SlotOutOfRange`] past [`BoundsStore::len`]; nothing changes.
+    pub fn set_occluder(&mut self, slot: usize, has_occluder: bool) -> Result<(), BoundsError> {
+        self.check_slot(slot)?;
+        self.mark_occluder(slot, has_occluder);
+        Ok(())
+    }
+
+    /// [`BoundsStore::set_occluder`] of a stored slot.
+    pub(crate) fn mark_occluder(&mut self, slot: usize, has_occluder: bool) {
+        self.generation += 1;
+        if self.occluders.contains(slot) != has_occluder {
+            self.layout_generation += 1;
+            // One fewer occluder may leave the group's radius larger than needed.
+            self.mark_loose(slot / SOA_PADDING);
+        }
+        self.occluders.set(slot, has_occluder);
+        if has_occluder {
+            self.grow_occluder_radius(slot, self.radius[slot]);
+        }
+    }
+
+    /// The slots whose object carries an occluder.
+    pub fn occluders(&self) -> &VisibleSet {
+        &self.occluders
+    }
+
+    /// The box around each group of [`SOA_PADDING`] consecutive slots.
+    pub fn groups(&self) -> &[GroupBounds] {
+        &self.groups
+    }
+
+    /// Per group, a radius no smaller than any of its occluders' ([`BoundsStore::occluders`]); 0 where it has
+    /// none. It may exceed the largest until the group is tightened ([`BoundsStore::tighten_groups`]).
+    pub fn occluder_radii(&self) -> &[f32] {
+        &self.occluder_radii
+    }
+
+    /// The box around each run of [`GROUPS_PER_SUPERGROUP`] consecutive groups.
+    pub fn supergroups(&self) -> &[GroupBounds] {
+        &self.supergroups
+    }
+
+    /// Recomputes the boxes of all groups that were loosened by moves and removals. Group boxes are always
+    /// conservative; this only makes them tight again. bounds stage ([`crate::pipeline::CullStage::Bounds`]) tightens a few groups a frame.
+    pub fn tighten_groups(&mut self) {
+        self.tighten_some_groups(usize::MAX);
+    }
+
+    /// [`BoundsStore::tighten_groups`] for at most `budget` groups, the longest-loose first: the work of many
+    /// moving objects is spread over frames, while every group box stays conservative in between.
+    pub fn tighten_some_groups(&mut self, budget: usize) {
+        let mut supergroups = Vec::new();
+        for _ in 0..budget {
+            let Some(group) = self.loose_groups.pop_front() else { break };
+            let group = group as usize;
+            if group >= self.groups.len() {
+                continue; // Truncated away since it was queued.
+            }
+            self.loose_flags[group] = false;
+            let slots = group * SOA_PADDING..((group + 1) * SOA_PADDING).min(self.len());
+            let axes =
+                [(&self.center_x, &self.extent_x), (&self.center_y, &self.extent_y), (&self.center_z, &self.extent_z)]
+                    .map(|(centers, extents)| outward_range(&centers[slots.clone()], &extents[slots.clone()]));
+            self.groups[group] = GroupBounds {
+                min: Vec3::new(axes[0].0, axes[1].0, axes[2].0),
+                max: Vec3::new(axes[0].1, axes[1].1, axes[2].1),
+            };
+            let occluders = self.occluders.words()[group];
+            self.occluder_radii[group] = crate::visible::set_slots(group, &[occluders])
+                .fold(0.0, |largest: f32, slot| largest.max(self.radius[slot]));
+            supergroups.push(group / GROUPS_PER_SUPERGROUP);
+        }
+        supergroups.sort_unstable();
+        supergroups.dedup();
+        for supergroup in supergroups {
+            let first = supergroup * GROUPS_PER_SUPERGROUP;
+            let last = (first + GROUPS_PER_SUPERGROUP).min(self.groups.len());
+            self.supergroups[supergroup] =
+                self.groups[first..last].iter().fold(GroupBounds::EMPTY, |acc, g| acc.union(g));
+        }
+    }
+
+    /// Grows the occluder radius of `slot`'s group to at least `radius`.
+    fn grow_occluder_radius(&mut self, slot: usize, radius: f32) {
+        let group = &mut self.occluder_radii[slot / SOA_PADDING];
+        *group = group.max(radius);
+    }
+
+    /// Queues `group` for tightening, once.
+    fn mark_loose(&mut self, group: usize) {
+        if !self.loose_flags[group] {
+            self.loose_flags[group] = true;
+            self.loose_groups.push_back(group as u32);
+        }
+    }
+
+    /// Overwrites the bounds in `slot`. Its group box grows at once, so it stays conservative; it is marked
+    /// loose, since the object may have left part of it.
+    ///
+    /// # Errors
+    /// [`BoundsError::SlotOutOfRange`] past [`BoundsStore::len`], and [`BoundsError::InvalidWorld`] for bounds
+    /// that fail [`WorldBounds::validate`]; the store is unchanged.
+    pub fn set(&mut self, slot: usize, bounds: &WorldBounds) -> Result<(), BoundsError> {
+        self.check_slot(slot)?;
+        bounds.validate(self.entities[slot])?;
+        self.overwrite(slot, bounds);
+        Ok(())
+    }
+
+    /// [`BoundsStore::set`] of a valid slot and valid bounds.
+    fn overwrite(&mut self, slot: usize, bounds: &WorldBounds) {
+        self.note_moved(slot);
+        self.write(slot, bounds);
+    }
+
+    /// What an overwrite of `slot` records in the order of the writes: its group to tighten, and the slot
+    /// among those moved.
+    fn note_moved(&mut self, slot: usize) {
+        self.mark_loose(slot / SOA_PADDING);
+        // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
+        let limit = self.len() / 8;
+        if let Some(moved) = self.moved.as_mut().filter(|moved| moved.len() < limit) {
+            moved.push(slot as u32);
+        } else {
+            self.moved = None;
+        }
+    }
+
+    fn write(&mut self, slot: usize, bounds: &WorldBounds) {
+        self.generation += 1;
+        let occluder = self.occluders.contains(slot);
+        let parts = self.parts_mut();
+        let mut slots = SlotsMut {
+            arrays: parts.arrays,
+            groups: parts.groups,
+            occluder_radii: parts.occluder_radii,
+            written: parts.written,
+            supergroup: &mut parts.supergroups[slot / SUPERGROUP_SLOTS],
+        };
+        slots.write(slot, bounds, occluder);
+    }
+
+    /// The arrays and bookkeeping a slot's writer changes, borrowed apart, with the written marks grown to the
+    /// store's padded length first so that every slot has its bit.
+    fn parts_mut(&mut self) -> StoreParts<'_> {
+        if self.written.len() < self.padded_len() {
+            self.written.resize(self.padded_len());
+        }
+        let Self {
+            center_x,
+            center_y,
+            center_z,
+            extent_x,
+            extent_y,
+            extent_z,
+            radius,
+            groups,
+            supergroups,
+            occluder_radii,
+            written,
+            occluders,
+            ..
+        } = self;
+        StoreParts {
+            arrays: [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius].map(Vec::as_mut_slice),
+            groups,
+            supergroups,
+            occluder_radii,
+            written: written.words_mut(),
+            occluders,
+        }
+    }
+
+    /// Stores `entity`'s bounds: overwrites its slot if it has one, else appends it. Returns the slot.
+    /// Amortized O(1).
+    ///
+    /// # Errors
+    /// [`BoundsError::InvalidWorld`] for bounds that fail [`WorldBounds::validate`]; the store is unchanged.
+    pub fn insert(&mut self, entity: Entity, bounds: &WorldBounds) -> Result<usize, BoundsError> {
+        bounds.validate(entity)?;
+        if let Some(slot) = self.slot_of(entity) {
+            self.overwrite(slot, bounds);
+            return Ok(slot);
+        }
+        let slot = self.entities.len();
+        self.layout_generation += 1;
+        self.entities.push(entity);
+        self.slots.insert(entity, slot as u32);
+        if slot == self.padded_len() {
+            let padded = slot + SOA_PADDING;
+            for array in self.arrays_mut() {
+                array.resize(padded, 0.0);
+            }
+            self.groups.push(GroupBounds::EMPTY);
+            self.occluder_radii.push(0.0);
+            self.loose_flags.push(false);
+            self.occluders.resize(padded);
+            if self.groups.len() > self.supergroups.len() * GROUPS_PER_SUPERGROUP {
+                self.supergroups.push(GroupBounds::EMPTY);
+            }
+            self.check_layout();
+        }
+        self.write(slot, bounds);
+        Ok(slot)
+    }
+
+    /// Removes `entity` by moving the last object into its slot. Returns whether it was stored. O(1).
+    pub fn remove(&mut self, entity: Entity) -> bool {
+        let Some(slot) = self.slots.remove(&entity) else { return false };
+        self.generation += 1;
+        self.layout_generation += 1;
+        let slot = slot as usize;
+        let last = self.entities.len() - 1;
+        self.entities.swap_remove(slot);
+        if slot != last {
+            self.slots.insert(self.entities[slot], slot as u32);
+        }
+        for array in self.arrays_mut() {
+            array[slot] = array[last];
+            array[last] = 0.0;
+        }
+        let last_has_occluder = self.occluders.contains(last);
+        self.occluders.set(last, false);
+        self.occluders.set(slot, slot != last && last_has_occluder);
+        if slot != last {
+            let moved = self.get_unchecked_slot(slot);
+            self.write(slot, &moved);
+        }
+        self.mark_loose(slot / SOA_PADDING);
+        self.mark_loose(last / SOA_PADDING);
+        // Shrink only when a whole padding word is free, so the arrays stay a multiple of SOA_PADDING.
+        let padded = last.div_ceil(SOA_PADDING) * SOA_PADDING;
+        if padded + SOA_PADDING <= self.padded_len() {
+            for array in self.arrays_mut() {
+                array.truncate(padded);
+            }
+            self.groups.truncate(padded / SOA_PADDING);
+            self.occluder_radii.truncate(padded / SOA_PADDING);
+            self.loose_flags.truncate(padded / SOA_PADDING);
+            self.occluders.resize(padded);
+            self.supergroups.truncate(self.groups.len().div_ceil(GROUPS_PER_SUPERGROUP));
+            self.check_layout();
+        }
+        true
+    }
+
+    /// Checks the SoA layout invariant (see the module documentation) after the arrays were resized. O(1):
+    /// the SIMD kernels' unchecked loads depend on it, so it is checked in release builds too.
+    fn check_layout(&self) {
+        let padded = self.center_x.len();
+        assert!(
+            self.arrays().iter().all(|array| array.len() == padded)
+                && padded == self.len().div_ceil(SOA_PADDING) * SOA_PADDING
+                && self.groups.len() * SOA_PADDING == padded
+                && self.loose_flags.len() == self.groups.len()
+                && self.occluder_radii.len() == self.groups.len()
+                && self.occluders.len() == padded,
+            "BoundsStore SoA layout broken: {} objects, arrays {:?} long",
+            self.len(),
+            self.arrays().map(|a| a.len())
+        );
+    }
+
+    /// Validates and stores one object, or drops any bounds it had. Returns its slot, or the error.
+    pub fn update(
+        &mut self,
+        entity: Entity,
+        local: &LocalBounds,
+        transform: &ObjectTransform,
+    ) -> Result<usize, BoundsError> {
+        let bounds = WorldBounds::from_local(entity, local, &transform.0);
+        self.apply_update(entity, self.slot_of(entity), bounds)
+    }
+
+    /// [`BoundsStore::update`] of many objects, each `(entity, local bounds, transform)`: their world bounds are
+    /// computed and their slots looked up in parallel (rayon), then stored as `update` would one by one in the
+    /// order given. Returns each object's outcome in that order. The same entity must not appear twice.
+    ///
+    /// Where there are many and each already has a slot and valid bounds (objects that moved), they are
+    /// written in parallel, each thread a range of slots (the arrays' writes miss the caches of a large
+    /// store, and were a serial part of the frame); only what depends on their order is recorded in order.
+    pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
+        let computed: Vec<(Option<usize>, Result<WorldBounds, BoundsError>)> = objects
+            .par_iter()
+            .with_min_len(256)
+            .map(|(entity, local, transform)| {
+                (self.slot_of(*entity), WorldBounds::from_local(*entity, local, transform))
+            })
+            .collect();
+        // Every object stored already, none refused: no insert or removal moves a slot, so each write is an
+        // overwrite of the slot looked up above.
+        let in_place = objects.len() >= PARALLEL_WRITES_FROM
+            && computed.iter().all(|(slot, bounds)| slot.is_some() && bounds.is_ok());
+        if !in_place {
+            return objects
+                .iter()
+                .zip(computed)
+                .map(|(&(entity, ..), (slot, bounds))| self.apply_update(entity, slot, bounds))
+                .collect();
+        }
+        let writes: Vec<(usize, WorldBounds)> =
+            computed.into_iter().filter_map(|(slot, bounds)| Some((slot?, bounds.ok()?))).collect();
+        for &(slot, _) in &writes {
+            self.note_moved(slot);
+        }
+        self.generation += writes.len() as u64;
+        self.write_in_parallel(&writes);
+        writes.iter().map(|&(slot, _)| Ok(slot)).collect()
+    }
+
+    /// Writes each `(slot, bounds)` as [`BoundsStore::write`] does but the generation, in parallel over
+    /// supergroups ([`SlotsMut`]: no two share a slot, a group or a word). Where a slot appears twice, the
+    /// later write stands, as written one by one.
+    fn write_in_parallel(&mut self, writes: &[(usize, WorldBounds)]) {
+        // The writes grouped by supergroup, in their order within each (a counting sort: no comparisons).
+        let mut starts = vec![0; self.padded_len().div_ceil(SUPERGROUP_SLOTS) + 1];
+        for &(slot, _) in writes {
+            starts[slot / SUPERGROUP_SLOTS + 1] += 1;
+        }
+        for range in 1..starts.len() {
+            starts[range] += starts[range - 1];
+        }
+        let mut order = vec![0; writes.len()];
+        let mut next = starts.clone();
+        for (index, &(slot, _)) in writes.iter().enumerate() {
+            order[next[slot / SUPERGROUP_SLOTS]] = index;
+            next[slot / SUPERGROUP_SLOTS] += 1;
+        }
+        let StoreParts { arrays, groups, supergroups, occluder_radii, written, occluders } = self.parts_mut();
+        let [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius] = arrays;
+        // One item per supergroup. The written marks may have more words than the store has groups: the zip
+        // stops at the shortest.
+        let parts = (
+            center_x.par_chunks_mut(SUPERGROUP_SLOTS),
+            center_y.par_chunks_mut(SUPERGROUP_SLOTS),
+            center_z.par_chunks_mut(SUPERGROUP_SLOTS),
+            extent_x.par_chunks_mut(SUPERGROUP_SLOTS),
+            extent_y.par_chunks_mut(SUPERGROUP_SLOTS),
+            extent_z.par_chunks_mut(SUPERGROUP_SLOTS),
+            radius.par_chunks_mut(SUPERGROUP_SLOTS),
+            groups.par_chunks_mut(GROUPS_PER_SUPERGROUP),
+            occluder_radii.par_chunks_mut(GROUPS_PER_SUPERGROUP),
+            supergroups.par_iter_mut(),
+            written.par_chunks_mut(GROUPS_PER_SUPERGROUP),
+        );
+        parts.into_par_iter().enumerate().for_each(
+            |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written))| {
+                let arrays = [cx, cy, cz, ex, ey, ez, r];
+                let mut part = SlotsMut { arrays, groups, occluder_radii, written, supergroup };
+                for &write in &order[starts[index]..starts[index + 1]] {
+                    let (slot, bounds) = &writes[write];
+                    part.write(slot % SUPERGROUP_SLOTS, bounds, occluders.contains(*slot));
+                }
+            },
+        );
+    }
+
+    /// Stores `bounds` computed by [`WorldBounds::from_local`] for `entity`, whose slot was looked up as `slot`
+    /// (a lookup a removal since may have made stale: it is checked), or drops the entity on an error.
+    fn apply_update(
+        &mut self,
+        entity: Entity,
+        slot: Option<usize>,
+        bounds: Result<WorldBounds, BoundsError>,
+    ) -> Result<usize, BoundsError> {
+        match bounds {
+            // `from_local`'s results satisfy `WorldBounds::validate` by construction.
+            Ok(bounds) => match slot.filter(|&slot| self.entities.get(slot) == Some(&entity)) {
+                Some(slot) => {
+                    self.overwrite(slot, &bounds);
+                    Ok(slot)
+                }
+                None => self.insert(entity, &bounds),
+            },
+            Err(error) => {
+                self.remove(entity);
+                Err(error)
+            }
+        }
+    }
+
+    /// Changes so far: two equal generations mean no bounds or occluder mark changed in between (the stages
+    /// may then reuse their last result).
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Changes of the layout so far (see [`BoundsStore::take_moved_slots`]).
+    pub fn layout_generation(&self) -> u64 {
+        self.layout_generation
+    }
+
+    /// The slots whose bounds changed in place since the last call, in increasing order, and forgets them;
+    /// `None` when too many changed to list (an eighth of the store). Together with an unchanged
+    /// [`BoundsStore::layout_generation`], these are the only slots whose bounds differ from the last call's.
+    pub fn take_moved_slots(&mut self) -> Option<Vec<u32>> {
+        let mut moved = self.moved.replace(Vec::new())?;
+        moved.sort_unstable();
+        moved.dedup();
+        Some(moved)
+    }
+
+    /// The slots written since the last call, in order, and forgets them. Slots at or past [`BoundsStore::len`]
+    /// were emptied by removals.
+    pub fn take_written_slots(&mut self) -> Vec<u32> {
+        let slots = self.written.iter().map(|slot| slot as u32).collect();
+        self.written.reset(self.padded_len());
+        slots
+    }
+
+    /// The slots whose bounds changed in place since the last call (or since the store was made), with the
+    /// generations before and after, and forgets them; `None` when too many changed to list (an eighth of the
+    /// store). Take them once a frame, after the bounds are brought up to date, and hand them to every view's
+    /// culler ([`crate::culler::ViewFrame::moves`]).
+    pub fn take_moves(&mut self) -> Option<StoreMoves> {
+        let from = std::mem::replace(&mut self.moves_taken_at, self.generation);
+        let slots = self.take_moved_slots()?;
+        Some(StoreMoves { from, to: self.generation, slots })
+    }
+
+    /// Drains the rejections recorded since the last call.
+    pub fn take_errors(&mut self) -> Vec<BoundsError> {
+        std::mem::take(&mut self.errors)
+    }
+
+    fn arrays(&self) -> [&Vec<f32>; 7] {
+        [&self.center_x, &self.center_y, &self.center_z, &self.extent_x, &self.extent_y, &self.extent_z, &self.radius]
+    }
+
+    fn arrays_mut(&mut self) -> [&mut Vec<f32>; 7] {
+        [
+            &mut self.center_x,
+            &mut self.center_y,
+            &mut self.center_z,
+            &mut self.extent_x,
+            &mut self.extent_y,
+            &mut self.extent_z,
+            &mut self.radius,
+        ]
+    }
+}

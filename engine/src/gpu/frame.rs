@@ -1,0 +1,694 @@
+//! One frame of the GPU pipeline, orchestrated: the view buffer, then the passes in order (HZB build, cluster
+//! culling, triangle culling, draw), each recorded by its own module, then the counters read back. Frames whose
+//! candidates exceed the device's largest storage binding run in batches.
+
+use super::clusters::ClusterLibrary;
+use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage};
+use super::hzb::{Hzb, HzbLevel};
+use super::indirect::{DrawBuffers, cluster_draws, indirect_buffer};
+use super::interface::{
+    GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
+    VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
+};
+use super::output::{COUNTER_BYTES, GpuCounters, GpuFrameOutput, PassTimer, TIMED_PASSES};
+use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
+use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
+use super::view_cull::{CullPasses, PassGate, ViewCull, candidates, fits_binding, view_buffer};
+use super::{GpuContext, GpuError};
+use crate::bounds::BoundsStore;
+use crate::camera::Camera;
+use crate::camera::DepthConvention;
+use crate::depth::DepthBuffer;
+use crate::frustum::LightSource;
+use crate::mesh::Mesh;
+use crate::pipeline::{CameraCuller, LightViewVisible, LightViews, LightViewsVisible};
+
+use crate::culler::OcclusionSettings;
+use bevy_ecs::prelude::*;
+use bytemuck::Zeroable;
+use glam::Vec4;
+use std::time::Instant;
+
+/// Which GPU tests run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GpuCullSettings {
+    /// Normal-cone back-face test of clusters (conservative).
+    pub cluster_cone: bool,
+    /// HZB test of clusters against the CPU occluder buffer (conservative when that buffer is).
+    pub cluster_hzb: bool,
+    /// Cull clusters under a pixel across (lossy, off by default).
+    pub small_clusters: bool,
+    /// Back-face test of triangles (conservative).
+    pub triangle_backface: bool,
+    /// Viewport test of triangles (conservative).
+    pub triangle_frustum: bool,
+    /// Small-triangle test, eq. 19.4 (conservative: only triangles that cover no pixel centre).
+    pub small_triangles: bool,
+}
+
+impl Default for GpuCullSettings {
+    /// Every conservative test on; small-cluster culling off.
+    fn default() -> Self {
+        Self {
+            cluster_cone: true,
+            cluster_hzb: true,
+            small_clusters: false,
+            triangle_backface: true,
+            triangle_frustum: true,
+            small_triangles: true,
+        }
+    }
+}
+
+/// Which GPU passes a frame may skip where they cannot pay off. Insert it as a resource of the world to have
+/// [`GpuCuller::run_world`] use it (the default otherwise), or give it with [`GpuCuller::set_gating`]. Skipping
+/// a pass keeps everything it would have tested, so gating adds no false negative.
+///
+/// Each pass is skipped once it has removed less than its share of what it tested for `low_benefit_frames`
+/// frames in a row, and re-probed every `reprobe_every` frames. The shares a pass must remove to pay for
+/// itself depend on the GPU: `CULLET_GPU_GATES=1 cargo bench -p cullet-benches --bench gpu` measures them.
+/// The defaults are an NVIDIA H200's (1920x1080): the triangle pass paid above 34-40% removed on the city
+/// and the CAD scene (81% on the open field), the cluster pass above about 40% on the city.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct GpuGating {
+    /// A frame whose candidates (the CPU stages' survivors) have at most this many clusters skips the cluster
+    /// pass: the CPU lists every candidate cluster for the triangle pass (or the draw) instead. With so few
+    /// clusters the pass cannot save more than its own dispatch costs. 0 never skips.
+    pub tiny_scene_clusters: u32,
+    /// The least fraction of its clusters the cluster pass must remove; below it (see the type's docs) the
+    /// CPU lists every candidate cluster instead. The pass tests each cluster's normal cone and box, which
+    /// saves the triangle pass and the draw only the clusters it removes. 0 never skips.
+    pub min_cluster_benefit: f32,
+    /// The least fraction of its triangles the triangle pass must remove; below it (see the type's docs) the
+    /// surviving clusters are drawn whole and the hardware culls their triangles. The pass reads and
+    /// transforms every triangle, about the work the hardware's vertex stage and culling do on it, so it pays
+    /// only when it removes a good share. 0 never skips.
+    pub min_triangle_benefit: f32,
+    /// Frames in a row under its share before a pass is skipped.
+    pub low_benefit_frames: u32,
+    /// Frames a pass stays skipped before it runs again to re-probe.
+    pub reprobe_every: u32,
+}
+
+impl Default for GpuGating {
+    /// No cluster pass for 64 clusters or fewer; each pass skipped after 8 frames under 40% removed,
+    /// re-probed every 30 frames.
+    fn default() -> Self {
+        Self {
+            tiny_scene_clusters: 64,
+            min_cluster_benefit: 0.4,
+            min_triangle_benefit: 0.4,
+            low_benefit_frames: 8,
+            reprobe_every: 30,
+        }
+    }
+}
+
+impl GpuGating {
+    /// No gating: every pass runs every frame (the fixed pipeline, for comparison).
+    pub fn fixed() -> Self {
+        Self {
+            tiny_scene_clusters: 0,
+            min_cluster_benefit: 0.0,
+            min_triangle_benefit: 0.0,
+            low_benefit_frames: u32::MAX,
+            reprobe_every: 0,
+        }
+    }
+}
+
+/// One sun cascade of a world's [`LightViewsVisible`]: its light view's matrix and origin, and its casters' store
+/// slots.
+struct SunCasters(glam::DMat4, glam::Vec3, Vec<u32>);
+
+impl SunCasters {
+    fn cascade(&self) -> Cascade<'_> {
+        Cascade { clip_from_relative: self.0, origin: self.1, casters: &self.2 }
+    }
+}
+
+/// The sun cascades of `world`'s [`LightViewsVisible`] (of its [`LightViews`] suns, nearest first), each with
+/// the casters its light view kept; `None` without light views.
+fn sun_casters(world: &World) -> Option<Vec<SunCasters>> {
+    let results = world.get_resource::<LightViewsVisible>()?;
+    let lights = world.get_resource::<LightViews>()?;
+    let suns = results.0.iter().filter(|result| matches!(lights.0.get(result.light), Some(LightSource::Sun { .. })));
+    Some(
+        suns.map(|result: &LightViewVisible| {
+            let casters = result.visible.iter().map(|slot| slot as u32).collect();
+            SunCasters(result.view.clip_from_relative, result.view.origin, casters)
+        })
+        .collect(),
+    )
+}
+
+/// A frame's surviving `(instance, cluster)` pairs and the global vertex indices of the triangles it drew (see
+/// [`GpuCuller::read_survivors`]).
+pub type Survivors = (Vec<(u32, u32)>, Vec<u32>);
+
+/// The GPU pipeline for one scene: the scene's buffers, the passes, per-frame buffers and render targets.
+///
+/// Build it with [`GpuCuller::for_world`]; each frame, after the CPU stages ran,
+/// [`GpuCuller::run_world`] brings the instances up to date, culls and draws. A renderer of its own draws
+/// from [`GpuCuller::draw_buffers`] instead of (or after) the culler's draw.
+pub struct GpuCuller {
+    scene: GpuScene,
+    hzb: Hzb,
+    passes: CullPasses,
+    /// The camera's culling: its uniform, counters and per-frame buffers.
+    camera: ViewCull,
+    draw: DrawPass,
+    /// The sun cascades' shadow maps the draw shades with (none until a world with light views runs).
+    shadows: ShadowMaps,
+    targets: RenderTargets,
+    /// The view the draw pass renders from: the culling view, or another camera's (see [`GpuCuller::run_from`]).
+    draw_view: wgpu::Buffer,
+    last_view: GpuView,
+    timer: Option<PassTimer>,
+    last_counters: GpuCounters,
+    /// Which passes the last frame skipped.
+    last_gate: PassGate,
+    /// A smaller storage-binding budget than the device's, to split frames into batches (see
+    /// [`GpuCuller::limit_batches`]).
+    batch_bytes: Option<u64>,
+    /// Which GPU passes a frame may skip (see [`GpuCuller::set_gating`]).
+    gating: GpuGating,
+    /// The instance buffer holds colours other than the objects' own ([`GpuCuller::draw_all_recolored`]):
+    /// the next [`GpuCuller::run_world`] rewrites every instance.
+    recolored: bool,
+}
+
+impl GpuCuller {
+    /// The GPU pipeline for the objects of `world` (set up by [`crate::install`], its objects spawned), which
+    /// draw `meshes` through their [`crate::mesh::MeshRef`], rendering into `target_size` (width, height in
+    /// pixels) targets. The HZB is sized for the world's [`OcclusionSettings`] (it follows their changes
+    /// frame by frame). Builds the clusters of every mesh (meshoptimizer) and uploads them with the
+    /// instances.
+    ///
+    /// # Panics
+    /// If `world` was not set up by [`crate::install`] (it has no [`BoundsStore`]).
+    pub fn for_world(context: &GpuContext, world: &World, meshes: &[Mesh], target_size: (u32, u32)) -> Self {
+        let occlusion = world.get_resource::<OcclusionSettings>().copied().unwrap_or_default();
+        let scene = GpuScene::new(context, ClusterLibrary::build(meshes), instances_from_world(world));
+        Self::new(context, scene, target_size.0, target_size.1, occlusion.width, occlusion.height)
+    }
+
+    /// The pipeline for `scene` (its buffers already uploaded), drawing into `width` x `height` targets, with
+    /// an HZB for occlusion buffers of `hzb_width` x `hzb_height`. [`GpuCuller::for_world`] is the usual way in.
+    pub fn new(
+        context: &GpuContext,
+        scene: GpuScene,
+        width: u32,
+        height: u32,
+        hzb_width: u32,
+        hzb_height: u32,
+    ) -> Self {
+        Self {
+            scene,
+            hzb: Hzb::new(context, hzb_width, hzb_height),
+            passes: CullPasses::new(context),
+            camera: ViewCull::new(context, "view"),
+            draw: DrawPass::new(context),
+            shadows: ShadowMaps::new(context),
+            targets: RenderTargets::new(context, width, height),
+            draw_view: view_buffer(context, "draw view"),
+            last_view: GpuView::zeroed(),
+            timer: PassTimer::new(context),
+            last_counters: GpuCounters::default(),
+            last_gate: PassGate::default(),
+            batch_bytes: None,
+            gating: GpuGating::default(),
+            recolored: false,
+        }
+    }
+
+    /// The scene's buffers and cluster library.
+    pub fn scene(&self) -> &GpuScene {
+        &self.scene
+    }
+
+    /// The HZB of the last frame.
+    pub fn hzb(&self) -> &Hzb {
+        &self.hzb
+    }
+
+    /// The render targets the culler draws into.
+    pub fn targets(&self) -> &RenderTargets {
+        &self.targets
+    }
+
+    /// The last frame's view (for the CPU twins in tests).
+    pub fn last_view(&self) -> &GpuView {
+        &self.last_view
+    }
+
+    /// Makes new `width` x `height` render targets (a resized window); the next frame draws into them.
+    pub fn resize(&mut self, context: &GpuContext, width: u32, height: u32) {
+        if self.targets.size() != (width, height) {
+            self.targets = RenderTargets::new(context, width, height);
+        }
+    }
+
+    /// The buffers of the last frame's draw, to draw the survivors from a render pass of your own; `None`
+    /// before the first frame. Valid until the next frame (which may grow and so replace them).
+    pub fn draw_buffers(&self) -> Option<DrawBuffers<'_>> {
+        self.camera.draws(&self.scene, self.last_gate.skip_triangles)
+    }
+
+    /// The view for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
+    pub fn view_for(&self, camera: &Camera, settings: &GpuCullSettings, visible_count: u32) -> GpuView {
+        let (width, height) = self.targets.size();
+        let matrix = camera.clip_from_relative_f64().as_mat4();
+        let mut planes = [[0.0, 0.0, 0.0, 1.0]; 6];
+        if let Ok(frustum) = camera.frustum() {
+            for (slot, plane) in planes.iter_mut().zip(frustum.planes()) {
+                *slot = Vec4::from((plane.normal, plane.d)).to_array();
+            }
+        }
+        let mut hzb_levels = [HzbLevel::default(); MAX_HZB_LEVELS];
+        hzb_levels[..self.hzb.levels.len()].copy_from_slice(&self.hzb.levels);
+        let flags = [
+            (settings.cluster_cone, VIEW_CONE),
+            (settings.cluster_hzb, VIEW_HZB),
+            (settings.small_clusters, VIEW_SMALL_CLUSTER),
+            (settings.triangle_backface, VIEW_BACKFACE),
+            (settings.small_triangles, VIEW_SMALL_TRIANGLE),
+            (settings.triangle_frustum, VIEW_TRIANGLE_FRUSTUM),
+        ]
+        .iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |flags, (_, bit)| flags | bit);
+        GpuView {
+            clip_from_relative: matrix.to_cols_array_2d(),
+            planes,
+            camera: camera.position.extend(0.0).to_array(),
+            viewport: [width as f32, height as f32],
+            hzb_size: self.hzb.screen_size,
+            hzb_levels,
+            hzb_level_count: self.hzb.levels.len() as u32,
+            visible_count,
+            flags,
+            near: camera.near,
+            depth_from_negative_one: u32::from(camera.depth == DepthConvention::NegativeOneToOne),
+            focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
+            _pad: [0; 2],
+        }
+    }
+
+    /// Culls and draws one frame: `visible` lists the instances (store slots) the CPU stages kept, `depth` is
+    /// the CPU occluder buffer (empty for none). Returns the counters and timings; the survivors stay on the
+    /// GPU ([`GpuCuller::read_survivors`], [`GpuCuller::draw_buffers`]).
+    ///
+    /// # Errors
+    /// [`GpuError::SlotOutOfRange`] for a slot of `visible` that is not an instance of the scene (nothing is
+    /// run), [`GpuError::Lost`] when the device is lost.
+    pub fn run(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        self.run_from(context, camera, camera, visible, depth, settings)
+    }
+
+    /// [`GpuCuller::run`] culling for `camera` but drawing the survivors as `draw_camera` sees them: with
+    /// culling frozen at one camera, flying another shows what was culled.
+    ///
+    /// # Errors
+    /// As [`GpuCuller::run`].
+    pub fn run_from(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        self.run_views(context, camera, draw_camera, visible, depth, settings, None)
+    }
+
+    /// [`GpuCuller::run_from`], and with `cascades` the shadow maps culled and drawn first, in the same
+    /// submission; with `None` the shadow maps stay as they are.
+    #[allow(clippy::too_many_arguments)]
+    fn run_views(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+        mut cascades: Option<&[Cascade<'_>]>,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
+            self.hzb = Hzb::new(context, depth.width(), depth.height());
+        }
+        self.hzb.set_screen(depth);
+        let instances = self.scene.instances();
+        let out_of_range = |slots: &[u32]| slots.iter().copied().find(|&slot| slot as usize >= instances.len());
+        let casters = cascades.into_iter().flatten().map(|cascade| cascade.casters);
+        if let Some(slot) = std::iter::once(visible).chain(casters).find_map(out_of_range) {
+            return Err(GpuError::SlotOutOfRange { slot, instances: instances.len() });
+        }
+        let (candidate_clusters, _) = candidates(&self.scene, visible);
+        let gate = self.camera.gate(&self.gating, candidate_clusters as usize);
+        let mut total: Option<GpuFrameOutput> = None;
+        for (i, batch) in self.batches(context, visible).into_iter().enumerate() {
+            let (first, cascades) = (i == 0, cascades.take());
+            let output =
+                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, first, cascades)?;
+            total = Some(match total {
+                None => output,
+                Some(sum) => sum.plus(&output),
+            });
+        }
+        let total = total.unwrap_or_default();
+        self.camera.record_benefit(&self.gating, gate, &total.counters);
+        Ok(total)
+    }
+
+    /// Sets which GPU passes a frame may skip (the default [`GpuGating`] until set). New settings start the
+    /// triangle pass's benefit count afresh. [`GpuCuller::run_world`] sets the world's, where it has one.
+    pub fn set_gating(&mut self, gating: GpuGating) {
+        if gating != self.gating {
+            self.gating = gating;
+            self.camera.reset_gate();
+            self.shadows.reset_gates();
+        }
+    }
+
+    /// Splits frames into batches as if the device's largest storage binding were `bytes` (never more than
+    /// it is): the path a frame with too many candidate triangles for one batch takes, made testable on a
+    /// small scene.
+    #[doc(hidden)]
+    pub fn limit_batches(&mut self, bytes: u64) {
+        self.batch_bytes = Some(bytes);
+    }
+
+    /// Splits `visible` into runs whose candidate triangles fit the device's largest storage binding (the
+    /// compacted index buffer is sized for every candidate surviving): almost always one run; several when
+    /// the CPU stages leave millions of triangles (a large scene with occlusion off), instead of failing.
+    fn batches(&self, context: &GpuContext, visible: &[u32]) -> Vec<std::ops::Range<usize>> {
+        let limit = self.binding_limit(context);
+        let library = &self.scene.library;
+        let instances = self.scene.instances();
+        let mut batches = Vec::new();
+        let (mut start, mut triangles, mut clusters) = (0, 0u64, 0u64);
+        for (i, &slot) in visible.iter().enumerate() {
+            let own = library.clusters_of(instances[slot as usize].mesh);
+            let own_triangles: u64 = own.iter().map(|c| u64::from(c.triangle_count)).sum();
+            if i > start && !fits_binding(clusters + own.len() as u64, triangles + own_triangles, limit) {
+                batches.push(start..i);
+                (start, triangles, clusters) = (i, 0, 0);
+            }
+            triangles += own_triangles;
+            clusters += own.len() as u64;
+        }
+        batches.push(start..visible.len());
+        batches
+    }
+
+    /// The largest storage binding a frame's buffers may take: the device's, or less after
+    /// [`GpuCuller::limit_batches`].
+    fn binding_limit(&self, context: &GpuContext) -> u64 {
+        let device_limit = context.device.limits().max_storage_buffer_binding_size;
+        self.batch_bytes.map_or(device_limit, |bytes| bytes.min(device_limit))
+    }
+
+    /// One batch of [`GpuCuller::run_from`]: the first builds the HZB and clears the targets, later ones draw
+    /// over what the earlier ones drew.
+    #[allow(clippy::too_many_arguments)]
+    fn run_batch(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+        gate: PassGate,
+        first: bool,
+        cascades: Option<&[Cascade<'_>]>,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        let mut view = self.view_for(camera, settings, visible.len() as u32);
+        if gate.skip_triangles {
+            view.flags |= VIEW_DRAW_CLUSTERS;
+        }
+        self.last_view = view;
+        context.queue.write_buffer(&self.camera.view, 0, bytemuck::bytes_of(&view));
+        let draw_view = if draw_camera == camera { view } else { self.view_for(draw_camera, settings, 0) };
+        context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&draw_view));
+        self.camera.fit(context, visible.len(), candidates(&self.scene, visible));
+        let mut encoder = context.device.create_command_encoder(&Default::default());
+        let timer = self.timer.as_ref();
+        if first {
+            self.hzb.build(context, depth, &mut encoder, timer.map(|t| t.compute(0)));
+        }
+        if let Some(cascades) = cascades {
+            let culling = CascadeCulling {
+                passes: &self.passes,
+                hzb: &self.hzb.buffer,
+                gating: &self.gating,
+                binding_limit: self.binding_limit(context),
+            };
+            let origin = draw_camera.position;
+            self.shadows.record(context, &mut encoder, &self.scene, Some(&culling), cascades, origin);
+        }
+        let (scene, hzb) = (&self.scene, &self.hzb.buffer);
+        self.camera.record(context, &mut encoder, scene, &self.passes, hzb, visible, gate, timer);
+        let draws = self.camera.draws(scene, gate.skip_triangles).expect("fit above");
+        self.record_draw(
+            context,
+            &mut encoder,
+            camera.depth,
+            DrawSource::Culled(draws),
+            first,
+            timer.map(|t| t.render(3)),
+        );
+        if let Some(timer) = timer {
+            encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
+        }
+        let start = Instant::now();
+        context.queue.submit([encoder.finish()]);
+        let counter_bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
+        let wall_time = start.elapsed();
+        let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
+        self.last_counters = counters;
+        self.last_gate = gate;
+        let pass_times = timer.map(|t| t.read(context)).transpose()?;
+        let light_views = match cascades {
+            Some(_) => self.shadows.read_counters(context, &self.gating)?,
+            None => Vec::new(),
+        };
+        Ok(GpuFrameOutput {
+            counters,
+            pass_times,
+            wall_time,
+            cluster_pass_skipped: gate.skip_clusters,
+            triangle_pass_skipped: gate.skip_triangles,
+            light_views,
+        })
+    }
+
+    /// The last frame's surviving `(instance, cluster)` pairs, in the GPU's (unordered) append order, and the
+    /// global vertex indices of the triangles it drew: its compacted index buffer, or where the triangle pass
+    /// was skipped, the surviving clusters' own triangles.
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn read_survivors(&self, context: &GpuContext) -> Result<Survivors, GpuError> {
+        let (Some(frame), counters) = (self.camera.frame.as_ref(), self.last_counters) else {
+            return Ok(Default::default());
+        };
+        let clusters = if counters.clusters_out > 0 {
+            let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out))?;
+            bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()
+        } else {
+            Vec::new()
+        };
+        let indices = if self.last_gate.skip_triangles {
+            // Drawn whole: each surviving cluster's own triangles.
+            let library = &self.scene.library;
+            clusters
+                .iter()
+                .flat_map(|&(_, c)| {
+                    let cluster = &library.clusters[c as usize];
+                    let first = cluster.first_index as usize;
+                    library.indices[first..first + 3 * cluster.triangle_count as usize].to_vec()
+                })
+                .collect()
+        } else if counters.triangles_out > 0 {
+            bytemuck::cast_slice(&context.read_buffer(&frame.draw_indices, 12 * u64::from(counters.triangles_out))?)
+                .to_vec()
+        } else {
+            Vec::new()
+        };
+        Ok((clusters, indices))
+    }
+
+    /// Runs the GPU passes after the CPU stages of `world`'s frame: instances brought up to date (only the
+    /// store slots written since the last call are copied, from each object's [`crate::mesh::MeshRef`],
+    /// [`crate::ObjectTransform`] and [`crate::mesh::ObjectColor`]), the occlusion stage's survivors culled and
+    /// drawn against its depth buffer, from the world's [`Camera`], with the world's [`GpuGating`] if it has
+    /// one.
+    ///
+    /// The culler drains [`BoundsStore::take_written_slots`]: nothing else should.
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    ///
+    /// # Panics
+    /// If `world` was not set up by [`crate::install`] or has no [`Camera`].
+    pub fn run_world(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        settings: &GpuCullSettings,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        let camera = *world.resource::<Camera>();
+        self.run_world_from(context, world, &camera, settings)
+    }
+
+    /// [`GpuCuller::run_world`] drawing from `draw_camera` (see [`GpuCuller::run_from`]).
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn run_world_from(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        draw_camera: &Camera,
+        settings: &GpuCullSettings,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        if let Some(&gating) = world.get_resource::<GpuGating>() {
+            self.set_gating(gating);
+        }
+        self.sync_instances(context, world, |_, instance| instance);
+        self.recolored = false;
+        let suns = sun_casters(world).filter(|suns| !suns.is_empty() || self.shadows.cascades() > 0);
+        let cascades: Option<Vec<Cascade<'_>>> =
+            suns.as_ref().map(|suns| suns.iter().map(SunCasters::cascade).collect());
+        let state = world.resource::<CameraCuller>();
+        let visible: Vec<u32> = state.visible().iter().map(|slot| slot as u32).collect();
+        let camera = *world.resource::<Camera>();
+        self.run_views(context, &camera, draw_camera, &visible, state.depth(), settings, cascades.as_deref())
+    }
+
+    /// Draws the shadow maps of `world`'s sun cascades with no culling on the GPU: every cluster of the
+    /// casters each light view kept, for a draw from `draw_origin`. For comparison with the culled maps
+    /// [`GpuCuller::run_world`] draws (the next frame draws culled maps again); `world` as for it.
+    pub fn draw_shadows_unculled(&mut self, context: &GpuContext, world: &World, draw_origin: glam::Vec3) {
+        let suns = sun_casters(world).unwrap_or_default();
+        let cascades: Vec<Cascade<'_>> = suns.iter().map(SunCasters::cascade).collect();
+        self.shadows.draw_unculled(context, &self.scene, &cascades, draw_origin);
+    }
+
+    /// The shadow maps the draw shades with.
+    pub fn shadow_maps(&self) -> &ShadowMaps {
+        &self.shadows
+    }
+
+    /// Copies to the GPU the instances of the store slots written since the last call (every slot after a
+    /// recolouring), each as `recolor` makes it from its slot and the object's own instance.
+    fn sync_instances(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        recolor: impl Fn(usize, GpuInstance) -> GpuInstance,
+    ) {
+        let written = world.resource_mut::<BoundsStore>().take_written_slots();
+        let count = world.resource::<BoundsStore>().len();
+        let slots = if self.recolored { (0..count as u32).collect() } else { written };
+        self.scene.write_instances(context, count, &slots, |slot| recolor(slot as usize, instance_of(world, slot)));
+    }
+
+    /// Draws every object of `world` with no culling, each in the colour `color_of(slot)` gives it (its own
+    /// for `None`), as `camera` sees it: for debug views, such as tinting each object by the stage that culled
+    /// it. The next [`GpuCuller::run_world`] restores every object's own colour.
+    pub fn draw_all_recolored(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        camera: &Camera,
+        color_of: impl Fn(usize) -> Option<[u8; 4]>,
+    ) {
+        self.recolored = true;
+        self.sync_instances(context, world, |slot, instance| match color_of(slot) {
+            Some(color) => instance.with_color(Some(color)),
+            None => instance,
+        });
+        self.draw_all(context, camera, false);
+    }
+
+    /// Draws every cluster of every instance with no culling at all, for comparison; `reversed` draws them in
+    /// the opposite order, which shows where the image depends on draw order (coplanar surfaces of different
+    /// objects at exactly the same depth).
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn draw_unculled(
+        &self,
+        context: &GpuContext,
+        camera: &Camera,
+        reversed: bool,
+    ) -> Result<RenderedImage, GpuError> {
+        self.draw_all(context, camera, reversed);
+        self.targets.read(context)
+    }
+
+    /// Draws every cluster of every instance into the targets with no culling, in store order or `reversed`.
+    pub fn draw_all(&self, context: &GpuContext, camera: &Camera, reversed: bool) {
+        let view = self.view_for(camera, &GpuCullSettings::default(), 0);
+        context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&view));
+        let instances = self.scene.instances();
+        let mut args = cluster_draws(&self.scene.library, instances, 0..instances.len() as u32);
+        if reversed {
+            args.reverse();
+        }
+        let mut encoder = context.device.create_command_encoder(&Default::default());
+        if !args.is_empty() {
+            let buffer = indirect_buffer(context, "unculled draws", &args);
+            let source =
+                DrawSource::Unculled { indices: &self.scene.cluster_indices, args: &buffer, draws: args.len() as u32 };
+            self.record_draw(context, &mut encoder, camera.depth, source, true, None);
+            context.queue.submit([encoder.finish()]);
+        }
+    }
+
+    /// Records the draw of `source` into this culler's targets, clearing them first if `clear`.
+    fn record_draw(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        depth: DepthConvention,
+        source: DrawSource<'_>,
+        clear: bool,
+        timestamps: Option<wgpu::RenderPassTimestampWrites<'_>>,
+    ) {
+        let scene = &self.scene;
+        self.draw.record(
+            context,
+            encoder,
+            &self.targets,
+            depth,
+            &self.draw_view,
+            &scene.instances,
+            &scene.positions,
+            &self.shadows,
+            source,
+            clear,
+            timestamps,
+        );
+    }
+
+    /// Reads the render targets of the last frame.
+    ///
+    /// # Errors
+    /// [`GpuError::Lost`] when the device is lost.
+    pub fn read_image(&self, context: &GpuContext) -> Result<RenderedImage, GpuError> {
+        self.targets.read(context)
+    }
+}
