@@ -8,7 +8,9 @@
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
 use cullet::gpu::{GpuCounters, GpuCullSettings, GpuFrameOutput, GpuPassTimes};
-use cullet::pipeline::{CullStats, FrustumSettings, OcclusionSettings};
+use cullet::pipeline::{CullStats, FrustumSettings};
+
+use cullet::culler::OcclusionSettings;
 use cullet_game::hud::controls::{Controls, View};
 use cullet_game::hud::{Hud, HudFrame};
 use std::hint::black_box;

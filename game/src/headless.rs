@@ -1,16 +1,35 @@
 //! The headless run: the camera path flown frame by frame, with statistics, validation and screenshots.
 
 use crate::report::{
-    LightViewTotals, STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary, print_savings, print_summary,
+    LightViewColumns, LightViewTotals, STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary,
+    print_savings, print_summary,
 };
 use crate::validation::Validation;
-use crate::{Args, Prepared};
+use crate::{Args, Prepared, gpu_error_message};
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::{BoundsStore, Camera};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressFinish, ProgressStyle};
+use std::io::IsTerminal;
 
-/// Flies the camera path frame by frame without a window: per-frame lines (or a progress bar), the stats CSV,
-/// screenshots, validation against the ground truth, and the summary.
+/// The run's progress bar, on stderr: hidden where stderr is not a terminal, with `--quiet` (the summary only)
+/// and with `--verbose` (whose line per frame shows the progress).
+fn progress_bar(args: &Args) -> ProgressBar {
+    if args.quiet || args.verbose || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let style = ProgressStyle::with_template("{msg} [{wide_bar}] {pos}/{len} frames, {eta} left")
+        .expect("a valid progress bar template")
+        .progress_chars("=> ");
+    ProgressBar::with_draw_target(Some(u64::from(args.headless_frames())), ProgressDrawTarget::stderr())
+        .with_style(style)
+        .with_message("flying the camera path")
+        // Cleared when dropped too, as on an error: the message follows on a clean line.
+        .with_finish(ProgressFinish::AndClear)
+}
+
+/// Flies the camera path frame by frame without a window: a progress bar (or with `--verbose` a line per
+/// frame), the stats CSV, screenshots, validation against the ground truth, and the summary.
 pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     let Prepared { scene, mut flight, resolution: (width, height), .. } = prepared;
     let mut gpu = if args.cpu_only {
@@ -26,7 +45,8 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             }
             Err(error) => {
                 println!(
-                    "{error}: running the CPU stages only (cluster and triangle culling and the draw are skipped)"
+                    "{}\nrunning the CPU stages only: cluster and triangle culling and the draw are skipped",
+                    gpu_error_message(&error)
                 );
                 None
             }
@@ -38,19 +58,16 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     let slot_triangles = SlotTriangles::of_world(&flight.world, &scene.meshes);
     let mut validation = args.validate.then(|| Validation::new(width, height));
     let mut light_views = LightViewTotals::default();
-    let mut csv = String::from(STATS_HEADER);
-    csv.push('\n');
+    let light_view_columns = LightViewColumns::of_world(&flight.world);
+    let mut csv = format!("{STATS_HEADER}{}\n", light_view_columns.header());
     if let Some(dir) = &args.screenshots {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         if gpu.is_none() {
             println!("--screenshots: no GPU adapter, so nothing is drawn and no screenshot is saved");
         }
     }
-    let progress = args.quiet.then(|| indicatif::ProgressBar::new(u64::from(args.headless_frames())));
+    let progress = progress_bar(args);
     for frame in 0..args.headless_frames() {
-        if let Some(bar) = &progress {
-            bar.inc(1);
-        }
         let stats = flight.run_frame(frame);
         light_views.add(&flight.world);
         let mut frame_accuracy = None;
@@ -61,24 +78,28 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 metrics.stages.last().map_or(0, |s| s.false_positives),
                 metrics.image_error_pixels,
             ));
-            if !args.quiet || !metrics.false_negatives.is_empty() {
-                println!(
-                    "frame {frame:4}  visible {:6}  false negatives {:4}  false positives {:7}  image error {:6} px",
-                    metrics.visible,
-                    metrics.false_negatives.len(),
-                    metrics.stages.last().map_or(0, |s| s.false_positives),
-                    metrics.image_error_pixels
-                );
-            }
-            for missed in &metrics.false_negatives {
-                let entity = flight.world.resource::<BoundsStore>().entities()[missed.object];
-                println!("  false negative: {entity:?} (store slot {}) culled by {}", missed.object, missed.stage);
-            }
+            // A frame with false negatives is printed whatever the flags, above the progress bar.
+            progress.suspend(|| {
+                if args.verbose || !metrics.false_negatives.is_empty() {
+                    println!(
+                        "frame {frame:4}  visible {:6}  false negatives {:4}  false positives {:7}  image error {:6} \
+                         px",
+                        metrics.visible,
+                        metrics.false_negatives.len(),
+                        metrics.stages.last().map_or(0, |s| s.false_positives),
+                        metrics.image_error_pixels
+                    );
+                }
+                for missed in &metrics.false_negatives {
+                    let entity = flight.world.resource::<BoundsStore>().entities()[missed.object];
+                    println!("  false negative: {entity:?} (store slot {}) culled by {}", missed.object, missed.stage);
+                }
+            });
         }
         if let Some(error) = stats.frustum_error {
             return Err(format!("frame {frame}: {error}"));
         }
-        if !args.quiet {
+        if args.verbose {
             let camera = flight.world.resource::<Camera>();
             println!(
                 "frame {frame:4}  camera ({:8.1} {:6.1} {:8.1})  objects {:8}  bounds updated {:6} in {:7.1} us  \
@@ -113,7 +134,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                     .map_err(|e| format!("{}: {e}", file.display()))?;
             }
             gpu_output = Some(output.clone());
-            if !args.quiet {
+            if args.verbose {
                 let c = output.counters;
                 println!(
                     "           GPU: clusters {:7} -> {:7}  triangles {:9} -> {:9}  draws {:6}  in {:8.1} us",
@@ -136,7 +157,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                     (a.to_string(), b.to_string(), c.to_string())
                 });
             csv.push_str(&format!(
-                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{},{}\n",
+                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{},{}{}\n",
                 stats.objects,
                 stats.after_frustum,
                 stats.after_occlusion,
@@ -153,17 +174,17 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 stats.retested,
                 u8::from(stats.occlusion_gated),
                 gating_and_savings_columns(gpu_output.as_ref(), &saved),
+                light_view_columns.row(&flight.world),
             ));
         }
         per_frame.push(stats);
         savings.push(saved);
+        progress.inc(1);
     }
+    progress.finish_and_clear();
     let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
     for error in &errors {
         eprintln!("rejected: {error}");
-    }
-    if let Some(bar) = progress {
-        bar.finish_and_clear();
     }
     if let Some(file) = &args.stats {
         std::fs::write(file, csv).map_err(|e| format!("{}: {e}", file.display()))?;

@@ -1,6 +1,8 @@
 //! `cullet-game`: flies a camera through a scene and culls it every frame, in a window (free flight, stage
-//! toggles, frozen culling, debug views) or headless along a camera path, printing per-frame and summary
-//! statistics of each stage.
+//! toggles, frozen culling, debug views) or headless along a camera path, showing its progress and printing
+//! summary statistics of each stage (per-frame lines with `--verbose`, a CSV row per frame with `--stats`).
+
+#![forbid(unsafe_code)]
 
 mod headless;
 pub mod hud;
@@ -12,8 +14,10 @@ mod window;
 use clap::Parser;
 use cullet::CameraPath;
 use cullet::frustum::LightSource;
-use cullet::gpu::GpuGating;
-use cullet::pipeline::{AdaptiveSettings, LightViews, OcclusionSettings};
+use cullet::gpu::{GpuError, GpuGating};
+use cullet::pipeline::LightViews;
+
+use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
@@ -55,9 +59,14 @@ struct Args {
     /// Viewport size, `WIDTHxHEIGHT` (sets the aspect ratio of the camera).
     #[arg(long, default_value = "1920x1080")]
     resolution: String,
-    /// Print only the summary, not one line per frame.
-    #[arg(long)]
+    /// Headless, print only the summary: no progress bar (shown by default on a terminal, on stderr) and no
+    /// line per frame.
+    #[arg(long, conflicts_with = "verbose")]
     quiet: bool,
+    /// Headless, print one line per frame instead of the progress bar: the camera, each stage's counts and
+    /// times, the GPU passes' counts, and with --validate the frame's accuracy. The summary follows as without.
+    #[arg(long)]
+    verbose: bool,
     /// Size of the software occlusion depth buffer, `WIDTHxHEIGHT`, sampled by whole-texel coverage (the
     /// engine's default without a frame, 256x144), at texel centres with `--fast-occlusion`, or with
     /// `--pixel-centres` or `--masked` at most the frame's size, each sample standing for the frame's pixel
@@ -103,7 +112,8 @@ struct Args {
     #[arg(long, value_name = "FILE.json")]
     camera_path: Option<std::path::PathBuf>,
     /// Write one CSV row per frame: counts and each stage's time in microseconds (plus accuracy with
-    /// --validate).
+    /// --validate, and with --light-views each light view's kept and occluded casters: `sun_cascade_1_kept`,
+    /// `sun_cascade_1_occluded`, ..., `lamp_plus_x_kept`, ...; empty where a frame lacks that view).
     #[arg(long, value_name = "FILE.csv")]
     stats: Option<std::path::PathBuf>,
     /// Save the drawn frame as PNG into this folder every --every frames (needs a GPU adapter). In a window,
@@ -212,6 +222,26 @@ fn parse_resolution(resolution: &str) -> Result<(u32, u32), String> {
     }
 }
 
+/// How to get a GPU adapter where none was found (see `gpu_error_message`), indented under the error.
+const NO_ADAPTER_ADVICE: &str = concat!(
+    "  To get one on a machine without a GPU, install Mesa's software Vulkan driver, lavapipe:\n",
+    "    sudo apt-get install mesa-vulkan-drivers    (Debian, Ubuntu; Fedora: sudo dnf install mesa-vulkan-drivers)\n",
+    "  With a GPU, install its Vulkan, Metal or DirectX 12 driver. Or run with --cpu-only, which needs no adapter\n",
+    "  (headless, the CPU stages only).",
+);
+
+/// `error` as the game reports it: for a missing adapter, how to get one; for one the pipeline cannot use, how
+/// to run without it.
+pub(crate) fn gpu_error_message(error: &GpuError) -> String {
+    match error {
+        GpuError::NoAdapter(_) => format!("{error}\n{NO_ADAPTER_ADVICE}"),
+        GpuError::Unsupported { .. } => {
+            format!("{error}\n  run with --cpu-only to do without it (headless, the CPU stages only)")
+        }
+        _ => error.to_string(),
+    }
+}
+
 /// Runs in a window where a display exists and `--headless` is not given; otherwise headless.
 fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     if args.headless || args.cpu_only {
@@ -234,9 +264,8 @@ pub fn main() -> ExitCode {
         .init();
     let args = Args::parse();
     // The main thread runs the pipeline: as one of rayon's threads it starts each stage's parallel work itself,
-    // where from outside the pool it would wait for a pool thread to wake, and that one for the next (on a
-    // 2-core VM 0.05 to over 1 ms each time). Headless on the 100k city: frustum 73-90 us a frame to 53-57,
-    // raster 569-586 to 529-546, occlusion test 288-308 to 262-266 (`--headless --cpu-only`, three runs each).
+    // where from outside the pool it would wait for a pool thread to wake, and that one for the next (a wake
+    // can take longer than the stage: docs/performance.md measures it).
     if let Err(error) = rayon::ThreadPoolBuilder::new().use_current_thread().build_global() {
         // Only where the pool was built before in this process: that pool stays.
         tracing::debug!("rayon's global pool as it was: {error}");
@@ -293,6 +322,9 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         frame: Some((width, height)),
         ..chosen
     };
+    occlusion
+        .validate()
+        .map_err(|error| format!("the occlusion buffer {}x{}: {error}", occlusion.width, occlusion.height))?;
 
     let start = Instant::now();
     let LoadedScene { mut scene, path, mut description } = load_scene(args)?;
@@ -336,4 +368,24 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         flight.path.duration()
     );
     Ok(Prepared { scene, flight, resolution: (width, height) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::gpu_error_message;
+    use cullet::gpu::GpuError;
+
+    #[test]
+    fn a_missing_adapter_says_how_to_get_one() {
+        let message = gpu_error_message(&GpuError::NoAdapter("no Vulkan driver".into()));
+        assert!(message.starts_with("no GPU adapter found: no Vulkan driver"), "{message}");
+        for advice in ["apt-get install mesa-vulkan-drivers", "lavapipe", "--cpu-only"] {
+            assert!(message.contains(advice), "'{advice}' missing from: {message}");
+        }
+        let unsupported =
+            gpu_error_message(&GpuError::Unsupported { adapter: "old".into(), missing: "a feature".into() });
+        assert!(unsupported.contains("lacks a feature") && unsupported.contains("--cpu-only"), "{unsupported}");
+        let lost = gpu_error_message(&GpuError::Lost("gone".into()));
+        assert!(!lost.contains("--cpu-only"), "{lost}");
+    }
 }

@@ -1,6 +1,7 @@
 //! Statistics printed after a run, and the stats CSV's columns.
 
 use cullet::draw_cost::{DrawSavings, draw_ns_per_triangle};
+use cullet::frustum::{LightSource, cube_face_cameras};
 use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::{CullStats, LightViews, LightViewsVisible};
 use std::time::Duration;
@@ -135,6 +136,88 @@ pub fn kept_by_light_view(world: &bevy_ecs::world::World) -> Vec<(String, usize)
     }
 }
 
+/// The stats CSV's light-view columns (`--light-views`): two a view, the shadow casters it kept and those its
+/// occlusion hid from the light (`sun_cascade_1_kept,sun_cascade_1_occluded,...,lamp_plus_x_kept,...`), for
+/// every view of the lights listed when the run starts, in their order. The columns stay the same all run: a
+/// frame without one of those views (its light's views could not be built for that camera) leaves its two
+/// cells empty.
+pub struct LightViewColumns {
+    /// Per pair of columns: the view's light (its index in [`LightViews`]) and its index among that light's.
+    views: Vec<(usize, usize)>,
+    /// The header's part: `,NAME_kept,NAME_occluded` per view.
+    header: String,
+}
+
+impl LightViewColumns {
+    /// The columns of the light views `world` lists ([`LightViews`]); none without.
+    pub fn of_world(world: &bevy_ecs::world::World) -> Self {
+        let (mut views, mut names) = (Vec::new(), Vec::<String>::new());
+        for (light, source) in world.get_resource::<LightViews>().map_or(&[][..], |lights| &lights.0).iter().enumerate()
+        {
+            let count = match source {
+                LightSource::Sun { splits, .. } => splits.len().saturating_sub(1),
+                LightSource::Lamp { position, near, range } => cube_face_cameras(*position, *near, *range).len(),
+            };
+            for index in 0..count {
+                let base = column_name(&source.view_name(index));
+                // Two lights of a kind name their views alike: the later ones are numbered.
+                let mut name = base.clone();
+                for n in 2.. {
+                    if !names.contains(&name) {
+                        break;
+                    }
+                    name = format!("{base}_{n}");
+                }
+                names.push(name);
+                views.push((light, index));
+            }
+        }
+        let header = names.iter().map(|name| format!(",{name}_kept,{name}_occluded")).collect();
+        Self { views, header }
+    }
+
+    /// The header's columns, each after a comma (empty without light views).
+    pub fn header(&self) -> &str {
+        &self.header
+    }
+
+    /// The frame `world` has just culled: each view's kept and occluded casters, each after a comma, empty
+    /// where the frame lacks the view.
+    pub fn row(&self, world: &bevy_ecs::world::World) -> String {
+        let mut cells = vec![None; self.views.len()];
+        if let Some(results) = world.get_resource::<LightViewsVisible>() {
+            // A light's views follow each other, in its order (as `LightViewsVisible::kept_by_view` counts them).
+            let mut index = 0;
+            for (i, view) in results.0.iter().enumerate() {
+                index = if i > 0 && results.0[i - 1].light == view.light { index + 1 } else { 0 };
+                if let Some(column) = self.views.iter().position(|&key| key == (view.light, index)) {
+                    cells[column] = Some((view.kept, view.occluded));
+                }
+            }
+        }
+        cells
+            .into_iter()
+            .map(|cell| cell.map_or_else(|| String::from(",,"), |(kept, occluded)| format!(",{kept},{occluded}")))
+            .collect()
+    }
+}
+
+/// A light view's name as a CSV column's: lower case words joined by `_`, a face's sign spelt out
+/// (`lamp +x` is `lamp_plus_x`).
+fn column_name(view: &str) -> String {
+    let spelt: String = view
+        .to_lowercase()
+        .chars()
+        .map(|c| match c {
+            '+' => String::from(" plus "),
+            '-' => String::from(" minus "),
+            c if c.is_ascii_alphanumeric() => c.to_string(),
+            _ => String::from(" "),
+        })
+        .collect();
+    spelt.split_whitespace().collect::<Vec<_>>().join("_")
+}
+
 /// The casters each light view kept, added up over the frames of a run (see `--light-views`).
 #[derive(Default)]
 pub struct LightViewTotals {
@@ -242,7 +325,9 @@ pub fn print_summary(frames: &[CullStats]) {
 
 #[cfg(test)]
 mod tests {
-    use super::Spread;
+    use super::{LightViewColumns, Spread, column_name};
+    use cullet::frustum::LightSource;
+    use cullet::pipeline::LightViews;
 
     #[test]
     fn spread_of_a_few_frames() {
@@ -250,5 +335,28 @@ mod tests {
         assert_eq!((spread.mean, spread.median, spread.p95, spread.max), (2.5, 3.0, 4.0, 4.0));
         let none = Spread::of(Vec::new());
         assert_eq!((none.mean, none.max), (0.0, 0.0));
+    }
+
+    #[test]
+    fn light_view_columns_are_named_after_the_views() {
+        assert_eq!(column_name("sun cascade 1"), "sun_cascade_1");
+        assert_eq!(column_name("lamp +x"), "lamp_plus_x");
+        assert_eq!(column_name("lamp -z"), "lamp_minus_z");
+        let mut world = bevy_ecs::world::World::new();
+        assert_eq!(LightViewColumns::of_world(&world).header(), "");
+        let sun = LightSource::Sun { direction: glam::Vec3::NEG_Y, splits: vec![0.1, 10.0, 50.0] };
+        let lamp = LightSource::Lamp { position: glam::Vec3::ZERO, near: 0.05, range: None };
+        world.insert_resource(LightViews(vec![sun.clone(), lamp, sun]));
+        let columns = LightViewColumns::of_world(&world);
+        let header: Vec<&str> = columns.header().split(',').skip(1).collect();
+        assert_eq!(header.len(), 2 * (2 + 6 + 2));
+        assert_eq!(
+            &header[..4],
+            ["sun_cascade_1_kept", "sun_cascade_1_occluded", "sun_cascade_2_kept", "sun_cascade_2_occluded"]
+        );
+        assert_eq!(&header[4..6], ["lamp_plus_x_kept", "lamp_plus_x_occluded"]);
+        assert_eq!(&header[16..18], ["sun_cascade_1_2_kept", "sun_cascade_1_2_occluded"]);
+        // No frame culled yet: every cell empty, the row as long as the header.
+        assert_eq!(columns.row(&world), ",".repeat(header.len()));
     }
 }

@@ -1,8 +1,8 @@
 //! `--validate`: every frame judged against the exact ground truth, headless or live in the window's HUD.
 
 use bevy_ecs::world::World;
+use cullet::culler::OcclusionSettings;
 use cullet::mesh::Mesh;
-use cullet::pipeline::OcclusionSettings;
 use cullet_truth::shadows::light_view_false_negatives;
 use cullet_truth::{FrameMetrics, JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
 

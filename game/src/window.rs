@@ -15,7 +15,7 @@ use crate::{Args, Prepared};
 use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
-use cullet::pipeline::{CullStats, FrustumVisible, OcclusionState};
+use cullet::pipeline::{CameraCuller, CullStats};
 use glam::Vec3;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -238,7 +238,7 @@ impl Game {
         let instance =
             GpuContext::instance(wgpu::InstanceDescriptor::new_with_display_handle_from_env(Box::new(display)));
         let surface = instance.create_surface(window.clone()).map_err(|e| e.to_string())?;
-        let context = GpuContext::for_surface(&instance, &surface).map_err(|e| e.to_string())?;
+        let context = GpuContext::for_surface(&instance, &surface).map_err(|e| crate::gpu_error_message(&e))?;
         let info = &context.adapter_info;
         println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
         let size = window.inner_size();
@@ -388,8 +388,8 @@ impl Game {
         let mut gpu_output = None;
         if self.view == View::Tinted {
             // Every object drawn, tinted by the stage that culled it.
-            let frustum = world.resource::<FrustumVisible>().0.clone();
-            let occlusion = world.resource::<OcclusionState>().visible.clone();
+            let frustum = world.resource::<CameraCuller>().frustum_visible().clone();
+            let occlusion = world.resource::<CameraCuller>().visible().clone();
             culler.draw_all_recolored(context, world, &camera, |slot| {
                 match (frustum.contains(slot), occlusion.contains(slot)) {
                     (false, _) => Some(FRUSTUM_TINT),
@@ -419,17 +419,17 @@ impl Game {
         let target = frame.texture.create_view(&wgpu::TextureViewDescriptor::default());
         let mut encoder = context.device.create_command_encoder(&Default::default());
         let color = culler.targets().color_view();
-        let state = world.resource::<OcclusionState>();
-        let levels = state.pyramid.level_count();
+        let state = world.resource::<CameraCuller>();
+        let levels = state.pyramid().level_count();
         self.pyramid_level = self.pyramid_level.min(levels.saturating_sub(1));
         let source = match self.view {
             View::Shaded | View::Tinted => Source::Color(&color),
-            View::Pyramid if levels > 0 => Source::Depth(state.pyramid.level(self.pyramid_level)),
+            View::Pyramid if levels > 0 => Source::Depth(state.pyramid().level(self.pyramid_level)),
             View::OcclusionBuffer | View::Pyramid => Source::Depth(state.depth()),
         };
         graphics.present.record(context, &mut encoder, source, &target, self.size);
 
-        let pyramid = (0..levels).map(|level| state.pyramid.level(level)).map(|b| (b.width(), b.height())).collect();
+        let pyramid = (0..levels).map(|level| state.pyramid().level(level)).map(|b| (b.width(), b.height())).collect();
         let hud_frame = HudFrame {
             stats,
             gpu: gpu_output.clone(),

@@ -194,6 +194,111 @@ fn cpu_only_says_what_it_skips() {
     assert!(stdout.contains("--cpu-only: GPU cluster culling, triangle culling and the draw are skipped"), "{stdout}");
 }
 
+/// Runs the game with `args` and `envs`; returns whether it succeeded, and its stdout and stderr.
+fn run_game(args: &[&str], envs: &[(&str, &str)]) -> (bool, String, String) {
+    let output = Command::new(env!("CARGO_BIN_EXE_cullet-game"))
+        .args(args)
+        .envs(envs.iter().copied())
+        .output()
+        .expect("the game runs");
+    let (stdout, stderr) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    (output.status.success(), stdout.into_owned(), stderr.into_owned())
+}
+
+/// A first run reads well: a headless run prints the summary, not a line per frame; `--verbose` prints one
+/// line per frame (and per frame judged with `--validate`) before the same summary. Neither writes the
+/// progress bar's frames where stderr is not a terminal (here a pipe).
+#[test]
+fn headless_run_prints_the_summary_and_frame_lines_only_with_verbose() {
+    let frame_lines = |text: &str| text.lines().filter(|line| line.starts_with("frame ")).count();
+    let base = ["--cpu-only", "--frames", "3", "--scene", "city:500", "--resolution", "640x360"];
+    let (ok, stdout, stderr) = run_game(&base, &[]);
+    assert!(ok, "the game failed:\n{stdout}{stderr}");
+    assert!(stdout.contains("summary over 3 frames, 500 objects"), "no summary:\n{stdout}");
+    assert_eq!(frame_lines(&stdout), 0, "per-frame lines without --verbose:\n{stdout}");
+    assert!(!stderr.contains("frames,"), "a progress bar on a pipe:\n{stderr}");
+
+    let (ok, stdout, stderr) = run_game(&[&base[..], &["--verbose"]].concat(), &[]);
+    assert!(ok, "the game failed with --verbose:\n{stdout}{stderr}");
+    assert_eq!(frame_lines(&stdout), 3, "one line a frame with --verbose:\n{stdout}");
+    assert!(stdout.contains("frame    2  camera ("), "{stdout}");
+    assert!(stdout.contains("summary over 3 frames, 500 objects"), "no summary with --verbose:\n{stdout}");
+
+    let (ok, stdout, stderr) = run_game(&[&base[..], &["--verbose", "--validate"]].concat(), &[]);
+    assert!(ok, "the game failed with --verbose --validate:\n{stdout}{stderr}");
+    assert_eq!(frame_lines(&stdout), 6, "a stages line and an accuracy line a frame:\n{stdout}");
+
+    let (ok, _, stderr) = run_game(&[&base[..], &["--verbose", "--quiet"]].concat(), &[]);
+    assert!(!ok && stderr.contains("cannot be used with"), "--verbose with --quiet should be refused:\n{stderr}");
+}
+
+/// Without a GPU adapter (here none of wgpu's backends asked for has one) the game says how to get one and
+/// runs the CPU stages.
+#[test]
+fn a_missing_gpu_adapter_says_how_to_get_one() {
+    let args = ["--headless", "--frames", "2", "--scene", "city:300", "--resolution", "640x360"];
+    let (ok, stdout, stderr) = run_game(&args, &[("WGPU_BACKEND", "noop")]);
+    assert!(ok, "the game failed:\n{stdout}{stderr}");
+    if stdout.contains("GPU: ") {
+        eprintln!("SKIPPED: WGPU_BACKEND=noop found an adapter, so the message without one was not checked");
+        return;
+    }
+    assert!(stdout.contains("no GPU adapter found"), "{stdout}");
+    for advice in ["mesa-vulkan-drivers", "lavapipe", "--cpu-only"] {
+        assert!(stdout.contains(advice), "'{advice}' missing from:\n{stdout}");
+    }
+    assert!(stdout.contains("running the CPU stages only"), "{stdout}");
+    assert!(stdout.contains("summary over 2 frames"), "{stdout}");
+}
+
+/// With `--light-views` the stats CSV has each light view's kept and occluded casters, a number in every row
+/// of a run whose views are all built, and their means are the summary's casters per light view.
+#[test]
+fn light_views_have_per_frame_columns_in_the_stats() {
+    let stats = std::env::temp_dir().join(format!("cullet-e2e-light-views-{}.csv", std::process::id()));
+    let frames = 6;
+    let args = ["--cpu-only", "--light-views", "--scene", "city:2000", "--resolution", "640x360", "--frames", "6"];
+    let (ok, stdout, stderr) = run_game(&[&args[..], &["--stats", stats.to_str().unwrap()]].concat(), &[]);
+    assert!(ok, "the game failed:\n{stdout}{stderr}");
+    let csv = std::fs::read_to_string(&stats).expect("stats written");
+    let _ = std::fs::remove_file(&stats);
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+    for column in COLUMNS {
+        assert!(header.contains(&column), "stats lack column {column}: {header:?}");
+    }
+    let cascades = (1..=4).map(|n| format!("sun cascade {n}"));
+    let faces = ["+x", "-x", "+y", "-y", "+z", "-z"].map(|face| format!("lamp {face}"));
+    let views: Vec<String> = cascades.chain(faces).collect();
+    let column = |view: &str, count: &str| {
+        let name = format!("{}_{count}", view.replace('+', "plus_").replace('-', "minus_").replace(' ', "_"));
+        header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("stats lack column {name}: {header:?}"))
+    };
+    let rows: Vec<Vec<&str>> = lines.map(|line| line.split(',').collect()).collect();
+    assert_eq!(rows.len(), frames, "one row a frame");
+    let mut summary = Vec::new();
+    for view in &views {
+        let (kept, occluded) = (column(view, "kept"), column(view, "occluded"));
+        let mut total = 0;
+        for row in &rows {
+            assert_eq!(row.len(), header.len(), "a row as long as the header: {row:?}");
+            let number = |i: usize| row[i].parse::<usize>().unwrap_or_else(|_| panic!("{view}: not a count: {row:?}"));
+            total += number(kept);
+            number(occluded);
+        }
+        summary.push(format!("{view} {:.0}", total as f64 / frames as f64));
+    }
+    let expected = format!("casters per light view (mean a frame): {}", summary.join(", "));
+    assert!(stdout.contains(&expected), "the CSV's means, {expected}, are not the summary's:\n{stdout}");
+    // Not vacuous: the views keep casters, and their occlusion hides some.
+    let sum = |suffix: &str| -> usize {
+        let columns: Vec<usize> = views.iter().map(|view| column(view, suffix)).collect();
+        rows.iter().flat_map(|row| columns.iter().map(|&i| row[i].parse::<usize>().unwrap())).sum()
+    };
+    assert!(sum("kept") > 0, "no light view kept a caster");
+    assert!(sum("occluded") > 0, "no light view's occlusion hid a caster");
+}
+
 /// The window mode on a virtual X display (Xvfb): it opens, culls and draws frames, closes after `--frames`
 /// and prints the summary. Needs `xvfb-run`; CI installs it and sets `CULLET_REQUIRE_WINDOW`.
 #[test]
@@ -309,4 +414,14 @@ fn hud_changes_the_frame_inside_its_region_and_nowhere_else() {
         }
         assert!(changed_inside * 2 > area, "frame {frame}: the HUD changed only {changed_inside} of its {area} pixels");
     }
+}
+
+/// An occlusion buffer past the engine's bounds is refused before anything runs, with the bound in the
+/// message, instead of aborting on the allocation.
+#[test]
+fn an_oversized_occlusion_buffer_is_refused_with_a_clear_error() {
+    let args = ["--cpu-only", "--frames", "1", "--scene", "city:200", "--occlusion-resolution", "100000x100000"];
+    let (ok, stdout, stderr) = run_game(&args, &[]);
+    assert!(!ok, "an oversized buffer should be refused:\n{stdout}");
+    assert!(stderr.contains("100000x100000") && stderr.contains("too large"), "{stderr}");
 }

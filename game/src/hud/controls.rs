@@ -3,7 +3,9 @@
 
 use bevy_ecs::world::World;
 use cullet::gpu::GpuCullSettings;
-use cullet::pipeline::{FrustumSettings, OcclusionSettings};
+use cullet::pipeline::FrustumSettings;
+
+use cullet::culler::OcclusionSettings;
 
 /// What the window shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -108,7 +110,7 @@ mod tests {
     use super::*;
     use crate::hud::{Hud, HudFrame};
     use cullet::draw_cost::DrawSavings;
-    use cullet::pipeline::OcclusionState;
+    use cullet::pipeline::CameraCuller;
     use cullet::raster::RasterMode;
     use cullet::scene::city::{CityParams, CityScene};
     use cullet::scene::flight::Flight;
@@ -139,7 +141,7 @@ mod tests {
         // The next frame runs with them: nothing frustum-culled, a 512x288 buffer.
         let after = flight.run_frame(3);
         assert_eq!(after.after_frustum, after.objects);
-        let state = flight.world.resource::<OcclusionState>();
+        let state = flight.world.resource::<CameraCuller>();
         assert_eq!((state.depth().width(), state.depth().height()), (512, 288));
         // And the GPU switches go where the game reads them.
         controls.set_clusters(false);

@@ -9,6 +9,7 @@ pub mod painter;
 
 use crate::validation::{Validation, frame_efficiency};
 use controls::{Controls, View};
+use cullet::culler::OcclusionSettings;
 use cullet::draw_cost::DrawSavings;
 use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 use cullet::pipeline::CullStats;
@@ -603,7 +604,9 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
         ui,
         |ui| {
             let (w, h) = frame.viewport;
-            for size in BUFFER_SIZES.into_iter().chain([(w, h)]) {
+            // Only sizes within the engine's bounds (a very large window's own size may not be).
+            let fits = |(width, height)| OcclusionSettings { width, height, ..*occlusion }.validate().is_ok();
+            for size in BUFFER_SIZES.into_iter().chain([(w, h)]).filter(|&size| fits(size)) {
                 let name = if size == frame.viewport {
                     format!("{w}x{h} (viewport)")
                 } else {
@@ -615,6 +618,9 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
             }
         },
     );
+    if let Err(error) = occlusion.validate() {
+        ui.colored_label(Color32::LIGHT_RED, format!("occlusion skipped: {error}"));
+    }
     // A list rather than a row of radio buttons, which made the window as wide as two thirds of a 960-pixel one.
     let modes = [
         (RasterMode::Conservative, "conservative"),
