@@ -88,7 +88,7 @@ pub fn render_world(world: &World, meshes: &[Mesh], reference: &ReferenceSetting
     render_ids(world.resource::<Camera>(), &reference_objects(world, meshes), reference)
 }
 
-/// The frustum stage ([`CameraCuller::frustum_visible`]) and the occlusion stage ([`CameraCuller::visible`]) of `world`'s
+/// The frustum stage ([`cullet::culler::ViewCuller::frustum_visible`]) and the occlusion stage ([`cullet::culler::ViewCuller::visible`]) of `world`'s
 /// last frame against `truth`.
 pub fn stage_metrics(world: &World, truth: &ExactVisibility) -> FrameMetrics {
     let frustum = &world.resource::<CameraCuller>().frustum_visible();
