@@ -39,7 +39,7 @@
 //! rounding); it tests each object's world box, which for rotated objects is looser than Bevy's oriented box,
 //! so it may keep a few more. The occlusion test hides only what the occluders provably hide. An entity whose
 //! bounds Cullet rejects (not finite, say) is logged, listed in [`CulletStore::rejected`] and always visible;
-//! a camera whose matrices give no frustum keeps everything and reports it in [`ViewStats::frustum_error`].
+//! a camera whose matrices give no frustum keeps everything and reports it in [`cullet::culler::ViewStats::frustum_error`].
 //!
 //! # Threads
 //! Cullet's stages, and the plugin's write of what they keep, run on rayon's global pool, beside Bevy's task
@@ -131,11 +131,11 @@ pub struct CulletSettings {
     /// What each camera skips when it cannot pay off, as in Cullet's own pipeline (defaults: its
     /// [`AdaptiveSettings::default`]). The plugin follows `reuse_unchanged` (an unchanged view over unchanged
     /// bounds and occluders keeps its last result; where only entities without occluders moved, their
-    /// occlusion alone is re-tested against the last depth buffer: [`ViewStats::retested`]),
+    /// occlusion alone is re-tested against the last depth buffer: [`cullet::culler::ViewStats::retested`]),
     /// `plane_coherence`, and `min_occlusion_benefit` with
     /// `low_benefit_frames` and `reprobe_every` (a camera whose occlusion removed under 1% of its frustum
     /// survivors for 8 frames in a row skips it for 30 frames, then tries again:
-    /// [`ViewStats::occlusion_gated`]). It has no light views and always selects hidden occluders, so
+    /// [`cullet::culler::ViewStats::occlusion_gated`]). It has no light views and always selects hidden occluders, so
     /// `min_light_occlusion_benefit` and `skip_hidden_occluders` do nothing here. Skipping only ever keeps more
     /// entities visible.
     pub adaptive: AdaptiveSettings,

@@ -43,7 +43,7 @@ impl LocalBounds {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ObjectTransform(pub Affine3A);
 
-/// Marks an object that never moves: [`super::sync_bounds`] never scans it, and later stages skip per-frame work for
+/// Marks an object that never moves: bounds stage ([`crate::pipeline::CullStage::Bounds`]) never scans it, and later stages skip per-frame work for
 /// it. To move a static object anyway, insert a new [`ObjectTransform`] (an insert, not a mutation).
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct Static;

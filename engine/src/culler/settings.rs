@@ -11,13 +11,13 @@ use bevy_ecs::prelude::*;
 pub struct AdaptiveSettings {
     /// Reuse last frame's frustum and occlusion results when no bounds changed, the camera is the same and so
     /// are the settings; when only a few objects without occluders moved, re-test just those
-    /// ([`CullStats::retested`]).
+    /// ([`crate::pipeline::CullStats::retested`]).
     pub reuse_unchanged: bool,
     /// The occlusion stage is skipped once it has removed less than this fraction of the frustum survivors for
     /// [`AdaptiveSettings::low_benefit_frames`] frames in a row (an open field), then run again to re-probe
     /// every [`AdaptiveSettings::reprobe_every`] frames. 0 never skips.
     pub min_occlusion_benefit: f32,
-    /// The same for each light view's occlusion ([`LightOcclusionSettings`]), as a fraction of the view's
+    /// The same for each light view's occlusion ([`crate::pipeline::LightOcclusionSettings`]), as a fraction of the view's
     /// casters: a higher bar than the camera's, since a hidden caster saves a shadow map less than a hidden
     /// object saves the frame (docs/design.md measures what light views hide under a high and a low sun). 0
     /// never skips.
@@ -32,7 +32,7 @@ pub struct AdaptiveSettings {
     /// 5% more triangles (an occluder hidden last frame may show this frame), so it does not pay.
     pub skip_hidden_occluders: bool,
     /// The frustum stage tests first, for each block of 8 objects, the plane that rejected the whole block last
-    /// frame ([`PlaneCoherence`]). The same result either way.
+    /// frame ([`crate::frustum::PlaneCoherence`]). The same result either way.
     pub plane_coherence: bool,
 }
 

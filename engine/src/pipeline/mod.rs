@@ -51,7 +51,7 @@ impl std::ops::DerefMut for CameraCuller {
 
 /// Lights whose views the frustum stage culls with the camera, in the same pass over the bounds: a sun's
 /// cascades, a lamp's cube faces ([`LightSource`]). Each light view keeps the shadow casters whose shadows can
-/// fall inside the camera's frustum ([`View::shadow_casters`]); the results are in [`LightViewsVisible`].
+/// fall inside the camera's frustum ([`crate::frustum::View::shadow_casters`]); the results are in [`LightViewsVisible`].
 /// Empty by default.
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct LightViews(pub Vec<LightSource>);
@@ -195,7 +195,7 @@ pub struct LightOcclusionSettings {
     /// Whether light views are occlusion culled; when off, each keeps every caster its frustum kept.
     pub enabled: bool,
     /// Width and height of each light view's depth buffer, in texels (the buffer is always
-    /// [`RasterMode::Conservative`]: it never hides what a shadow map of any resolution shows).
+    /// [`crate::raster::RasterMode::Conservative`]: it never hides what a shadow map of any resolution shows).
     pub size: u32,
     /// Most occluder triangles rasterized per light view and frame.
     pub triangle_budget: usize,
@@ -262,7 +262,7 @@ struct PipelineMemory {
 /// Installs the CPU culling pipeline: the [`BoundsStore`] and its observers, the stage outputs and `settings`
 /// as resources of `world`, and the stages, in order ([`CullStage`]), in `schedule`. Each
 /// `schedule.run(&mut world)` then culls one frame: entities with [`crate::bounds::LocalBounds`] and
-/// [`ObjectTransform`] (and optionally an [`Occluder`]) are culled against the [`Camera`] resource, which
+/// [`crate::bounds::ObjectTransform`] (and optionally an [`crate::occluders::Occluder`]) are culled against the [`crate::Camera`] resource, which
 /// the caller inserts before the first run; [`CameraCuller`]'s [`ViewCuller::visible`] holds the result, [`CullStats`] the
 /// counts and times.
 ///
