@@ -155,7 +155,7 @@ pub struct BoundsStore {
     loose_groups: std::collections::VecDeque<u32>,
     /// Per group: queued in `loose_groups`.
     loose_flags: Vec<bool>,
-    /// Set where the object carries an [`Occluder`]. Lets occluder selection find candidates with a bitwise
+    /// Set where the object carries an [`Occluder`](crate::occluders::Occluder). Lets occluder selection find candidates with a bitwise
     /// AND against the frustum stage's output instead of a scan of every occluder. Sized to the padded length.
     occluders: VisibleSet,
     entities: Vec<Entity>,

@@ -1,5 +1,5 @@
-//! The pipeline's stages as systems: the bounds are synced by [`crate::bounds::sync_bounds`], then the
-//! camera's [`ViewCuller`] culls in two systems (frustum, occlusion), the light views with it.
+//! The pipeline's stages as systems: the bounds are synced by [`super::bounds::sync_bounds`], then the
+//! camera's [`ViewCuller`](crate::culler::ViewCuller) culls in two systems (frustum, occlusion), the light views with it.
 
 use super::{
     CameraCuller, CullStats, FrustumSettings, LightOcclusionSettings, LightOcclusionState, LightViewVisible,
@@ -142,7 +142,7 @@ fn light_views_of(lights: &LightViews, camera: &Camera, error: &mut Option<ViewE
 }
 
 /// Selects occluders among the frustum survivors, rasterizes them into the camera's depth buffer, builds its
-/// pyramid and tests every frustum survivor against it ([`ViewCuller::cull_occlusion`]). With no occluder in
+/// pyramid and tests every frustum survivor against it ([`ViewCuller::cull_occlusion`](crate::culler::ViewCuller::cull_occlusion)). With no occluder in
 /// view it rasterizes and tests nothing; where the frustum stage re-tested only moved objects, so does this
 /// stage, against last frame's pyramid; after frames of too little benefit it is skipped for a while
 /// ([`AdaptiveSettings::min_occlusion_benefit`]).

@@ -1,5 +1,5 @@
-//! [`RasterMode::Masked`](super::RasterMode::Masked): the covered pixel centres of
-//! [`RasterMode::PixelCentres`](super::RasterMode::PixelCentres), kept per 4x4 block of pixels as a 16-bit
+//! [`RasterMode::Masked`]: the covered pixel centres of
+//! [`RasterMode::PixelCentres`], kept per 4x4 block of pixels as a 16-bit
 //! coverage mask and depths, as Intel's Masked Occlusion Culling keeps them per tile.
 //!
 //! # Per block
@@ -32,10 +32,9 @@
 //! of its two planes'. Where the processor has AVX2, eight blocks of a row are decided side by side, and a
 //! block's 16 centres in two registers, by the same f32 operations: the blocks come out the same bit for bit.
 
-use super::{
-    BLOCK_COLUMNS, Bins, PendingOccluder, RasterMode, SetupScratch, SetupTriangle, TexelRect, all_nearer, band_levels,
-    reduce_band, summary_hides, update_summary,
-};
+use super::RasterMode;
+use super::binning::{BLOCK_COLUMNS, Bins, all_nearer, band_levels, reduce_band, summary_hides, update_summary};
+use super::setup::{PendingOccluder, SetupScratch, SetupTriangle, TexelRect};
 use crate::depth::{DepthPyramid, ScreenView, farther};
 use crate::frustum::SimdBackend;
 use glam::DVec3;
@@ -523,7 +522,7 @@ impl RowTests {
     }
 
     /// The bits (`4 * row + column`) of the centres of the block whose first column is `left` that pass every
-    /// edge test: the same f32 expressions as [`super::write_covered`].
+    /// edge test: the same f32 expressions as [`super::texels::write_covered`].
     #[inline(always)]
     fn centre_mask(&self, left: f32) -> u16 {
         let mut mask = 0u16;
