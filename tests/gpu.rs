@@ -290,10 +290,10 @@ fn cluster_and_triangle_culling_match_the_cpu_exactly() {
 /// Pixels of the last frame's image that differ from the image drawn with no culling at all from `camera`:
 /// depth anywhere, colour and object ID wherever they do not depend on draw order. Also returns how many
 /// pixels the unculled image covers.
-fn pixels_differing_from_unculled(context: &GpuContext, culler: &GpuCuller, camera: &Camera) -> (usize, usize) {
+fn pixels_differing_from_unculled(context: &GpuContext, culler: &mut GpuCuller, camera: &Camera) -> (usize, usize) {
     let culled = culler.read_image(context).unwrap();
-    let unculled = culler.draw_unculled(context, camera, false).unwrap();
-    let reversed = culler.draw_unculled(context, camera, true).unwrap();
+    let unculled = culler.debug().unculled(context, camera, false).unwrap();
+    let reversed = culler.debug().unculled(context, camera, true).unwrap();
     assert_eq!(unculled.depth, reversed.depth, "depth must not depend on draw order");
     // Pixels where two objects' surfaces meet at exactly the same depth: which one shows depends on draw order
     // alone, and the culled draws come in the order the GPU appended them.
@@ -316,7 +316,7 @@ fn culled_image_equals_unculled_image() {
     let half = setup.half;
     for (name, camera) in cameras(half) {
         let (output, _, _) = setup.run(&context, camera, &GpuCullSettings::default());
-        let (differing, covered) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+        let (differing, covered) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
         println!("{name}: {differing} differing pixels, {covered} covered, {:?}", output.counters);
         assert!(covered > 0, "{name}: nothing drawn");
         assert_eq!(differing, 0, "{name}: culling changed {differing} pixels");
@@ -337,7 +337,7 @@ fn culled_image_equals_unculled_image_with_a_masked_buffer_at_an_odd_size() {
         let camera = Camera { aspect: size.0 as f32 / size.1 as f32, ..camera };
         let (output, _, depth) = setup.run(&context, camera, &GpuCullSettings::default());
         assert_eq!((depth.width(), depth.height(), depth.texel_size()), (84, 47, 4), "{name}");
-        let (differing, covered) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+        let (differing, covered) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
         println!("{name}: {differing} differing pixels, {covered} covered, {:?}", output.counters);
         assert!(covered > 0, "{name}: nothing drawn");
         assert_eq!(differing, 0, "{name}: culling changed {differing} pixels");
@@ -366,7 +366,7 @@ fn skipped_gpu_passes_draw_the_same_image() {
         let mut tested = 0;
         for (frame, (name, camera)) in cameras(half).into_iter().enumerate() {
             let (output, visible, _) = setup.run(&context, camera, &GpuCullSettings::default());
-            let (differing, covered) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+            let (differing, covered) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
             let c = output.counters;
             println!("{label}, {name}: {differing} differing of {covered} covered, {output:?}");
             assert!(covered > 0, "{label}, {name}: nothing drawn");
@@ -518,7 +518,7 @@ fn sun_cascades_culled_on_the_gpu_draw_the_same_shadow_maps() {
     };
     let output = setup.culler.run_world(&context, world, &GpuCullSettings::default()).unwrap();
     let culled = maps(&setup.culler);
-    setup.culler.draw_shadows_unculled(&context, world, camera.position);
+    setup.culler.debug().shadows_unculled(&context, world, camera.position);
     let whole = maps(&setup.culler);
     assert_eq!(output.light_views.len(), 4);
     for (index, counters) in output.light_views.iter().enumerate() {
@@ -572,7 +572,7 @@ fn sun_cascades_draw_shadows_from_their_culled_casters() {
     println!("shadows darkened {darker} of {} pixels", plain.color.len());
     assert!(darker > plain.color.len() / 100, "no shadow drawn: {darker} pixels darker");
     assert_eq!(brighter, 0, "a shadow brightened {brighter} pixels");
-    let (differing, _) = pixels_differing_from_unculled(&context, &setup.culler, &camera);
+    let (differing, _) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
     assert_eq!(differing, 0, "culling changed {differing} shaded pixels");
 
     // Every object as a caster of every cascade: the image must not change, as the casters the light views

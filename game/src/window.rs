@@ -390,7 +390,7 @@ impl Game {
             // Every object drawn, tinted by the stage that culled it.
             let frustum = world.resource::<CameraCuller>().frustum_visible().clone();
             let occlusion = world.resource::<CameraCuller>().visible().clone();
-            culler.draw_all_recolored(context, world, &camera, |slot| {
+            culler.debug().recolored(context, world, &camera, |slot| {
                 match (frustum.contains(slot), occlusion.contains(slot)) {
                     (false, _) => Some(FRUSTUM_TINT),
                     (true, false) => Some(OCCLUSION_TINT),
@@ -398,7 +398,7 @@ impl Game {
                 }
             });
         } else {
-            match culler.run_world_from(context, world, &camera, &self.gpu_settings) {
+            match culler.debug().run_world_from(context, world, &camera, &self.gpu_settings) {
                 Ok(output) => gpu_output = Some(output),
                 Err(error) => {
                     eprintln!("{error}");

@@ -119,17 +119,17 @@ impl GpuGating {
 
 /// One sun cascade of a world's [`LightViewsVisible`]: its light view's matrix and origin, and its casters' store
 /// slots.
-struct SunCasters(glam::DMat4, glam::Vec3, Vec<u32>);
+pub(super) struct SunCasters(glam::DMat4, glam::Vec3, Vec<u32>);
 
 impl SunCasters {
-    fn cascade(&self) -> Cascade<'_> {
+    pub(super) fn cascade(&self) -> Cascade<'_> {
         Cascade { clip_from_relative: self.0, origin: self.1, casters: &self.2 }
     }
 }
 
 /// The sun cascades of `world`'s [`LightViewsVisible`] (of its [`LightViews`] suns, nearest first), each with
 /// the casters its light view kept; `None` without light views.
-fn sun_casters(world: &World) -> Option<Vec<SunCasters>> {
+pub(super) fn sun_casters(world: &World) -> Option<Vec<SunCasters>> {
     let results = world.get_resource::<LightViewsVisible>()?;
     let lights = world.get_resource::<LightViews>()?;
     let suns = results.0.iter().filter(|result| matches!(lights.0.get(result.light), Some(LightSource::Sun { .. })));
@@ -152,16 +152,16 @@ pub type Survivors = (Vec<(u32, u32)>, Vec<u32>);
 /// [`GpuCuller::run_world`] brings the instances up to date, culls and draws. A renderer of its own draws
 /// from [`GpuCuller::draw_buffers`] instead of (or after) the culler's draw.
 pub struct GpuCuller {
-    scene: GpuScene,
+    pub(super) scene: GpuScene,
     hzb: Hzb,
     passes: CullPasses,
     /// The camera's culling: its uniform, counters and per-frame buffers.
     camera: ViewCull,
     draw: DrawPass,
     /// The sun cascades' shadow maps the draw shades with (none until a world with light views runs).
-    shadows: ShadowMaps,
+    pub(super) shadows: ShadowMaps,
     targets: RenderTargets,
-    /// The view the draw pass renders from: the culling view, or another camera's (see [`GpuCuller::run_from`]).
+    /// The view the draw pass renders from: the culling view, or another camera's (see [`DebugDraw::run_from`](super::DebugDraw::run_from)).
     draw_view: wgpu::Buffer,
     last_view: GpuView,
     timer: Option<PassTimer>,
@@ -173,9 +173,9 @@ pub struct GpuCuller {
     batch_bytes: Option<u64>,
     /// Which GPU passes a frame may skip (see [`GpuCuller::set_gating`]).
     gating: GpuGating,
-    /// The instance buffer holds colours other than the objects' own ([`GpuCuller::draw_all_recolored`]):
+    /// The instance buffer holds colours other than the objects' own ([`DebugDraw::recolored`](super::DebugDraw::recolored)):
     /// the next [`GpuCuller::run_world`] rewrites every instance.
-    recolored: bool,
+    pub(super) recolored: bool,
 }
 
 impl GpuCuller {
@@ -310,30 +310,13 @@ impl GpuCuller {
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
-        self.run_from(context, camera, camera, visible, depth, settings)
+        self.run_views(context, camera, camera, visible, depth, settings, None)
     }
 
-    /// [`GpuCuller::run`] culling for `camera` but drawing the survivors as `draw_camera` sees them: with
-    /// culling frozen at one camera, flying another shows what was culled.
-    ///
-    /// # Errors
-    /// As [`GpuCuller::run`].
-    pub fn run_from(
-        &mut self,
-        context: &GpuContext,
-        camera: &Camera,
-        draw_camera: &Camera,
-        visible: &[u32],
-        depth: &DepthBuffer,
-        settings: &GpuCullSettings,
-    ) -> Result<GpuFrameOutput, GpuError> {
-        self.run_views(context, camera, draw_camera, visible, depth, settings, None)
-    }
-
-    /// [`GpuCuller::run_from`], and with `cascades` the shadow maps culled and drawn first, in the same
+    /// [`GpuCuller::run`] drawing the survivors as `draw_camera` sees them, and with `cascades` the shadow maps culled and drawn first, in the same
     /// submission; with `None` the shadow maps stay as they are.
     #[allow(clippy::too_many_arguments)]
-    fn run_views(
+    pub(super) fn run_views(
         &mut self,
         context: &GpuContext,
         camera: &Camera,
@@ -418,7 +401,7 @@ impl GpuCuller {
         self.batch_bytes.map_or(device_limit, |bytes| bytes.min(device_limit))
     }
 
-    /// One batch of [`GpuCuller::run_from`]: the first builds the HZB and clears the targets, later ones draw
+    /// One batch of [`GpuCuller::run_views`]: the first builds the HZB and clears the targets, later ones draw
     /// over what the earlier ones drew.
     #[allow(clippy::too_many_arguments)]
     fn run_batch(
@@ -552,11 +535,8 @@ impl GpuCuller {
         self.run_world_from(context, world, &camera, settings)
     }
 
-    /// [`GpuCuller::run_world`] drawing from `draw_camera` (see [`GpuCuller::run_from`]).
-    ///
-    /// # Errors
-    /// [`GpuError::Lost`] when the device is lost.
-    pub fn run_world_from(
+    /// [`GpuCuller::run_world`] drawing from `draw_camera`.
+    pub(super) fn run_world_from(
         &mut self,
         context: &GpuContext,
         world: &mut World,
@@ -577,15 +557,6 @@ impl GpuCuller {
         self.run_views(context, &camera, draw_camera, &visible, state.depth(), settings, cascades.as_deref())
     }
 
-    /// Draws the shadow maps of `world`'s sun cascades with no culling on the GPU: every cluster of the
-    /// casters each light view kept, for a draw from `draw_origin`. For comparison with the culled maps
-    /// [`GpuCuller::run_world`] draws (the next frame draws culled maps again); `world` as for it.
-    pub fn draw_shadows_unculled(&mut self, context: &GpuContext, world: &World, draw_origin: glam::Vec3) {
-        let suns = sun_casters(world).unwrap_or_default();
-        let cascades: Vec<Cascade<'_>> = suns.iter().map(SunCasters::cascade).collect();
-        self.shadows.draw_unculled(context, &self.scene, &cascades, draw_origin);
-    }
-
     /// The shadow maps the draw shades with.
     pub fn shadow_maps(&self) -> &ShadowMaps {
         &self.shadows
@@ -593,7 +564,7 @@ impl GpuCuller {
 
     /// Copies to the GPU the instances of the store slots written since the last call (every slot after a
     /// recolouring), each as `recolor` makes it from its slot and the object's own instance.
-    fn sync_instances(
+    pub(super) fn sync_instances(
         &mut self,
         context: &GpuContext,
         world: &mut World,
@@ -605,42 +576,8 @@ impl GpuCuller {
         self.scene.write_instances(context, count, &slots, |slot| recolor(slot as usize, instance_of(world, slot)));
     }
 
-    /// Draws every object of `world` with no culling, each in the colour `color_of(slot)` gives it (its own
-    /// for `None`), as `camera` sees it: for debug views, such as tinting each object by the stage that culled
-    /// it. The next [`GpuCuller::run_world`] restores every object's own colour.
-    pub fn draw_all_recolored(
-        &mut self,
-        context: &GpuContext,
-        world: &mut World,
-        camera: &Camera,
-        color_of: impl Fn(usize) -> Option<[u8; 4]>,
-    ) {
-        self.recolored = true;
-        self.sync_instances(context, world, |slot, instance| match color_of(slot) {
-            Some(color) => instance.with_color(Some(color)),
-            None => instance,
-        });
-        self.draw_all(context, camera, false);
-    }
-
-    /// Draws every cluster of every instance with no culling at all, for comparison; `reversed` draws them in
-    /// the opposite order, which shows where the image depends on draw order (coplanar surfaces of different
-    /// objects at exactly the same depth).
-    ///
-    /// # Errors
-    /// [`GpuError::Lost`] when the device is lost.
-    pub fn draw_unculled(
-        &self,
-        context: &GpuContext,
-        camera: &Camera,
-        reversed: bool,
-    ) -> Result<RenderedImage, GpuError> {
-        self.draw_all(context, camera, reversed);
-        self.targets.read(context)
-    }
-
     /// Draws every cluster of every instance into the targets with no culling, in store order or `reversed`.
-    pub fn draw_all(&self, context: &GpuContext, camera: &Camera, reversed: bool) {
+    pub(super) fn draw_all(&self, context: &GpuContext, camera: &Camera, reversed: bool) {
         let view = self.view_for(camera, &GpuCullSettings::default(), 0);
         context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&view));
         let instances = self.scene.instances();

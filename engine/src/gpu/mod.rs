@@ -41,6 +41,7 @@
 
 pub mod cluster_cull;
 pub mod clusters;
+pub mod debug_draw;
 pub mod draw;
 pub mod frame;
 pub mod hzb;
@@ -52,6 +53,7 @@ pub mod shadow;
 pub mod triangle_cull;
 mod view_cull;
 
+pub use debug_draw::DebugDraw;
 pub use frame::{GpuCullSettings, GpuCuller, GpuGating, Survivors};
 pub use indirect::DrawBuffers;
 pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes};
