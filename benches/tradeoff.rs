@@ -1,6 +1,8 @@
 //! Run time against error: sweeps the software occlusion buffer's resolution, its mode and the occluder
 //! budget over the city's fly-through (and the pixel-centre mode at the viewport's resolution, 1920x1080),
-//! judging every frame against the exact ground truth, and writes `target/tradeoff/tradeoff.csv` and
+//! each configuration a culler run through the engine's culler interface (`cullet::culler::Culler`, here the
+//! pipeline's stages, `StageCuller`, with those settings; another culler is another series), judging every
+//! frame against the exact ground truth, and writes `target/tradeoff/tradeoff.csv` and
 //! `target/tradeoff/tradeoff.png` (the Pareto front). Intel's Masked Occlusion Culling is a series of its own
 //! where it is built (see `build.rs`): at each resolution and the viewport's, given each frame the frustum
 //! survivors and occluders of Cullet's default configuration. Last, the default and the settings for the
@@ -13,13 +15,12 @@
 #[path = "moc/mod.rs"]
 mod moc;
 
-use cullet::pipeline::{CameraCuller, CullStats};
-
-use cullet::culler::OcclusionSettings;
+use cullet::culler::{Culled, OcclusionSettings, StageCuller, ViewSettings};
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
-use cullet_truth::judge::{occlusion_ideal, render_world, stage_metrics};
+use cullet_truth::FrameMetrics;
+use cullet_truth::judge::{occlusion_ideal_of, render_world};
 use cullet_truth::metrics::OcclusionIdeal;
 use cullet_truth::{ExactVisibility, PathMetrics, ReferenceSettings};
 use moc::{Moc, Occludees};
@@ -86,7 +87,7 @@ impl Row {
     }
 
     fn efficiency(&self) -> f64 {
-        self.accuracy.efficiency(1)
+        self.accuracy.final_efficiency()
     }
 
     fn false_negatives_per_frame(&self) -> f64 {
@@ -115,6 +116,16 @@ fn main() {
         Flight::new(city.flythrough(), 16.0 / 9.0, frames, settings, |world| {
             city.spawn(world);
         })
+    };
+
+    // Each configuration's culler is driven over the same path, frames and moving objects as the pipeline.
+    let culler_flight = || {
+        Flight::for_cullers(city.flythrough(), 16.0 / 9.0, frames, |world| {
+            city.spawn(world);
+        })
+    };
+    let culler_for = |settings: OcclusionSettings| {
+        StageCuller::new(format!("{settings:?}"), ViewSettings { occlusion: settings, ..ViewSettings::default() })
     };
 
     let start = Instant::now();
@@ -161,19 +172,22 @@ fn main() {
     for settings in configs {
         let start = Instant::now();
         let mut accuracy = PathMetrics::default();
-        let mut run = flight(settings);
+        let (mut run, mut culler) = (culler_flight(), culler_for(settings));
         let budget_ideal = settings.enabled.then(|| ideal.contains_key(&settings.triangle_budget));
         let mut ideal_this_budget = Vec::new();
         for frame in 0..frames {
-            run.run_frame(frame);
-            let mut metrics = stage_metrics(&run.world, &truth[frame as usize]);
+            let Culled { stages, .. } = run.cull_frame(frame, &mut culler).1;
+            let mut metrics = FrameMetrics::new(&truth[frame as usize], &stages);
             if settings.enabled {
-                let state = run.world.resource::<CameraCuller>();
+                let state = culler.view();
                 let culled = metrics.stages[0].kept - metrics.stages[1].kept;
                 let ideal_culled = match budget_ideal {
                     Some(true) => ideal[&settings.triangle_budget][frame as usize],
                     _ if state.occluder_slots().is_empty() => 0,
-                    _ => occlusion_ideal(&run.world, &reference).ideal_culled,
+                    _ => {
+                        let camera = run.world.resource::<cullet::Camera>();
+                        occlusion_ideal_of(&run.world, camera, state, &reference).ideal_culled
+                    }
                 };
                 ideal_this_budget.push(ideal_culled);
                 metrics.occlusion_ideal = Some(OcclusionIdeal { culled, ideal_culled });
@@ -191,13 +205,15 @@ fn main() {
     let start = Instant::now();
     for round in 0..TIMED_ROUNDS {
         for row in rows.iter_mut() {
-            let mut run = flight(row.settings);
-            let pass: Vec<CullStats> = (0..frames).map(|frame| run.run_frame(frame)).collect();
-            let mean = |part: fn(&CullStats) -> Duration| {
-                pass.iter().map(|s| part(s).as_secs_f64()).sum::<f64>() / pass.len() as f64 * 1e6
-            };
-            let (frustum, raster, occlusion) =
-                (mean(|s| s.bounds_time + s.frustum_time), mean(|s| s.raster_time), mean(|s| s.occlusion_time));
+            let (mut run, mut culler) = (culler_flight(), culler_for(row.settings));
+            let pass: Vec<[Duration; 3]> = (0..frames)
+                .map(|frame| {
+                    let (bounds_time, Culled { stats, .. }) = run.cull_frame(frame, &mut culler);
+                    [bounds_time + stats.frustum_time, stats.raster_time, stats.occlusion_time]
+                })
+                .collect();
+            let mean = |part: usize| pass.iter().map(|s| s[part].as_secs_f64()).sum::<f64>() / pass.len() as f64 * 1e6;
+            let (frustum, raster, occlusion) = (mean(0), mean(1), mean(2));
             if frustum + raster + occlusion < row.cull_us() {
                 (row.frustum_us, row.raster_us, row.occlusion_us) = (frustum, raster, occlusion);
             }

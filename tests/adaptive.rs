@@ -252,3 +252,30 @@ fn cullers_through_the_interface_keep_what_the_pipeline_keeps() {
     }
     assert!(culled_by_occlusion > 0, "the occlusion stage culls on this path");
 }
+
+/// A culler driven by a flight of its own ([`Flight::for_cullers`]: the bounds stage alone, the moves handed to
+/// the culler) keeps what the pipeline keeps, frame by frame, on a city whose objects move (a tenth of them).
+#[test]
+fn a_culler_on_its_own_flight_keeps_what_the_pipeline_keeps() {
+    use cullet::culler::{StageCuller, ViewSettings};
+    let params =
+        cullet::scene::city::CityParams { moving_fraction: 0.1, ..cullet::scene::city::CityParams::with_objects(3000) };
+    let city = cullet::scene::city::CityScene::generate(params);
+    let frames = 20;
+    let mut pipeline = Flight::new(city.flythrough(), 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
+        city.spawn(world);
+    });
+    let mut own = Flight::for_cullers(city.flythrough(), 16.0 / 9.0, frames, |world| {
+        city.spawn(world);
+    });
+    let mut culler = StageCuller::new("stages", ViewSettings::default());
+    for frame in 0..frames {
+        let stats = pipeline.run_frame(frame);
+        let (_, culled) = own.cull_frame(frame, &mut culler);
+        assert_eq!(culled.stats.after_frustum, stats.after_frustum, "frame {frame}: frustum");
+        assert_eq!(culled.stats.after_occlusion, stats.after_occlusion, "frame {frame}: occlusion");
+        assert_eq!(culled.stats.retested, stats.retested, "frame {frame}: re-tested");
+        let expected = pipeline.world.resource::<cullet::pipeline::CameraCuller>();
+        assert_eq!(culler.view().visible(), expected.visible(), "frame {frame}: kept");
+    }
+}

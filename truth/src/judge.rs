@@ -5,7 +5,7 @@ use crate::metrics::{FrameMetrics, OcclusionIdeal};
 use crate::occluders::ExactOccluderDepth;
 use crate::render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
 use bevy_ecs::world::World;
-use cullet::culler::{CullScene, Culler};
+use cullet::culler::{CullScene, Culler, ViewCuller};
 use cullet::mesh::Mesh;
 use cullet::pipeline::CameraCuller;
 use cullet::{BoundsStore, Camera, LocalBounds, MeshRef, ObjectTransform, Occluder};
@@ -99,10 +99,19 @@ pub fn stage_metrics(world: &World, truth: &ExactVisibility) -> FrameMetrics {
 /// The occlusion stage's culled count in `world`'s last frame next to that of an exact buffer of the same
 /// occluders at the reference resolution.
 pub fn occlusion_ideal(world: &World, reference: &ReferenceSettings) -> OcclusionIdeal {
-    let camera = world.resource::<Camera>();
+    occlusion_ideal_of(world, world.resource::<Camera>(), world.resource::<CameraCuller>(), reference)
+}
+
+/// [`occlusion_ideal`] for the last frame `state` culled of `world` through `camera`: a culler of one's own
+/// ([`cullet::culler::StageCuller::view`]) rather than the pipeline's.
+pub fn occlusion_ideal_of(
+    world: &World,
+    camera: &Camera,
+    state: &ViewCuller,
+    reference: &ReferenceSettings,
+) -> OcclusionIdeal {
     let store = world.resource::<BoundsStore>();
-    let frustum = &world.resource::<CameraCuller>().frustum_visible();
-    let state = world.resource::<CameraCuller>();
+    let frustum = state.frustum_visible();
     let culled = frustum.count() - state.visible().count();
     if state.occluder_slots().is_empty() {
         return OcclusionIdeal { culled, ideal_culled: 0 };

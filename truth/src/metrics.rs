@@ -164,6 +164,12 @@ impl PathMetrics {
         if cullable == 0 { 1.0 } else { self.stages[index].1 as f64 / cullable as f64 }
     }
 
+    /// Culling efficiency of the last stage over the path, the culler's result whatever its stages (a
+    /// culler of one stage, such as frustum only, has one); 1 with no stage judged.
+    pub fn final_efficiency(&self) -> f64 {
+        self.stages.len().checked_sub(1).map_or(1.0, |last| self.efficiency(last))
+    }
+
     /// Objects the occlusion stage culled over those an exact buffer of the same occluders culls, or `None`
     /// when the ideal culled nothing.
     pub fn occlusion_efficiency(&self) -> Option<f64> {

@@ -299,6 +299,15 @@ pub fn install(world: &mut World, schedule: &mut Schedule, settings: PipelineSet
     add_systems(schedule);
 }
 
+/// Installs the bounds stage alone ([`CullStage::Bounds`]): the [`BoundsStore`] kept up to date from the
+/// entities, for a culler of your own ([`crate::culler::Culler`]) to cull from, each frame after
+/// `schedule.run(&mut world)`, with [`BoundsStore::take_moves`] for what moved. No stage culls and nothing is
+/// read from the settings resources: [`crate::scene::flight::Flight::for_cullers`] drives cullers so.
+pub fn install_bounds(world: &mut World, schedule: &mut Schedule) {
+    init_world(world);
+    schedule.add_systems(sync_bounds.in_set(CullStage::Bounds));
+}
+
 /// Sets up a world for culling: the [`BoundsStore`], its insertion and removal observers, and the stage
 /// outputs ([`install`] inserts the settings).
 fn init_world(world: &mut World) {

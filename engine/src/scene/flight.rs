@@ -1,13 +1,15 @@
 //! A scene flown through along a camera path: the world, its culling schedule and the camera, advanced one
-//! frame at a time. The sample game, the tests and the benchmarks all drive the pipeline through it.
+//! frame at a time. The sample game, the tests and the benchmarks all drive the pipeline through it, or any
+//! [`Culler`] ([`Flight::for_cullers`], [`Flight::cull_frame`]).
 
 use super::Velocity;
+use crate::bounds::BoundsStore;
 use crate::bounds::ObjectTransform;
 use crate::camera::CameraPath;
+use crate::culler::{AdaptiveSettings, CullScene, Culled, Culler, OcclusionSettings};
 use crate::pipeline::{self, CullStage, CullStats, PipelineSettings};
-
-use crate::culler::{AdaptiveSettings, OcclusionSettings};
 use bevy_ecs::prelude::*;
+use std::time::Duration;
 
 /// Seconds simulated by the current frame.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
@@ -53,6 +55,38 @@ impl Flight {
         world.init_resource::<FrameDelta>();
         schedule.add_systems(move_objects.before(CullStage::Bounds));
         Self { world, schedule, path, aspect, frames }
+    }
+
+    /// A world with only the bounds stage installed ([`pipeline::install_bounds`]), filled by `spawn`, with the
+    /// camera at the start of `path`: each frame, [`Flight::cull_frame`] moves the objects, brings the store
+    /// up to date and runs a [`Culler`] of your choice on it.
+    pub fn for_cullers(path: CameraPath, aspect: f32, frames: u32, spawn: impl FnOnce(&mut World)) -> Self {
+        let (mut world, mut schedule) = (World::new(), Schedule::default());
+        pipeline::install_bounds(&mut world, &mut schedule);
+        spawn(&mut world);
+        world.insert_resource(path.camera_at(0.0, aspect));
+        world.init_resource::<FrameDelta>();
+        schedule.add_systems(move_objects.before(CullStage::Bounds));
+        Self { world, schedule, path, aspect, frames }
+    }
+
+    /// Places the camera for frame `frame`, moves objects by one frame (none on frame 0), brings the store up
+    /// to date and culls with `culler`, telling it what moved in place ([`BoundsStore::take_moves`]). Returns
+    /// the bounds stage's time ([`BoundsStore::last_sync_time`], as [`CullStats::bounds_time`]) and what the
+    /// culler kept. Meant for a
+    /// flight made by [`Flight::for_cullers`]; on one with the whole pipeline, the pipeline takes the moves
+    /// first and the culler is told none.
+    pub fn cull_frame<'c>(&mut self, frame: u32, culler: &'c mut dyn Culler) -> (Duration, Culled<'c>) {
+        let delta = self.frame_delta();
+        let camera = self.path.camera_at(frame as f32 * delta, self.aspect);
+        self.world.insert_resource(camera);
+        self.world.resource_mut::<FrameDelta>().0 = if frame == 0 { 0.0 } else { delta };
+        self.schedule.run(&mut self.world);
+        self.world.clear_trackers();
+        let mut store = self.world.resource_mut::<BoundsStore>();
+        let (bounds_time, moves) = (store.last_sync_time(), store.take_moves());
+        let scene = CullScene { world: &self.world, moves: moves.as_ref() };
+        (bounds_time, culler.cull(&scene, &camera))
     }
 
     /// Seconds between frames.
