@@ -1,10 +1,13 @@
 //! `--validate`: every frame judged against the exact ground truth, headless or live in the window's HUD.
 
 use bevy_ecs::world::World;
-use cullet::culler::OcclusionSettings;
+use cullet::Camera;
+use cullet::culler::{Culled, OcclusionSettings};
 use cullet::mesh::Mesh;
+use cullet::pipeline::CameraCuller;
+use cullet_truth::judge::judge_culled;
 use cullet_truth::shadows::light_view_false_negatives;
-use cullet_truth::{FrameMetrics, JudgeSettings, PathMetrics, ReferenceSettings, judge_frame};
+use cullet_truth::{FrameMetrics, JudgeSettings, PathMetrics, ReferenceSettings};
 
 /// The judge of a run, and what it found so far.
 pub struct Validation {
@@ -40,12 +43,30 @@ impl Validation {
         (self.judge.reference.width, self.judge.reference.height) = (width, height);
     }
 
-    /// Judges the frame `world` just culled (its camera and each stage's survivors) and returns the metrics.
+    /// Judges the frame the pipeline just culled in `world` (its camera and each stage's survivors, through
+    /// [`Validation::judge_culled`]) and returns the metrics.
     pub fn judge(&mut self, world: &World, meshes: &[Mesh]) -> &FrameMetrics {
-        let metrics = judge_frame(world, meshes, &self.judge).metrics;
-        self.total.add(&metrics);
+        let culled = world.resource::<CameraCuller>().culled();
         let reference = &self.judge.reference;
-        if world.resource::<OcclusionSettings>().is_conservative_for((reference.width, reference.height)) {
+        let conservative =
+            world.resource::<OcclusionSettings>().is_conservative_for((reference.width, reference.height));
+        self.judge_culled(world, world.resource::<Camera>(), &culled, conservative, meshes)
+    }
+
+    /// Judges what a culler kept (`culled`, any [`cullet::culler::Culler`]'s result) in the frame of `world`
+    /// seen through `camera`, and the light views `world`'s pipeline culled; `conservative` where the culler
+    /// promises no false negative at the judged resolution. Returns the metrics.
+    pub fn judge_culled(
+        &mut self,
+        world: &World,
+        camera: &Camera,
+        culled: &Culled<'_>,
+        conservative: bool,
+        meshes: &[Mesh],
+    ) -> &FrameMetrics {
+        let metrics = judge_culled(world, camera, culled, meshes, &self.judge).metrics;
+        self.total.add(&metrics);
+        if conservative {
             self.conservative_false_negatives += metrics.false_negatives.len();
         }
         // Light views are judged at the shadow maps' resolution (the lamps' faces too, which draw none).

@@ -5,7 +5,7 @@ use crate::metrics::{FrameMetrics, OcclusionIdeal};
 use crate::occluders::ExactOccluderDepth;
 use crate::render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};
 use bevy_ecs::world::World;
-use cullet::culler::{CullScene, Culler, ViewCuller};
+use cullet::culler::{CullScene, Culled, Culler, ViewCuller};
 use cullet::mesh::Mesh;
 use cullet::pipeline::CameraCuller;
 use cullet::{BoundsStore, Camera, LocalBounds, MeshRef, ObjectTransform, Occluder};
@@ -78,6 +78,20 @@ pub fn judge_culler(
     settings: &JudgeSettings,
 ) -> Judgement {
     let culled = culler.cull(&CullScene::new(world), camera);
+    judge_culled(world, camera, &culled, meshes, settings)
+}
+
+/// Judges what a culler kept (`culled`, from [`Culler::cull`] or [`cullet::culler::ViewCuller::culled`]) in
+/// the frame of `world` seen through `camera`, against the exact rendering of every object's mesh. With
+/// [`JudgeSettings::occlusion_ideal`], the ideal is not measured here (it needs the culler's occluders:
+/// [`occlusion_ideal_of`]).
+pub fn judge_culled(
+    world: &World,
+    camera: &Camera,
+    culled: &Culled<'_>,
+    meshes: &[Mesh],
+    settings: &JudgeSettings,
+) -> Judgement {
     let truth = render_ids(camera, &reference_objects(world, meshes), &settings.reference);
     let metrics = FrameMetrics::new(&truth.visibility(), &culled.stages);
     Judgement { metrics, truth }

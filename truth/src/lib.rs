@@ -30,6 +30,6 @@ pub mod shadows;
 pub mod stress;
 mod triangle;
 
-pub use judge::{JudgeSettings, judge_culler, judge_frame};
+pub use judge::{JudgeSettings, judge_culled, judge_culler, judge_frame};
 pub use metrics::{FrameMetrics, PathMetrics};
 pub use render::{ExactVisibility, IdBuffer, ReferenceObject, ReferenceSettings, render_ids};

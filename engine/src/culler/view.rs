@@ -397,6 +397,16 @@ impl ViewCuller {
         &self.stats
     }
 
+    /// The last frame's result as a [`Culled`](super::Culled): both stages, `frustum` and `occlusion` (which
+    /// keeps what the frustum stage kept where occlusion is off), and the stats. For judging the view as any
+    /// [`Culler`](super::Culler)'s result is judged.
+    pub fn culled(&self) -> super::Culled<'_> {
+        super::Culled {
+            stages: vec![("frustum", &self.frustum_visible), ("occlusion", self.visible())],
+            stats: self.stats,
+        }
+    }
+
     /// Store slots kept by the frustum stage.
     pub fn frustum_visible(&self) -> &VisibleSet {
         &self.frustum_visible
