@@ -14,7 +14,7 @@ import re
 import sys
 from pathlib import Path
 
-PATH = re.compile(r"\b(crate|super|self)((?:::[A-Za-z_][A-Za-z0-9_]*)+)(::\{[^;]*?\})?", re.S)
+PATH = re.compile(r"\b(crate|super|self)((?:::[A-Za-z_][A-Za-z0-9_]*)*)(::\{[^;]*?\})?", re.S)
 
 
 def module_path(src: Path, file: Path) -> tuple:
@@ -70,7 +70,9 @@ def edges_of(src: Path, modules: set, file: Path):
     here = module_path(src, file)
     for match in PATH.finditer(code_of(file.read_text())):
         root, rest, group = match.group(1), match.group(2), match.group(3)
-        names = tuple(rest.strip(":").split("::"))
+        if not rest and not group:
+            continue  # `self` as a value or a bare `super`/`crate`: no path.
+        names = tuple(name for name in rest.strip(":").split("::") if name)
         base = {"crate": (), "self": here, "super": here[:-1]}[root]
         while names and names[0] == "super":
             base, names = base[:-1], names[1:]

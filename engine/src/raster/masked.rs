@@ -23,7 +23,7 @@
 //!
 //! # Coverage
 //! Triangles are drawn as quads: two consecutive ones sharing an edge as one, tested against their four outer
-//! edges, and the others alone (see [`quads`]). A centre is covered when it passes the quad's f32 edge tests,
+//! edges, and the others alone (see [`quads`](super::setup::quads)). A centre is covered when it passes the quad's f32 edge tests,
 //! the very tests of pixel-centre mode, each of which passes only on the inner side of its exact edge; so a
 //! covered centre lies in one of the triangles. Each test is monotonic in `x` and in `y` (f32 rounding is), so
 //! over a block's 16 centres it passes everywhere when it passes at the block's corner facing away from its
@@ -34,10 +34,9 @@
 
 use super::RasterMode;
 use super::binning::{BLOCK_COLUMNS, Bins, all_nearer, band_levels, reduce_band, summary_hides, update_summary};
-use super::setup::{PendingOccluder, SetupScratch, SetupTriangle, TexelRect};
+use super::setup::{PendingOccluder, QUAD_EDGES, SetupQuad, SetupScratch, TexelRect};
 use crate::depth::{DepthPyramid, ScreenView, farther};
 use crate::frustum::SimdBackend;
-use glam::DVec3;
 use rayon::prelude::*;
 use std::cmp::Ordering;
 
@@ -53,7 +52,7 @@ const BAND_BLOCK_ROWS: usize = 8;
 /// Pixel centres in a block, one bit each of its mask.
 const CENTRES: usize = (BLOCK * BLOCK) as usize;
 /// Edges a quad is tested against; a lone triangle repeats its last.
-const EDGES: usize = 4;
+const EDGES: usize = QUAD_EDGES;
 /// Blocks of a row drawn side by side where AVX2 is available: one register of f32.
 #[cfg(target_arch = "x86_64")]
 const LANES: usize = 8;
@@ -137,76 +136,6 @@ unsafe fn draw_band_avx2(
     scratch: &mut SetupScratch,
 ) {
     draw_band(blocks, bin, view, pending, scratch)
-}
-
-/// A set-up triangle, or two sharing an edge, as the masked raster draws them (see [`quads`]).
-#[derive(Clone, Debug)]
-pub(super) struct SetupQuad {
-    /// Per outer edge `(a, b, c)`: a pixel centre `(x, y)` passes when `a * x + (b * y + c) >= 0` in f32, the
-    /// set-up triangle's own test.
-    edges: [[f32; 3]; EDGES],
-    /// Each triangle's depth plane `(p, q, r)` (a lone triangle's twice): a block takes the farther of the two.
-    depth: [[f32; 3]; 2],
-    rect: TexelRect,
-}
-
-/// Pairs consecutive set-up triangles that share an edge in opposite directions (`vertices`: each one's
-/// counter-clockwise screen vertices, edge `i` from vertex `i`) into quads tested against their four other
-/// edges; a triangle paired with neither neighbour stays alone. Meshes list a quad's two triangles together,
-/// and near-plane clipping splits a triangle into two such.
-///
-/// Still no centre outside the triangles is covered: each f32 edge test passes only for centres on the inner
-/// side of its exact edge line (setup's margin), and a point on the inner side of all four outer lines lies
-/// in one of the two triangles: on the first's side of the shared line it is inside all three of the first's,
-/// otherwise all three of the second's (whose shared line is the same one, reversed). But the quad covers the
-/// centres along the shared edge that the margins leave uncovered in both triangles, and a band draws it once:
-/// one row of tests, no partial blocks along the diagonal. A pair is left apart where rounding could have
-/// flipped either triangle's orientation.
-pub(super) fn quads(triangles: &[SetupTriangle], vertices: &[[DVec3; 3]]) -> Vec<SetupQuad> {
-    let outer = |triangle: &SetupTriangle, edge: usize| {
-        let [a, b, c, _] = triangle.edges[edge % 3];
-        [a, b, c]
-    };
-    let mut quads = Vec::with_capacity(triangles.len());
-    let mut i = 0;
-    while let Some(first) = triangles.get(i) {
-        if let Some(second) = triangles.get(i + 1)
-            && let Some((k1, k2)) = shared_edge(&vertices[i], &vertices[i + 1])
-        {
-            quads.push(SetupQuad {
-                edges: [outer(first, k1 + 1), outer(first, k1 + 2), outer(second, k2 + 1), outer(second, k2 + 2)],
-                depth: [first.depth, second.depth],
-                rect: first.rect.union(second.rect),
-            });
-            i += 2;
-        } else {
-            quads.push(SetupQuad {
-                edges: [outer(first, 0), outer(first, 1), outer(first, 2), outer(first, 2)],
-                depth: [first.depth; 2],
-                rect: first.rect,
-            });
-            i += 1;
-        }
-    }
-    quads
-}
-
-/// The edges `(k1, k2)` by which two counter-clockwise triangles meet: edge `k1` of `u` is edge `k2` of `v`
-/// reversed (the same screen positions). `None` where there is none, or where either triangle is so thin that
-/// the f64 sign of its area, which decided its orientation, could be wrong.
-fn shared_edge(u: &[DVec3; 3], v: &[DVec3; 3]) -> Option<(usize, usize)> {
-    let same = |p: DVec3, q: DVec3| p.x == q.x && p.y == q.y;
-    let (k1, k2) = (0..3)
-        .flat_map(|k1| (0..3).map(move |k2| (k1, k2)))
-        .find(|&(k1, k2)| same(u[k1], v[(k2 + 1) % 3]) && same(u[(k1 + 1) % 3], v[k2]))?;
-    (well_oriented(u) && well_oriented(v)).then_some((k1, k2))
-}
-
-/// Whether a counter-clockwise triangle's doubled area is far above the rounding of the cross product that
-/// computes it (a few ulps of the product of two edge lengths), so its orientation is certain.
-fn well_oriented(t: &[DVec3; 3]) -> bool {
-    let (e1, e2) = ((t[1] - t[0]).truncate(), (t[2] - t[0]).truncate());
-    e1.perp_dot(e2) > 1e-9 * e1.length() * e2.length()
 }
 
 /// Draws the occluders of `bin` (indices into `pending`, nearest first) into a band's blocks, skipping those

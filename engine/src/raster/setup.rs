@@ -2,7 +2,7 @@
 //! once, its front faces clipped against the near plane and turned into f32 edge and depth planes with margins
 //! that cover the texel loops' rounding, and the boundary of their union found for the conservative mode.
 
-use super::{RasterMode, masked};
+use super::RasterMode;
 use crate::depth::{ScreenView, ceil, floor};
 use crate::occluders::{NO_NEIGHBOUR, OccluderInstance};
 use glam::{DAffine3, DMat4, DVec3, DVec4, Vec3};
@@ -65,8 +65,8 @@ pub(super) struct SetupOccluder {
     /// convex region they bound, and [`raster_hull`](super::texels::raster_hull) draws it from them. Empty otherwise.
     pub(super) hull: Vec<[f64; 3]>,
     /// The triangles as the masked mode draws them: consecutive ones sharing an edge paired into one quad
-    /// (see [`masked::quads`]). Empty in the other modes.
-    pub(super) quads: Vec<masked::SetupQuad>,
+    /// (see [`quads`]). Empty in the other modes.
+    pub(super) quads: Vec<SetupQuad>,
     pub(super) rect: TexelRect,
 }
 
@@ -255,7 +255,7 @@ pub(super) fn setup_occluder(
     let extent = screen_max - screen_min;
     let too_small = mode == RasterMode::Conservative && (extent.x < 1.0 || extent.y < 1.0);
     if mode == RasterMode::Masked {
-        setup.quads = masked::quads(&setup.triangles, oriented);
+        setup.quads = quads(&setup.triangles, oriented);
     }
     setup.hull = hull_lines(&setup.boundary);
     (!setup.triangles.is_empty() && !too_small).then_some(setup)
@@ -414,4 +414,78 @@ pub(super) fn setup_triangle(
     // Not short-circuiting, so that the fixed-size loops unroll.
     let finite = edges.as_flattened().iter().chain(&depth).fold(true, |finite, c| finite & c.is_finite());
     finite.then_some((SetupTriangle { edges, depth, rect }, v))
+}
+
+/// Outer edges of a [`SetupQuad`]: a lone triangle repeats its last.
+pub(super) const QUAD_EDGES: usize = 4;
+
+/// A set-up triangle, or two sharing an edge, as the masked raster ([`RasterMode::Masked`]) draws them (see
+/// [`quads`]).
+#[derive(Clone, Debug)]
+pub(super) struct SetupQuad {
+    /// Per outer edge `(a, b, c)`: a pixel centre `(x, y)` passes when `a * x + (b * y + c) >= 0` in f32, the
+    /// set-up triangle's own test.
+    pub(super) edges: [[f32; 3]; QUAD_EDGES],
+    /// Each triangle's depth plane `(p, q, r)` (a lone triangle's twice): a block takes the farther of the two.
+    pub(super) depth: [[f32; 3]; 2],
+    pub(super) rect: TexelRect,
+}
+
+/// Pairs consecutive set-up triangles that share an edge in opposite directions (`vertices`: each one's
+/// counter-clockwise screen vertices, edge `i` from vertex `i`) into quads tested against their four other
+/// edges; a triangle paired with neither neighbour stays alone. Meshes list a quad's two triangles together,
+/// and near-plane clipping splits a triangle into two such.
+///
+/// Still no centre outside the triangles is covered: each f32 edge test passes only for centres on the inner
+/// side of its exact edge line (setup's margin), and a point on the inner side of all four outer lines lies
+/// in one of the two triangles: on the first's side of the shared line it is inside all three of the first's,
+/// otherwise all three of the second's (whose shared line is the same one, reversed). But the quad covers the
+/// centres along the shared edge that the margins leave uncovered in both triangles, and a band draws it once:
+/// one row of tests, no partial blocks along the diagonal. A pair is left apart where rounding could have
+/// flipped either triangle's orientation.
+pub(super) fn quads(triangles: &[SetupTriangle], vertices: &[[DVec3; 3]]) -> Vec<SetupQuad> {
+    let outer = |triangle: &SetupTriangle, edge: usize| {
+        let [a, b, c, _] = triangle.edges[edge % 3];
+        [a, b, c]
+    };
+    let mut quads = Vec::with_capacity(triangles.len());
+    let mut i = 0;
+    while let Some(first) = triangles.get(i) {
+        if let Some(second) = triangles.get(i + 1)
+            && let Some((k1, k2)) = shared_edge(&vertices[i], &vertices[i + 1])
+        {
+            quads.push(SetupQuad {
+                edges: [outer(first, k1 + 1), outer(first, k1 + 2), outer(second, k2 + 1), outer(second, k2 + 2)],
+                depth: [first.depth, second.depth],
+                rect: first.rect.union(second.rect),
+            });
+            i += 2;
+        } else {
+            quads.push(SetupQuad {
+                edges: [outer(first, 0), outer(first, 1), outer(first, 2), outer(first, 2)],
+                depth: [first.depth; 2],
+                rect: first.rect,
+            });
+            i += 1;
+        }
+    }
+    quads
+}
+
+/// The edges `(k1, k2)` by which two counter-clockwise triangles meet: edge `k1` of `u` is edge `k2` of `v`
+/// reversed (the same screen positions). `None` where there is none, or where either triangle is so thin that
+/// the f64 sign of its area, which decided its orientation, could be wrong.
+fn shared_edge(u: &[DVec3; 3], v: &[DVec3; 3]) -> Option<(usize, usize)> {
+    let same = |p: DVec3, q: DVec3| p.x == q.x && p.y == q.y;
+    let (k1, k2) = (0..3)
+        .flat_map(|k1| (0..3).map(move |k2| (k1, k2)))
+        .find(|&(k1, k2)| same(u[k1], v[(k2 + 1) % 3]) && same(u[(k1 + 1) % 3], v[k2]))?;
+    (well_oriented(u) && well_oriented(v)).then_some((k1, k2))
+}
+
+/// Whether a counter-clockwise triangle's doubled area is far above the rounding of the cross product that
+/// computes it (a few ulps of the product of two edge lengths), so its orientation is certain.
+fn well_oriented(t: &[DVec3; 3]) -> bool {
+    let (e1, e2) = ((t[1] - t[0]).truncate(), (t[2] - t[0]).truncate());
+    e1.perp_dot(e2) > 1e-9 * e1.length() * e2.length()
 }
