@@ -373,7 +373,8 @@ fn the_stress_cases_lose_no_caster_to_light_views_occlusion() {
 
 /// The pipeline's light views' occlusion: a roof facing the sun hides the boxes under it from a cascade (the
 /// camera, below the roof, still sees them); turning it off takes effect on the next frame though nothing
-/// else changed; and a view whose occlusion hides too little is skipped after a few frames, then re-probed.
+/// else changed (an unchanged frame keeps them, unbuilt); and a view whose occlusion hides too little is
+/// skipped after a few frames, then re-probed.
 #[test]
 fn the_pipeline_occludes_light_views_and_gates_them() {
     use bevy_ecs::prelude::*;
@@ -409,6 +410,15 @@ fn the_pipeline_occludes_light_views_and_gates_them() {
     let cascade = &world.resource::<LightViewsVisible>().0[0];
     assert!(boxes.iter().all(|&entity| !cascade.visible.contains(store.slot_of(entity).unwrap())));
     assert_eq!((cascade.kept, cascade.occluded), (1, 25));
+
+    // Nothing changed: the camera's result is reused, and last frame's light views, occlusion included, stand
+    // (they are not built again).
+    let kept_before = world.resource::<LightViewsVisible>().0[0].visible.clone();
+    let stats = frame(&mut world);
+    assert!(stats.reused);
+    assert_eq!((stats.light_view_occluded, stats.after_occlusion), (25, 26));
+    let cascade = &world.resource::<LightViewsVisible>().0[0];
+    assert_eq!((cascade.kept, cascade.occluded, &cascade.visible), (1, 25, &kept_before));
 
     world.insert_resource(LightOcclusionSettings { enabled: false, min_casters: 1, ..Default::default() });
     let stats = frame(&mut world);

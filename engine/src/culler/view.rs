@@ -333,14 +333,11 @@ impl ViewCuller {
     /// Decides how this frame runs, ticking the occlusion gate on every frame not reused.
     fn plan(&mut self, store: &BoundsStore, frame: &ViewFrame, can_retest: bool) -> Plan {
         let settings = &frame.settings;
+        let same_view = self.same_view(store, frame);
+        self.stats.reused = self.reuses(store, frame);
         let (generation, layout) = (store.generation(), store.layout_generation());
         let current = LastCull { view: frame.view, settings: *settings, generation, layout };
         let last = self.last.replace(current);
-        let same_view = settings.adaptive.reuse_unchanged
-            && !frame.changed
-            && last.is_some_and(|last| (last.view, last.settings, last.layout) == (frame.view, *settings, layout))
-            && self.visible.len() == store.len();
-        self.stats.reused = same_view && last.is_some_and(|last| last.generation == generation);
         if self.stats.reused {
             return Plan::Reuse;
         }
@@ -365,6 +362,26 @@ impl ViewCuller {
             Some(moves) => Plan::Retest(moves.slots.clone()),
             None => Plan::Full,
         }
+    }
+
+    /// Whether the last cull was of the same view with the same settings, on a store of the same layout, with
+    /// nothing else changed ([`ViewFrame::changed`]) and reuse allowed: what moved since may then be re-tested
+    /// alone.
+    fn same_view(&self, store: &BoundsStore, frame: &ViewFrame) -> bool {
+        let layout = store.layout_generation();
+        frame.settings.adaptive.reuse_unchanged
+            && !frame.changed
+            && self
+                .last
+                .is_some_and(|last| (last.view, last.settings, last.layout) == (frame.view, frame.settings, layout))
+            && self.visible.len() == store.len()
+    }
+
+    /// Whether culling `frame` now would keep the last cull's result whole ([`ViewStats::reused`]): the same
+    /// view and settings, and nothing in the store or elsewhere changed since. A caller may then skip building
+    /// what only a cull reads (the pipeline skips building its light views).
+    pub fn reuses(&self, store: &BoundsStore, frame: &ViewFrame) -> bool {
+        self.same_view(store, frame) && self.last.is_some_and(|last| last.generation == store.generation())
     }
 
     /// Re-tests the store slots `moved` alone against the last cull's depth pyramid, which still holds for

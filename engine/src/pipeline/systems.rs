@@ -77,9 +77,12 @@ pub(super) fn frustum_stage(
         moves: moves.as_ref(),
         changed: lights_changed || !changed_occluders.is_empty(),
     };
-    // This frame's light views, culled with the camera.
+    // This frame's light views, culled with the camera; none are built where the camera's last result stands
+    // (and with it, last frame's light views).
     let lit = if lights.sources.0.is_empty() {
         stats.light_view_error = None;
+        Vec::new()
+    } else if culler.reuses(&store, &frame) {
         Vec::new()
     } else {
         light_views_of(&lights.sources, &camera, &mut stats.light_view_error)
