@@ -9,15 +9,18 @@
 //! same scenes, paths and frames: given the scene and a camera, a culler returns the store slots it keeps
 //! and its counts. [`StageCuller`] (the pipeline's stages with any [`ViewSettings`], frustum-only among them)
 //! is its first implementation; a culler that keeps state across frames keeps it in `self`.
+//! [`ShadowFrustaCuller`] culls with the occluders' shadow frusta instead of a depth buffer.
 
 mod adaptive;
 mod settings;
+mod shadow_frusta;
 mod view;
 
 pub use adaptive::{BenefitGate, RetestCost};
 pub use settings::{
     AdaptiveSettings, MAX_OCCLUSION_SAMPLES, MAX_OCCLUSION_SIDE, OcclusionSettings, SettingsError, ViewSettings,
 };
+pub use shadow_frusta::{ShadowFrustaCuller, ShadowFrustaSettings};
 pub use view::{ViewCuller, ViewFrame, ViewInput, ViewStats};
 
 use crate::bounds::{BoundsStore, ObjectTransform, StoreMoves};

@@ -1,0 +1,406 @@
+//! Occluder shadow frusta (after Hudson et al., the reference texts' seeds 002 and 004): each frame, for the
+//! occluders the depth-buffer stage would choose, the region each one hides from the eye as a set of planes,
+//! and every frustum survivor wholly inside one such region culled. No depth buffer, no raster: a test of a
+//! box against a few planes. Without occluder fusion, an object hidden only by two occluders together stays.
+//!
+//! # The region an occluder hides
+//! Only closed convex occluders are used (every edge shared by two triangles, every vertex on the inner side
+//! of every face). For such an occluder seen from an eye outside it, a point is hidden where it lies
+//! - inside the *cone* from the eye over the occluder: the intersection of the half-spaces bounded by the
+//!   planes through the eye and an edge of the occluder that have every vertex on one side (the supporting
+//!   planes; the silhouette edges' are among them, and every facet of the cone is one of them), and
+//! - on the inner side of every face that faces the eye: the ray from the eye to the point enters the
+//!   occluder through one of those faces, so the point lies beyond the occluder's surface there, which lies
+//!   inside the geometry it stands for.
+//!
+//! Every plane is built in f64 around the eye, and a box must clear each by a margin well above the
+//! rounding of its test, so the culler is conservative: it never removes an object a rendering shows.
+//!
+//! Occluders are binned into a grid over the screen by the rectangle their vertices project to; a box can be
+//! inside a region only where its centre is, so each box is tested against the regions of its centre's cell
+//! only.
+
+use super::{CullScene, Culled, Culler, ViewStats};
+use crate::bounds::BoundsStore;
+use crate::camera::Camera;
+use crate::frustum::{FrustumOptions, cull_frustum};
+use crate::occluders::{NO_NEIGHBOUR, OccluderInstance, select_occluders};
+use crate::visible::VisibleSet;
+use glam::{DMat4, DVec3, DVec4, Vec3};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Cells per side of the screen grid the regions are binned into.
+const GRID: usize = 32;
+/// How far (relative to the occluder's size and the plane's scale) a vertex may lie outside a face's plane or
+/// on the wrong side of an edge's plane and still count as on it: the rounding of the f64 transform.
+const PLANE_TOLERANCE: f64 = 1e-9;
+/// How far inside each plane a box must lie, relative to the plane's scale and the box's distance and size:
+/// far above the f64 rounding of the test and of the planes, far below any distance a rendering resolves.
+const TEST_MARGIN: f64 = 1e-7;
+/// Objects a rayon task tests.
+const TASK_OBJECTS: usize = 1024;
+
+/// What [`ShadowFrustaCuller`] culls with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShadowFrustaSettings {
+    /// Occluder triangles per frame: the occluders chosen as the depth-buffer stage chooses them
+    /// ([`crate::occluders::select_occluders`]), best first while they fit; those that are not closed and
+    /// convex are then left out.
+    pub triangle_budget: usize,
+}
+
+impl Default for ShadowFrustaSettings {
+    /// The depth-buffer stage's default budget ([`super::OcclusionSettings::default`]).
+    fn default() -> Self {
+        Self { triangle_budget: super::OcclusionSettings::default().triangle_budget }
+    }
+}
+
+/// The frustum stage, then the occluders' shadow frusta (see the module documentation): a [`Culler`] that is
+/// conservative at any resolution. Keeps its visible sets from frame to frame, nothing else.
+///
+/// # Example
+/// ```
+/// use cullet::culler::{CullScene, Culler, ShadowFrustaCuller};
+/// # use bevy_ecs::prelude::*;
+/// # use cullet::prelude::*;
+/// # use glam::{Affine3A, Vec3};
+/// # let (mut world, mut schedule) = (World::new(), Schedule::default());
+/// # cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+/// # world.insert_resource(Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z));
+/// # schedule.run(&mut world);
+/// let mut culler = ShadowFrustaCuller::default();
+/// let camera = *world.resource::<Camera>();
+/// let culled = culler.cull(&CullScene::new(&world), &camera);
+/// println!("kept {} of {}", culled.kept().count(), culled.stats.objects);
+/// ```
+#[derive(Clone, Debug, Default)]
+pub struct ShadowFrustaCuller {
+    /// What it culls with; change it between frames.
+    pub settings: ShadowFrustaSettings,
+    frustum_visible: VisibleSet,
+    visible: VisibleSet,
+}
+
+impl ShadowFrustaCuller {
+    /// A culler with `settings`.
+    pub fn new(settings: ShadowFrustaSettings) -> Self {
+        Self { settings, ..Self::default() }
+    }
+}
+
+impl Culler for ShadowFrustaCuller {
+    fn name(&self) -> String {
+        format!("shadow frusta {}", self.settings.triangle_budget)
+    }
+
+    fn is_conservative(&self, _viewport: (u32, u32)) -> bool {
+        true
+    }
+
+    fn cull(&mut self, scene: &CullScene, camera: &Camera) -> Culled<'_> {
+        let store = scene.store();
+        let mut stats = ViewStats { objects: store.len(), ..ViewStats::default() };
+        let start = Instant::now();
+        match camera.frustum() {
+            Ok(frustum) => {
+                cull_frustum(store, &frustum, FrustumOptions::default(), &mut self.frustum_visible);
+            }
+            Err(error) => {
+                stats.frustum_error = Some(error);
+                self.frustum_visible = VisibleSet::all(store.len());
+            }
+        }
+        stats.after_frustum = self.frustum_visible.count();
+        stats.frustum_time = start.elapsed();
+        self.visible.clone_from(&self.frustum_visible);
+        if stats.frustum_error.is_none() {
+            let start = Instant::now();
+            let chosen = select_occluders(
+                store,
+                &self.frustum_visible,
+                camera.position,
+                self.settings.triangle_budget,
+                |slot| scene.occluder_of(slot),
+            );
+            let frusta = ShadowFrusta::new(&chosen, camera);
+            (stats.occluders, stats.occluder_triangles) = (frusta.regions.len(), frusta.triangles);
+            stats.raster_time = start.elapsed();
+            let start = Instant::now();
+            if !frusta.regions.is_empty() {
+                for slot in frusta.hidden(store, &self.frustum_visible) {
+                    self.visible.set(slot as usize, false);
+                }
+            }
+            stats.occlusion_time = start.elapsed();
+        }
+        stats.after_occlusion = self.visible.count();
+        Culled { stages: vec![("frustum", &self.frustum_visible), ("shadow frusta", &self.visible)], stats }
+    }
+}
+
+/// The shadow frusta of one frame, binned over the screen.
+struct ShadowFrusta {
+    /// Each region's half-spaces `n.x + d >= 0` (`(n, d)`), around the eye.
+    regions: Vec<Vec<DVec4>>,
+    /// The regions whose screen rectangle reaches cell `c` (row-major, [`GRID`] by [`GRID`]):
+    /// `cells[starts[c]..starts[c + 1]]`.
+    cells: Vec<u32>,
+    starts: Vec<usize>,
+    /// The occluders' triangles, summed.
+    triangles: usize,
+    eye: DVec3,
+    clip_from_relative: DMat4,
+}
+
+impl ShadowFrusta {
+    /// The regions `occluders` hide from `camera`'s eye; occluders that are not closed and convex, that the eye
+    /// is not outside of, or that reach behind the eye, give none.
+    fn new(occluders: &[(u32, OccluderInstance<'_>)], camera: &Camera) -> Self {
+        let eye = camera.position.as_dvec3();
+        let clip_from_relative = camera.clip_from_relative_f64();
+        let built: Vec<(Vec<DVec4>, [usize; 4], usize)> = occluders
+            .par_iter()
+            .filter_map(|(_, instance)| {
+                let vertices = relative_vertices(instance, eye);
+                let planes = region_planes(instance, &vertices)?;
+                let cells = screen_cells(&vertices, &clip_from_relative)?;
+                Some((planes, cells, instance.occluder.triangle_count()))
+            })
+            .collect();
+        let mut starts = vec![0; GRID * GRID + 1];
+        for (_, [x0, x1, y0, y1], _) in &built {
+            for y in *y0..=*y1 {
+                for x in *x0..=*x1 {
+                    starts[y * GRID + x + 1] += 1;
+                }
+            }
+        }
+        for cell in 0..GRID * GRID {
+            starts[cell + 1] += starts[cell];
+        }
+        let (mut next, mut cells) = (starts.clone(), vec![0; starts[GRID * GRID]]);
+        for (region, (_, [x0, x1, y0, y1], _)) in built.iter().enumerate() {
+            for y in *y0..=*y1 {
+                for x in *x0..=*x1 {
+                    cells[next[y * GRID + x]] = region as u32;
+                    next[y * GRID + x] += 1;
+                }
+            }
+        }
+        let triangles = built.iter().map(|(_, _, triangles)| triangles).sum();
+        let regions = built.into_iter().map(|(planes, _, _)| planes).collect();
+        Self { regions, cells, starts, triangles, eye, clip_from_relative }
+    }
+
+    /// The store slots of `visible` whose boxes lie wholly inside one region, in parallel.
+    fn hidden(&self, store: &BoundsStore, visible: &VisibleSet) -> Vec<u32> {
+        let slots: Vec<u32> = visible.iter().map(|slot| slot as u32).collect();
+        let soa = store.soa();
+        slots
+            .par_chunks(TASK_OBJECTS)
+            .flat_map_iter(|chunk| {
+                chunk.iter().copied().filter(move |&slot| {
+                    let i = slot as usize;
+                    let centre = DVec3::new(soa.center_x[i].into(), soa.center_y[i].into(), soa.center_z[i].into());
+                    let extent = DVec3::new(soa.extent_x[i].into(), soa.extent_y[i].into(), soa.extent_z[i].into());
+                    self.box_hidden(centre - self.eye, extent)
+                })
+            })
+            .collect()
+    }
+
+    /// Whether the box of `centre` (around the eye) and half-extents `extent` lies wholly inside one region.
+    fn box_hidden(&self, centre: DVec3, extent: DVec3) -> bool {
+        let Some(cell) = self.cell_of(centre) else {
+            return false;
+        };
+        let reach = centre.length() + extent.length();
+        self.cells[self.starts[cell]..self.starts[cell + 1]].iter().any(|&region| {
+            self.regions[region as usize].iter().all(|plane| {
+                let normal = plane.truncate();
+                let least = normal.dot(centre) + plane.w - normal.abs().dot(extent);
+                least >= TEST_MARGIN * normal.length() * reach
+            })
+        })
+    }
+
+    /// The grid cell `point` (around the eye) projects to; `None` where it is not in front of the eye, so in
+    /// no region (every region lies in front of it).
+    fn cell_of(&self, point: DVec3) -> Option<usize> {
+        let clip = self.clip_from_relative * point.extend(1.0);
+        if clip.w.is_nan() || clip.w <= 0.0 {
+            return None;
+        }
+        let (x, y) = (grid_index(clip.x / clip.w), grid_index(clip.y / clip.w));
+        Some(y * GRID + x)
+    }
+}
+
+/// The grid column (or row) of a normalized device coordinate, clamped to the grid: clamping keeps a point
+/// inside a rectangle in the cells the rectangle is clamped to.
+fn grid_index(ndc: f64) -> usize {
+    let cell = ((ndc + 1.0) * 0.5 * GRID as f64).floor();
+    if cell.is_nan() { 0 } else { cell.clamp(0.0, (GRID - 1) as f64) as usize }
+}
+
+/// The occluder's distinct vertices in world space around the eye, in f64.
+fn relative_vertices(instance: &OccluderInstance<'_>, eye: DVec3) -> Vec<DVec3> {
+    let linear = glam::Mat3::from(instance.transform.matrix3).as_dmat3();
+    let translation = DVec3::from(Vec3::from(instance.transform.translation)) - eye;
+    instance.occluder.indexed().0.iter().map(|p| linear * p.as_dvec3() + translation).collect()
+}
+
+/// The half-spaces of the region the occluder (its `vertices` around the eye) hides from the eye: the
+/// supporting planes through the eye and its edges, and the inner sides of the faces facing the eye. `None`
+/// where it is not closed, not convex, degenerate, or where the eye is not outside it.
+fn region_planes(instance: &OccluderInstance<'_>, vertices: &[DVec3]) -> Option<Vec<DVec4>> {
+    let occluder = instance.occluder;
+    if occluder.triangle_count() == 0 || occluder.neighbours().contains(&NO_NEIGHBOUR) {
+        return None;
+    }
+    let corners = occluder.indexed().1;
+    let (min, max) =
+        vertices.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    let (size, reach) = ((max - min).length(), min.abs().max(max.abs()).length());
+    if !(size > 0.0 && reach.is_finite()) {
+        return None;
+    }
+    // A mirroring transform turns counter-clockwise faces clockwise.
+    let outward = if glam::Mat3::from(instance.transform.matrix3).determinant() < 0.0 { -1.0 } else { 1.0 };
+    let mut planes = Vec::new();
+    for triangle in corners.chunks_exact(3) {
+        let [a, b, c] = [0, 1, 2].map(|k| vertices[triangle[k] as usize]);
+        let normal = outward * (b - a).cross(c - a);
+        let scale = normal.length();
+        if !scale.is_normal() {
+            continue; // No face: its neighbours' planes bound the occluder there.
+        }
+        let d = -normal.dot(a);
+        let tolerance = PLANE_TOLERANCE * scale * (size + reach);
+        if vertices.iter().any(|&v| normal.dot(v) + d > tolerance) {
+            return None; // Not convex.
+        }
+        // The eye (the origin) outside the face's plane: the face faces it.
+        if d > tolerance {
+            planes.push((-normal).extend(-d));
+        }
+    }
+    if planes.is_empty() {
+        return None; // The eye is inside the occluder, or on its surface.
+    }
+    let faces = planes.len();
+    for triangle in corners.chunks_exact(3) {
+        for k in 0..3 {
+            let (i, j) = (triangle[k], triangle[(k + 1) % 3]);
+            // Each edge once: its two triangles list it in opposite directions.
+            if i > j {
+                continue;
+            }
+            let normal = vertices[i as usize].cross(vertices[j as usize]);
+            let scale = normal.length();
+            if !scale.is_normal() {
+                continue; // The edge points at the eye: no plane through both.
+            }
+            let tolerance = PLANE_TOLERANCE * scale * reach;
+            let (mut above, mut below) = (false, false);
+            for &v in vertices {
+                let side = normal.dot(v);
+                above |= side > tolerance;
+                below |= side < -tolerance;
+            }
+            match (above, below) {
+                (true, false) => planes.push(normal.extend(0.0)),
+                (false, true) => planes.push((-normal).extend(0.0)),
+                (false, false) => return None, // The occluder is flat and seen edge-on.
+                (true, true) => {}             // An edge inside the cone.
+            }
+        }
+    }
+    // A cone needs at least three sides.
+    (planes.len() >= faces + 3).then_some(planes)
+}
+
+/// The grid cells `[x0, x1, y0, y1]` (inclusive) that the vertices' projections span, widened for rounding;
+/// `None` where a vertex is not in front of the eye (the region would reach around it).
+fn screen_cells(vertices: &[DVec3], clip_from_relative: &DMat4) -> Option<[usize; 4]> {
+    let (mut min, mut max) = (glam::DVec2::INFINITY, glam::DVec2::NEG_INFINITY);
+    for &v in vertices {
+        let clip = *clip_from_relative * v.extend(1.0);
+        let least = PLANE_TOLERANCE * v.length();
+        if clip.w.is_nan() || clip.w <= least {
+            return None;
+        }
+        let ndc = clip.truncate().truncate() / clip.w;
+        (min, max) = (min.min(ndc), max.max(ndc));
+    }
+    let widen = 1e-6;
+    let (x0, y0) = (grid_index(min.x - widen), grid_index(min.y - widen));
+    let (x1, y1) = (grid_index(max.x + widen), grid_index(max.y + widen));
+    Some([x0, x1, y0, y1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::occluders::Occluder;
+    use glam::Affine3A;
+
+    /// A unit cube's triangles, counter-clockwise seen from outside.
+    fn cube() -> Occluder {
+        let p = |x: f32, y: f32, z: f32| Vec3::new(x, y, z) - Vec3::splat(0.5);
+        let faces = [
+            [p(0., 0., 1.), p(1., 0., 1.), p(1., 1., 1.), p(0., 1., 1.)],
+            [p(1., 0., 0.), p(0., 0., 0.), p(0., 1., 0.), p(1., 1., 0.)],
+            [p(0., 0., 0.), p(0., 0., 1.), p(0., 1., 1.), p(0., 1., 0.)],
+            [p(1., 0., 1.), p(1., 0., 0.), p(1., 1., 0.), p(1., 1., 1.)],
+            [p(0., 1., 1.), p(1., 1., 1.), p(1., 1., 0.), p(0., 1., 0.)],
+            [p(0., 0., 0.), p(1., 0., 0.), p(1., 0., 1.), p(0., 0., 1.)],
+        ];
+        Occluder::new(faces.iter().flat_map(|[a, b, c, d]| [*a, *b, *c, *a, *c, *d]).collect::<Vec<_>>())
+    }
+
+    fn planes_of(occluder: &Occluder, transform: Affine3A, eye: Vec3) -> Option<Vec<DVec4>> {
+        let instance = OccluderInstance { occluder, transform };
+        region_planes(&instance, &relative_vertices(&instance, eye.as_dvec3()))
+    }
+
+    fn inside(planes: &[DVec4], point: DVec3) -> bool {
+        planes.iter().all(|plane| plane.truncate().dot(point) + plane.w >= 0.0)
+    }
+
+    /// Seen face on, a cube hides the points straight behind it, not those beside, before or inside it.
+    #[test]
+    fn a_cube_hides_what_lies_behind_it() {
+        let cube = cube();
+        let eye = Vec3::new(0.0, 0.0, 10.0);
+        let planes = planes_of(&cube, Affine3A::IDENTITY, eye).expect("a closed convex occluder");
+        let relative = |p: Vec3| (p - eye).as_dvec3();
+        assert!(inside(&planes, relative(Vec3::new(0.0, 0.0, -5.0))));
+        assert!(inside(&planes, relative(Vec3::new(0.4, 0.4, -1.0))));
+        assert!(!inside(&planes, relative(Vec3::new(0.0, 2.0, -5.0))));
+        assert!(!inside(&planes, relative(Vec3::new(0.0, 0.0, 2.0))));
+        assert!(!inside(&planes, relative(Vec3::new(0.0, 0.0, 0.6))));
+    }
+
+    /// Open, non-convex or surrounding the eye, an occluder gives no region; mirrored, it gives the same one.
+    #[test]
+    fn only_closed_convex_occluders_outside_the_eye_give_a_region() {
+        let cube = cube();
+        let eye = Vec3::new(3.0, 1.0, 10.0);
+        let open = Occluder::new(cube.triangles()[..30].to_vec());
+        assert!(planes_of(&open, Affine3A::IDENTITY, eye).is_none());
+        let mut dented = cube.triangles().to_vec();
+        for v in dented.iter_mut().filter(|v| **v == Vec3::splat(0.5)) {
+            *v = Vec3::splat(0.2);
+        }
+        assert!(planes_of(&Occluder::new(dented), Affine3A::IDENTITY, eye).is_none());
+        assert!(planes_of(&cube, Affine3A::IDENTITY, Vec3::new(0.1, 0.0, 0.0)).is_none());
+        let mirrored = planes_of(&cube, Affine3A::from_scale(Vec3::new(-2.0, 1.0, 1.0)), eye).unwrap();
+        let scaled = planes_of(&cube, Affine3A::from_scale(Vec3::new(2.0, 1.0, 1.0)), eye).unwrap();
+        for point in [DVec3::new(-3.0, -1.0, -20.0), DVec3::new(-3.0, 1.0, -20.0), DVec3::new(-4.1, -1.0, -20.0)] {
+            assert_eq!(inside(&mirrored, point), inside(&scaled, point), "{point}");
+        }
+    }
+}
