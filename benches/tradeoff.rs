@@ -5,7 +5,8 @@
 //! frame against the exact ground truth, and writes `target/tradeoff/tradeoff.csv` and
 //! `target/tradeoff/tradeoff.png` (the Pareto front). Intel's Masked Occlusion Culling is a series of its own
 //! where it is built (see `build.rs`): at each resolution and the viewport's, given each frame the frustum
-//! survivors and occluders of Cullet's default configuration. Last, the default and the settings for the
+//! survivors and occluders of Cullet's default configuration. The occluders' shadow frusta (`ShadowFrustaCuller`)
+//! are a series at each budget, on the same occluders as the depth buffer at that budget. Last, the default and the settings for the
 //! 1920x1080 frame (`OcclusionSettings::for_frame`) are timed against each other in alternating passes, on
 //! rayon's threads and on one (CPU time), into `target/tradeoff/paired.csv`.
 //!
@@ -15,7 +16,9 @@
 #[path = "moc/mod.rs"]
 mod moc;
 
-use cullet::culler::{Culled, OcclusionSettings, StageCuller, ViewSettings};
+use cullet::culler::{
+    Culled, Culler, OcclusionSettings, ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
+};
 use cullet::raster::RasterMode;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
@@ -46,8 +49,44 @@ const TIMED_ROUNDS: usize = 3;
 /// Alternating passes of each of the two configurations [`paired`] compares.
 const PAIRED_PASSES: usize = 8;
 
+/// Which culler a row is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Series {
+    /// The pipeline's stages with the row's settings (`StageCuller`).
+    Stages,
+    /// Intel MOC at the row's resolution and budget, given the default's survivors and occluders.
+    Moc,
+    /// The occluders' shadow frusta at the row's budget (`ShadowFrustaCuller`).
+    ShadowFrusta,
+}
+
+impl Series {
+    fn name(self) -> &'static str {
+        match self {
+            Self::Stages => "cullet",
+            Self::Moc => "moc",
+            Self::ShadowFrusta => "cullet-shadow-frusta",
+        }
+    }
+}
+
+/// The culler of a Cullet row.
+fn culler_for(series: Series, settings: OcclusionSettings) -> Box<dyn Culler> {
+    match series {
+        Series::ShadowFrusta => {
+            Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget: settings.triangle_budget }))
+        }
+        Series::Stages | Series::Moc => {
+            let settings = ViewSettings { occlusion: settings, ..ViewSettings::default() };
+            Box::new(StageCuller::new(format!("{settings:?}"), settings))
+        }
+    }
+}
+
 /// One configuration's results over the path.
 struct Row {
+    series: Series,
+    /// The occlusion buffer's settings (a shadow frusta row: its budget).
     settings: OcclusionSettings,
     /// Mean per-frame times of the fastest pass, microseconds: bounds and frustum, raster, occlusion test.
     frustum_us: f64,
@@ -55,15 +94,22 @@ struct Row {
     occlusion_us: f64,
     accuracy: PathMetrics,
     on_front: bool,
-    /// Intel MOC at `settings`' resolution, not Cullet.
-    moc: bool,
 }
 
 impl Row {
     /// A row not timed yet: its time infinite until a pass is timed.
-    fn untimed(settings: OcclusionSettings, accuracy: PathMetrics, moc: bool) -> Self {
+    fn untimed(series: Series, settings: OcclusionSettings, accuracy: PathMetrics) -> Self {
         let (frustum_us, raster_us, occlusion_us) = (f64::INFINITY, 0.0, 0.0);
-        Self { settings, frustum_us, raster_us, occlusion_us, accuracy, on_front: false, moc }
+        Self { series, settings, frustum_us, raster_us, occlusion_us, accuracy, on_front: false }
+    }
+
+    /// Whether it never hides what a rendering of `viewport` shows.
+    fn is_conservative_for(&self, viewport: (u32, u32)) -> bool {
+        match self.series {
+            Series::Stages => self.settings.is_conservative_for(viewport),
+            Series::ShadowFrusta => true,
+            Series::Moc => false,
+        }
     }
 
     /// Mean per-frame time of all culling stages, fastest pass, microseconds.
@@ -72,8 +118,13 @@ impl Row {
     }
 
     fn label(&self) -> String {
-        if self.moc {
-            return format!("MOC {}x{} {}", self.settings.width, self.settings.height, self.settings.triangle_budget);
+        match self.series {
+            Series::Moc => {
+                let s = &self.settings;
+                return format!("MOC {}x{} {}", s.width, s.height, s.triangle_budget);
+            }
+            Series::ShadowFrusta => return format!("shadow frusta {}", self.settings.triangle_budget),
+            Series::Stages => {}
         }
         if !self.settings.enabled {
             return "frustum only".into();
@@ -83,7 +134,8 @@ impl Row {
     }
 
     fn is_default(&self) -> bool {
-        !self.moc && self.settings == OcclusionSettings { frame: self.settings.frame, ..OcclusionSettings::default() }
+        self.series == Series::Stages
+            && self.settings == OcclusionSettings { frame: self.settings.frame, ..OcclusionSettings::default() }
     }
 
     fn efficiency(&self) -> f64 {
@@ -124,9 +176,6 @@ fn main() {
             city.spawn(world);
         })
     };
-    let culler_for = |settings: OcclusionSettings| {
-        StageCuller::new(format!("{settings:?}"), ViewSettings { occlusion: settings, ..ViewSettings::default() })
-    };
 
     let start = Instant::now();
     let mut truth_flight = flight(OcclusionSettings::default());
@@ -166,27 +215,36 @@ fn main() {
             configs.push(OcclusionSettings { enabled: true, width, height, mode, triangle_budget, frame });
         }
     }
+    let mut configs: Vec<(Series, OcclusionSettings)> =
+        configs.into_iter().map(|settings| (Series::Stages, settings)).collect();
+    // The shadow frusta at each budget: the depth buffer's occluders at that budget, without the buffer.
+    for triangle_budget in BUDGETS {
+        configs.push((Series::ShadowFrusta, OcclusionSettings { triangle_budget, ..OcclusionSettings::default() }));
+    }
     // Frustum survivors an exact 1920x1080 buffer of the same occluders culls, per budget and frame.
     let mut ideal: HashMap<usize, Vec<usize>> = HashMap::new();
     let mut rows = Vec::new();
-    for settings in configs {
+    for (series, settings) in configs {
         let start = Instant::now();
         let mut accuracy = PathMetrics::default();
-        let (mut run, mut culler) = (culler_flight(), culler_for(settings));
+        let run = &mut culler_flight();
+        let mut stages_culler = StageCuller::new("", ViewSettings { occlusion: settings, ..ViewSettings::default() });
+        let mut other = culler_for(series, settings);
         let budget_ideal = settings.enabled.then(|| ideal.contains_key(&settings.triangle_budget));
         let mut ideal_this_budget = Vec::new();
         for frame in 0..frames {
-            let Culled { stages, .. } = run.cull_frame(frame, &mut culler).1;
+            let culler: &mut dyn Culler = if series == Series::Stages { &mut stages_culler } else { other.as_mut() };
+            let Culled { stages, .. } = run.cull_frame(frame, culler).1;
             let mut metrics = FrameMetrics::new(&truth[frame as usize], &stages);
             if settings.enabled {
-                let state = culler.view();
                 let culled = metrics.stages[0].kept - metrics.stages[1].kept;
                 let ideal_culled = match budget_ideal {
                     Some(true) => ideal[&settings.triangle_budget][frame as usize],
-                    _ if state.occluder_slots().is_empty() => 0,
+                    // Only the pipeline's stages run before the other series, so they measure the ideals.
+                    _ if stages_culler.view().occluder_slots().is_empty() => 0,
                     _ => {
                         let camera = run.world.resource::<cullet::Camera>();
-                        occlusion_ideal_of(&run.world, camera, state, &reference).ideal_culled
+                        occlusion_ideal_of(&run.world, camera, stages_culler.view(), &reference).ideal_culled
                     }
                 };
                 ideal_this_budget.push(ideal_culled);
@@ -197,7 +255,7 @@ fn main() {
         if budget_ideal == Some(false) {
             ideal.insert(settings.triangle_budget, ideal_this_budget);
         }
-        let row = Row::untimed(settings, accuracy, false);
+        let row = Row::untimed(series, settings, accuracy);
         println!("{:<28} judged in {:.1} s", row.label(), start.elapsed().as_secs_f64());
         rows.push(row);
     }
@@ -205,10 +263,10 @@ fn main() {
     let start = Instant::now();
     for round in 0..TIMED_ROUNDS {
         for row in rows.iter_mut() {
-            let (mut run, mut culler) = (culler_flight(), culler_for(row.settings));
+            let (mut run, mut culler) = (culler_flight(), culler_for(row.series, row.settings));
             let pass: Vec<[Duration; 3]> = (0..frames)
                 .map(|frame| {
-                    let (bounds_time, Culled { stats, .. }) = run.cull_frame(frame, &mut culler);
+                    let (bounds_time, Culled { stats, .. }) = run.cull_frame(frame, culler.as_mut());
                     [bounds_time + stats.frustum_time, stats.raster_time, stats.occlusion_time]
                 })
                 .collect();
@@ -376,7 +434,7 @@ impl MocSeries {
             .zip(self.accuracy.into_iter().zip(self.fastest))
             .map(|((width, height), (accuracy, (raster, test, project)))| {
                 let settings = OcclusionSettings { width, height, ..OcclusionSettings::default() };
-                let mut row = Row::untimed(settings, accuracy, true);
+                let mut row = Row::untimed(Series::Moc, settings, accuracy);
                 (row.frustum_us, row.raster_us, row.occlusion_us) =
                     (frustum_us, raster / frames * 1e6, test / frames * 1e6);
                 print_row(&row);
@@ -392,7 +450,7 @@ impl MocSeries {
 /// is both at least as fast and at least as efficient, and better in one. Fast mode is left out even where this
 /// path happened to show no false negative: it guarantees none.
 fn mark_pareto_front(rows: &mut [Row], viewport: (u32, u32)) {
-    let conservative = |r: &Row| !r.moc && r.accuracy.false_negatives == 0 && r.settings.is_conservative_for(viewport);
+    let conservative = |r: &Row| r.accuracy.false_negatives == 0 && r.is_conservative_for(viewport);
     let exact: Vec<(f64, f64)> =
         rows.iter().filter(|r| conservative(r)).map(|r| (r.cull_us(), r.efficiency())).collect();
     for row in rows.iter_mut().filter(|r| conservative(r)) {
@@ -413,7 +471,7 @@ fn csv(rows: &[Row]) -> String {
             out,
             "{},{},{},{},{},{:?},{},{},{:.1},{:.1},{:.1},{:.4},{:.4},{},{},{},{:.1},{},{}",
             r.label(),
-            if r.moc { "moc" } else { "cullet" },
+            r.series.name(),
             s.enabled,
             s.width,
             s.height,
@@ -492,7 +550,8 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
             ("fast", RasterMode::Fast),
         ];
         for (name, mode) in modes {
-            let series = rows.iter().filter(|r| !r.moc && r.settings.enabled && r.settings.mode == mode);
+            let series =
+                rows.iter().filter(|r| r.series == Series::Stages && r.settings.enabled && r.settings.mode == mode);
             let c = mode_color(mode);
             chart
                 .draw_series(series.map(|r| Circle::new((r.cull_us() / 1e3, value(r)), 5, color(r).filled())))?
@@ -502,11 +561,20 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
         chart
             .draw_series(
                 rows.iter()
-                    .filter(|r| r.moc)
+                    .filter(|r| r.series == Series::Moc)
                     .map(|r| TriangleMarker::new((r.cull_us() / 1e3, value(r)), 7, MAGENTA.filled())),
             )?
             .label("Intel MOC")
             .legend(|(x, y)| TriangleMarker::new((x + 10, y), 7, MAGENTA.filled()));
+        let frusta_color = RGBColor(0, 140, 70);
+        chart
+            .draw_series(
+                rows.iter()
+                    .filter(|r| r.series == Series::ShadowFrusta)
+                    .map(|r| Cross::new((r.cull_us() / 1e3, value(r)), 7, frusta_color.stroke_width(3))),
+            )?
+            .label("occluder shadow frusta")
+            .legend(move |(x, y)| Cross::new((x + 10, y), 7, frusta_color.stroke_width(3)));
         chart.draw_series(
             rows.iter()
                 .filter(|r| !r.settings.enabled)
@@ -517,7 +585,9 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
                 .filter(|r| r.is_default())
                 .map(|r| Circle::new((r.cull_us() / 1e3, value(r)), 10, ShapeStyle::from(&GREEN).stroke_width(3))),
         )?;
-        let labelled = |r: &&Row| r.is_default() || (efficiency_panel && (r.on_front || r.moc || !r.settings.enabled));
+        let labelled = |r: &&Row| {
+            r.is_default() || (efficiency_panel && (r.on_front || r.series != Series::Stages || !r.settings.enabled))
+        };
         chart.draw_series(rows.iter().filter(labelled).map(|r| {
             let label = if r.is_default() { format!("{} (default)", r.label()) } else { r.label() };
             Text::new(label, (r.cull_us() / 1e3, value(r)), ("sans-serif", 13))
