@@ -1,6 +1,8 @@
 //! Software occlusion culling on the city: occluder rasterization at several buffer sizes and triangle counts,
-//! the occludee test at several object counts, the two together (the 10k-triangle, 1e5-object target), and
-//! thread scaling.
+//! the occludee test at several object counts, the two together (the 10k-triangle, 1e5-object target), thread
+//! scaling, and the cullers side by side through the culler interface on one frame of the city's fly-through
+//! (the pipeline's stages with the default settings and with those for the 1920x1080 frame, and the occluders'
+//! shadow frusta at the default budget).
 //!
 //! `cargo bench -p cullet-benches --bench occlusion`
 
@@ -98,5 +100,49 @@ fn combined(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, raster, test, combined);
+fn cullers(c: &mut Criterion) {
+    use cullet::culler::{AdaptiveSettings, Culler, OcclusionSettings, ShadowFrustaCuller, StageCuller, ViewSettings};
+    use cullet::scene::city::{CityParams, CityScene};
+    use cullet::scene::flight::Flight;
+    let city = CityScene::generate(CityParams::with_objects(100_000));
+    let frames = 200;
+    let mut flight = Flight::for_cullers(city.flythrough(), 16.0 / 9.0, frames, |world| {
+        city.spawn(world);
+    });
+    // A frame along the street, mid-path.
+    let mut probe = StageCuller::frustum_only();
+    let _ = flight.cull_frame(frames / 2, &mut probe);
+    let camera = *flight.world.resource::<cullet::Camera>();
+    let scene = cullet::culler::CullScene::new(&flight.world);
+    // Every iteration culls the same frame: the stages must not keep the last result.
+    let adaptive = AdaptiveSettings { reuse_unchanged: false, ..AdaptiveSettings::default() };
+    let default = ViewSettings { adaptive, ..ViewSettings::default() };
+    let for_frame = ViewSettings { occlusion: OcclusionSettings::for_frame(1920, 1080), ..default };
+    let mut cullers: Vec<Box<dyn Culler>> = vec![
+        Box::new(StageCuller::new("stages default", default)),
+        Box::new(StageCuller::new("stages for_frame", for_frame)),
+        Box::new(ShadowFrustaCuller::default()),
+    ];
+    let mut group = c.benchmark_group("cullers/city1e5");
+    configure(&mut group);
+    for culler in &mut cullers {
+        let name = culler.name();
+        let stats = culler.cull(&scene, &camera).stats;
+        println!(
+            "{name}: kept {} of {} after the frustum's {}; frustum {:?}, occluders {:?}, test {:?}",
+            stats.after_occlusion,
+            stats.objects,
+            stats.after_frustum,
+            stats.frustum_time,
+            stats.raster_time,
+            stats.occlusion_time
+        );
+        group.bench_function(name.as_str(), |b| {
+            b.iter(|| black_box(culler.cull(&scene, &camera).stats.after_occlusion))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, raster, test, combined, cullers);
 criterion_main!(benches);

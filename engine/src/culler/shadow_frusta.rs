@@ -21,8 +21,9 @@
 //! only.
 
 use super::{CullScene, Culled, Culler, ViewStats};
-use crate::bounds::BoundsStore;
+use crate::bounds::{BoundsStore, SoaSlices};
 use crate::camera::Camera;
+use crate::frustum::SimdBackend;
 use crate::frustum::{FrustumOptions, cull_frustum};
 use crate::occluders::{NO_NEIGHBOUR, OccluderInstance, select_occluders};
 use crate::visible::VisibleSet;
@@ -35,9 +36,12 @@ const GRID: usize = 32;
 /// How far (relative to the occluder's size and the plane's scale) a vertex may lie outside a face's plane or
 /// on the wrong side of an edge's plane and still count as on it: the rounding of the f64 transform.
 const PLANE_TOLERANCE: f64 = 1e-9;
-/// How far inside each plane a box must lie, relative to the plane's scale and the box's distance and size:
-/// far above the f64 rounding of the test and of the planes, far below any distance a rendering resolves.
-const TEST_MARGIN: f64 = 1e-7;
+/// How far inside each plane a box must lie, relative to the size of the test's terms (the box's distance and
+/// size, the plane's offset, its normal of unit length): far above the rounding of the f32 test and of its
+/// inputs (about a dozen roundings of 2^-24 each), far below any distance a rendering resolves.
+const TEST_MARGIN: f32 = 4e-6;
+/// Planes a block of [`PlaneBlock`] holds: one AVX register of f32.
+const LANES: usize = 8;
 /// Objects a rayon task tests.
 const TASK_OBJECTS: usize = 1024;
 
@@ -125,10 +129,10 @@ impl Culler for ShadowFrustaCuller {
                 |slot| scene.occluder_of(slot),
             );
             let frusta = ShadowFrusta::new(&chosen, camera);
-            (stats.occluders, stats.occluder_triangles) = (frusta.regions.len(), frusta.triangles);
+            (stats.occluders, stats.occluder_triangles) = (frusta.rects.len(), frusta.triangles);
             stats.raster_time = start.elapsed();
             let start = Instant::now();
-            if !frusta.regions.is_empty() {
+            if !frusta.rects.is_empty() {
                 for slot in frusta.hidden(store, &self.frustum_visible) {
                     self.visible.set(slot as usize, false);
                 }
@@ -140,10 +144,56 @@ impl Culler for ShadowFrustaCuller {
     }
 }
 
+/// Up to [`LANES`] half-spaces `n.x + d >= 0` of one region, lane by lane, in f32, to test a box against all of
+/// them at once: the normals (of unit length) and their absolute values, and the offsets less the test's
+/// margin for their size. Unused lanes always pass.
+#[derive(Clone, Copy, Debug)]
+struct PlaneBlock {
+    normal: [[f32; LANES]; 3],
+    normal_abs: [[f32; LANES]; 3],
+    offset: [f32; LANES],
+}
+
+impl PlaneBlock {
+    /// `planes` (at most [`LANES`]) as a block.
+    fn new(planes: &[DVec4]) -> Self {
+        let mut block = Self { normal: [[0.0; LANES]; 3], normal_abs: [[0.0; LANES]; 3], offset: [f32::MAX; LANES] };
+        for (lane, plane) in planes.iter().enumerate() {
+            for axis in 0..3 {
+                block.normal[axis][lane] = plane[axis] as f32;
+                block.normal_abs[axis][lane] = (plane[axis] as f32).abs();
+            }
+            block.offset[lane] = (plane.w - f64::from(TEST_MARGIN) * plane.w.abs()) as f32;
+        }
+        block
+    }
+
+    /// Whether the box of `centre` and half-extents `extent` (around the eye) lies inside every plane by
+    /// `margin` more than [`TEST_MARGIN`] of the plane's offset. Branch free, so that it runs lane-parallel.
+    #[inline(always)]
+    fn holds(&self, centre: [f32; 3], extent: [f32; 3], margin: f32) -> bool {
+        let mut inside = 0u32;
+        for lane in 0..LANES {
+            let [nx, ny, nz] = [self.normal[0][lane], self.normal[1][lane], self.normal[2][lane]];
+            let [ax, ay, az] = [self.normal_abs[0][lane], self.normal_abs[1][lane], self.normal_abs[2][lane]];
+            let least = nx * centre[0] + ny * centre[1] + nz * centre[2] + self.offset[lane]
+                - (ax * extent[0] + ay * extent[1] + az * extent[2]);
+            // NaN counts as outside.
+            inside += u32::from(least >= margin);
+        }
+        inside == LANES as u32
+    }
+}
+
 /// The shadow frusta of one frame, binned over the screen.
 struct ShadowFrusta {
-    /// Each region's half-spaces `n.x + d >= 0` (`(n, d)`), around the eye.
-    regions: Vec<Vec<DVec4>>,
+    /// Each region's half-spaces, [`LANES`] to a block: region `r`'s blocks are
+    /// `blocks[block_starts[r]..block_starts[r + 1]]`.
+    blocks: Vec<PlaneBlock>,
+    block_starts: Vec<usize>,
+    /// Each region's rectangle in normalized device coordinates `[x0, x1, y0, y1]`, widened for rounding: the
+    /// projection of every point inside it lies in it.
+    rects: Vec<[f64; 4]>,
     /// The regions whose screen rectangle reaches cell `c` (row-major, [`GRID`] by [`GRID`]):
     /// `cells[starts[c]..starts[c + 1]]`.
     cells: Vec<u32>,
@@ -151,7 +201,8 @@ struct ShadowFrusta {
     /// The occluders' triangles, summed.
     triangles: usize,
     eye: DVec3,
-    clip_from_relative: DMat4,
+    /// Rows `x`, `y` and `w` of the camera's clip-from-relative matrix.
+    clip_rows: [DVec4; 3],
 }
 
 impl ShadowFrusta {
@@ -160,19 +211,21 @@ impl ShadowFrusta {
     fn new(occluders: &[(u32, OccluderInstance<'_>)], camera: &Camera) -> Self {
         let eye = camera.position.as_dvec3();
         let clip_from_relative = camera.clip_from_relative_f64();
-        let built: Vec<(Vec<DVec4>, [usize; 4], usize)> = occluders
+        let built: Vec<(Vec<DVec4>, [f64; 4], usize)> = occluders
             .par_iter()
             .filter_map(|(_, instance)| {
                 let vertices = relative_vertices(instance, eye);
                 let planes = region_planes(instance, &vertices)?;
-                let cells = screen_cells(&vertices, &clip_from_relative)?;
-                Some((planes, cells, instance.occluder.triangle_count()))
+                let rect = screen_rect(&vertices, &clip_from_relative)?;
+                Some((planes, rect, instance.occluder.triangle_count()))
             })
             .collect();
+        let cells_of = |&[x0, x1, y0, y1]: &[f64; 4]| [grid_index(x0), grid_index(x1), grid_index(y0), grid_index(y1)];
         let mut starts = vec![0; GRID * GRID + 1];
-        for (_, [x0, x1, y0, y1], _) in &built {
-            for y in *y0..=*y1 {
-                for x in *x0..=*x1 {
+        for (_, rect, _) in &built {
+            let [x0, x1, y0, y1] = cells_of(rect);
+            for y in y0..=y1 {
+                for x in x0..=x1 {
                     starts[y * GRID + x + 1] += 1;
                 }
             }
@@ -181,60 +234,104 @@ impl ShadowFrusta {
             starts[cell + 1] += starts[cell];
         }
         let (mut next, mut cells) = (starts.clone(), vec![0; starts[GRID * GRID]]);
-        for (region, (_, [x0, x1, y0, y1], _)) in built.iter().enumerate() {
-            for y in *y0..=*y1 {
-                for x in *x0..=*x1 {
+        for (region, (_, rect, _)) in built.iter().enumerate() {
+            let [x0, x1, y0, y1] = cells_of(rect);
+            for y in y0..=y1 {
+                for x in x0..=x1 {
                     cells[next[y * GRID + x]] = region as u32;
                     next[y * GRID + x] += 1;
                 }
             }
         }
         let triangles = built.iter().map(|(_, _, triangles)| triangles).sum();
-        let regions = built.into_iter().map(|(planes, _, _)| planes).collect();
-        Self { regions, cells, starts, triangles, eye, clip_from_relative }
+        let rects = built.iter().map(|(_, rect, _)| *rect).collect();
+        let mut block_starts = vec![0];
+        let mut blocks = Vec::new();
+        for (planes, _, _) in &built {
+            blocks.extend(planes.chunks(LANES).map(PlaneBlock::new));
+            block_starts.push(blocks.len());
+        }
+        let clip_rows = [0, 1, 3].map(|r| clip_from_relative.row(r));
+        Self { blocks, block_starts, rects, cells, starts, triangles, eye, clip_rows }
     }
 
     /// The store slots of `visible` whose boxes lie wholly inside one region, in parallel.
     fn hidden(&self, store: &BoundsStore, visible: &VisibleSet) -> Vec<u32> {
         let slots: Vec<u32> = visible.iter().map(|slot| slot as u32).collect();
         let soa = store.soa();
+        let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+        slots.par_chunks(TASK_OBJECTS).flat_map_iter(|chunk| self.hidden_of_with_backend(avx2, &soa, chunk)).collect()
+    }
+
+    /// [`ShadowFrusta::hidden_of`], compiled for AVX2 where `avx2` (detected on this processor): a block's
+    /// lanes then run in one register. The arithmetic is the same, so both keep the same objects.
+    fn hidden_of_with_backend(&self, avx2: bool, soa: &SoaSlices<'_>, slots: &[u32]) -> Vec<u32> {
+        match avx2 {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `avx2` is set only where AVX2 was detected.
+            true => unsafe { self.hidden_of_avx2(soa, slots) },
+            _ => self.hidden_of(soa, slots),
+        }
+    }
+
+    /// [`ShadowFrusta::hidden_of`] with AVX2 enabled.
+    ///
+    /// # Safety
+    /// The processor must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn hidden_of_avx2(&self, soa: &SoaSlices<'_>, slots: &[u32]) -> Vec<u32> {
+        self.hidden_of(soa, slots)
+    }
+
+    /// The store slots of `slots` whose boxes lie wholly inside one region.
+    #[inline(always)]
+    fn hidden_of(&self, soa: &SoaSlices<'_>, slots: &[u32]) -> Vec<u32> {
+        let bounds = |i: usize| {
+            let centre = DVec3::new(soa.center_x[i].into(), soa.center_y[i].into(), soa.center_z[i].into());
+            let extent = DVec3::new(soa.extent_x[i].into(), soa.extent_y[i].into(), soa.extent_z[i].into());
+            (centre - self.eye, extent)
+        };
         slots
-            .par_chunks(TASK_OBJECTS)
-            .flat_map_iter(|chunk| {
-                chunk.iter().copied().filter(move |&slot| {
-                    let i = slot as usize;
-                    let centre = DVec3::new(soa.center_x[i].into(), soa.center_y[i].into(), soa.center_z[i].into());
-                    let extent = DVec3::new(soa.extent_x[i].into(), soa.extent_y[i].into(), soa.extent_z[i].into());
-                    self.box_hidden(centre - self.eye, extent)
-                })
+            .iter()
+            .copied()
+            .filter(|&slot| {
+                let (centre, extent) = bounds(slot as usize);
+                self.box_hidden(centre, extent)
             })
             .collect()
     }
 
     /// Whether the box of `centre` (around the eye) and half-extents `extent` lies wholly inside one region.
+    #[inline(always)]
     fn box_hidden(&self, centre: DVec3, extent: DVec3) -> bool {
-        let Some(cell) = self.cell_of(centre) else {
+        let Some((x, y)) = self.project(centre) else {
             return false;
         };
-        let reach = centre.length() + extent.length();
+        let cell = grid_index(y) * GRID + grid_index(x);
+        // The planes have unit normals, so this bounds the size of the box's terms of a test.
+        let margin = TEST_MARGIN * (centre.abs() + extent).element_sum() as f32;
+        let (centre, extent) = (centre.as_vec3().to_array(), extent.as_vec3().to_array());
         self.cells[self.starts[cell]..self.starts[cell + 1]].iter().any(|&region| {
-            self.regions[region as usize].iter().all(|plane| {
-                let normal = plane.truncate();
-                let least = normal.dot(centre) + plane.w - normal.abs().dot(extent);
-                least >= TEST_MARGIN * normal.length() * reach
-            })
+            let region = region as usize;
+            let [x0, x1, y0, y1] = self.rects[region];
+            (x0 <= x) & (x <= x1) & (y0 <= y) & (y <= y1)
+                && self.blocks[self.block_starts[region]..self.block_starts[region + 1]]
+                    .iter()
+                    .all(|block| block.holds(centre, extent, margin))
         })
     }
 
-    /// The grid cell `point` (around the eye) projects to; `None` where it is not in front of the eye, so in
-    /// no region (every region lies in front of it).
-    fn cell_of(&self, point: DVec3) -> Option<usize> {
-        let clip = self.clip_from_relative * point.extend(1.0);
-        if clip.w.is_nan() || clip.w <= 0.0 {
+    /// The normalized device coordinates `point` (around the eye) projects to; `None` where it is not in front
+    /// of the eye, so in no region (every region lies in front of it).
+    #[inline(always)]
+    fn project(&self, point: DVec3) -> Option<(f64, f64)> {
+        let row = |r: usize| self.clip_rows[r].truncate().dot(point) + self.clip_rows[r].w;
+        let w = row(2);
+        if w.is_nan() || w <= 0.0 {
             return None;
         }
-        let (x, y) = (grid_index(clip.x / clip.w), grid_index(clip.y / clip.w));
-        Some(y * GRID + x)
+        Some((row(0) / w, row(1) / w))
     }
 }
 
@@ -319,12 +416,26 @@ fn region_planes(instance: &OccluderInstance<'_>, vertices: &[DVec3]) -> Option<
         }
     }
     // A cone needs at least three sides.
-    (planes.len() >= faces + 3).then_some(planes)
+    if planes.len() < faces + 3 {
+        return None;
+    }
+    for plane in &mut planes {
+        *plane /= plane.truncate().length();
+    }
+    // The triangles of one face give one plane (within far less than the test's margin).
+    let mut distinct: Vec<DVec4> = Vec::with_capacity(planes.len());
+    for plane in planes {
+        let same = |other: &DVec4| (plane - *other).abs().max_element() <= PLANE_TOLERANCE * (1.0 + plane.w.abs());
+        if !distinct.iter().any(same) {
+            distinct.push(plane);
+        }
+    }
+    Some(distinct)
 }
 
-/// The grid cells `[x0, x1, y0, y1]` (inclusive) that the vertices' projections span, widened for rounding;
-/// `None` where a vertex is not in front of the eye (the region would reach around it).
-fn screen_cells(vertices: &[DVec3], clip_from_relative: &DMat4) -> Option<[usize; 4]> {
+/// The rectangle `[x0, x1, y0, y1]` in normalized device coordinates that the vertices' projections span,
+/// widened for rounding; `None` where a vertex is not in front of the eye (the region would reach around it).
+fn screen_rect(vertices: &[DVec3], clip_from_relative: &DMat4) -> Option<[f64; 4]> {
     let (mut min, mut max) = (glam::DVec2::INFINITY, glam::DVec2::NEG_INFINITY);
     for &v in vertices {
         let clip = *clip_from_relative * v.extend(1.0);
@@ -336,9 +447,7 @@ fn screen_cells(vertices: &[DVec3], clip_from_relative: &DMat4) -> Option<[usize
         (min, max) = (min.min(ndc), max.max(ndc));
     }
     let widen = 1e-6;
-    let (x0, y0) = (grid_index(min.x - widen), grid_index(min.y - widen));
-    let (x1, y1) = (grid_index(max.x + widen), grid_index(max.y + widen));
-    Some([x0, x1, y0, y1])
+    Some([min.x - widen, max.x + widen, min.y - widen, max.y + widen])
 }
 
 #[cfg(test)]
@@ -382,6 +491,39 @@ mod tests {
         assert!(!inside(&planes, relative(Vec3::new(0.0, 2.0, -5.0))));
         assert!(!inside(&planes, relative(Vec3::new(0.0, 0.0, 2.0))));
         assert!(!inside(&planes, relative(Vec3::new(0.0, 0.0, 0.6))));
+    }
+
+    /// Behind a wall of cubes, a grid of boxes: the AVX2 and portable tests keep the same ones, and hide some.
+    #[test]
+    fn the_avx2_test_agrees_with_the_portable_one() {
+        use bevy_ecs::entity::Entity;
+        let cube = cube();
+        let camera = Camera::looking_at(Vec3::new(0.3, 1.2, 20.0), Vec3::new(0.0, 0.0, -10.0));
+        let walls: Vec<(u32, OccluderInstance)> = (0..9)
+            .map(|i| {
+                let transform = Affine3A::from_scale_rotation_translation(
+                    Vec3::new(3.0, 4.0, 1.0),
+                    glam::Quat::from_rotation_y(0.1 * i as f32),
+                    Vec3::new(i as f32 * 3.5 - 14.0, 0.0, 0.0),
+                );
+                (i, OccluderInstance { occluder: &cube, transform })
+            })
+            .collect();
+        let frusta = ShadowFrusta::new(&walls, &camera);
+        let mut store = BoundsStore::default();
+        for i in 0..2000u32 {
+            let entity = Entity::from_raw_u32(i + 1).unwrap();
+            let centre =
+                Vec3::new((i % 50) as f32 * 0.7 - 17.0, (i / 50 % 8) as f32 * 0.6 - 2.0, -1.0 - (i / 400) as f32 * 3.3);
+            let half = Vec3::new(0.1 + (i % 7) as f32 * 0.05, 0.2, 0.15);
+            store.insert(entity, &crate::WorldBounds::new(entity, centre, half).unwrap()).unwrap();
+        }
+        let slots: Vec<u32> = (0..2000).collect();
+        let portable = frusta.hidden_of(&store.soa(), &slots);
+        assert!(portable.len() > 100 && portable.len() < 2000, "{} hidden", portable.len());
+        if SimdBackend::Auto.resolve() == SimdBackend::Avx2 {
+            assert_eq!(frusta.hidden_of_with_backend(true, &store.soa(), &slots), portable);
+        }
     }
 
     /// Open, non-convex or surrounding the eye, an occluder gives no region; mirrored, it gives the same one.
