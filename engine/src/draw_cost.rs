@@ -32,9 +32,22 @@ impl DrawSavings {
     /// The savings of `world`'s last frame, with the triangle counts of its objects. Without `gpu` (no GPU
     /// pass ran) the GPU passes saved nothing.
     pub fn of_frame(world: &World, triangles: &SlotTriangles, gpu: Option<&GpuFrameOutput>) -> Self {
+        let culler = world.resource::<CameraCuller>();
+        Self::of_sets(triangles, culler.frustum_visible(), culler.visible(), gpu)
+    }
+
+    /// The savings of a frame whose frustum stage kept `after_frustum` and whose culler kept `kept` in the end
+    /// (a culler of your own, [`crate::culler::Culler`]), with the triangle counts of the objects. Without
+    /// `gpu` (no GPU pass ran) the GPU passes saved nothing.
+    pub fn of_sets(
+        triangles: &SlotTriangles,
+        after_frustum: &VisibleSet,
+        kept: &VisibleSet,
+        gpu: Option<&GpuFrameOutput>,
+    ) -> Self {
         let total = triangles.total;
-        let after_frustum = triangles.sum(world.resource::<CameraCuller>().frustum_visible());
-        let after_occlusion = triangles.sum(world.resource::<CameraCuller>().visible());
+        let after_frustum = triangles.sum(after_frustum);
+        let after_occlusion = triangles.sum(kept);
         let (clusters, triangles) = gpu.map_or((0, 0), |output| {
             let c = output.counters;
             // Without the triangle pass, the clusters kept are drawn whole and it removed nothing.

@@ -5,7 +5,9 @@ use crate::report::{
     print_savings, print_summary,
 };
 use crate::validation::Validation;
-use crate::{Args, Prepared, gpu_error_message};
+use crate::{Args, CullerChoice, Prepared, gpu_error_message};
+use cullet::culler::{CullScene, Culled, Culler, ShadowFrustaCuller, ShadowFrustaSettings};
+use cullet::depth::DepthBuffer;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
 use cullet::{BoundsStore, Camera};
@@ -66,13 +68,35 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             println!("--screenshots: no GPU adapter, so nothing is drawn and no screenshot is saved");
         }
     }
+    // A culler other than the stages, run after the pipeline (whose occlusion stage is then off).
+    let mut own_culler = match args.culler {
+        CullerChoice::Stages => None,
+        CullerChoice::ShadowFrusta => {
+            let budget = args.occluder_budget.unwrap_or(ShadowFrustaSettings::default().triangle_budget);
+            let culler = ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget: budget });
+            println!("culler: {}", culler.name());
+            Some(culler)
+        }
+    };
     let progress = progress_bar(args);
     for frame in 0..args.headless_frames() {
-        let stats = flight.run_frame(frame);
+        let mut stats = flight.run_frame(frame);
+        let camera = *flight.world.resource::<Camera>();
+        let own: Option<Culled> =
+            own_culler.as_mut().map(|culler| culler.cull(&CullScene::new(&flight.world), &camera));
+        if let Some(culled) = &own {
+            let own = &culled.stats;
+            (stats.after_occlusion, stats.occluders, stats.occluder_triangles) =
+                (own.after_occlusion, own.occluders, own.occluder_triangles);
+            (stats.raster_time, stats.occlusion_time) = (own.raster_time, own.occlusion_time);
+        }
         light_views.add(&flight.world);
         let mut frame_accuracy = None;
         if let Some(validation) = validation.as_mut() {
-            let metrics = validation.judge(&flight.world, &scene.meshes);
+            let metrics = match &own {
+                Some(culled) => validation.judge_culled(&flight.world, &camera, culled, true, &scene.meshes),
+                None => validation.judge(&flight.world, &scene.meshes),
+            };
             frame_accuracy = Some((
                 metrics.false_negatives.len(),
                 metrics.stages.last().map_or(0, |s| s.false_positives),
@@ -120,10 +144,18 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 micros(stats.occlusion_time),
             );
         }
+        let kept_sets = own.map(|culled| (culled.stages[0].1.clone(), culled.kept().clone()));
         let mut gpu_output: Option<GpuFrameOutput> = None;
         if let Some((context, culler)) = gpu.as_mut() {
-            let output =
-                culler.run_world(context, &mut flight.world, &GpuCullSettings::default()).map_err(|e| e.to_string())?;
+            let settings = GpuCullSettings::default();
+            let output = match &kept_sets {
+                Some((_, kept)) => {
+                    let visible: Vec<u32> = kept.iter().map(|slot| slot as u32).collect();
+                    culler.run_world_culled(context, &mut flight.world, &visible, &DepthBuffer::default(), &settings)
+                }
+                None => culler.run_world(context, &mut flight.world, &settings),
+            }
+            .map_err(|e| e.to_string())?;
             if let Some(dir) = args.screenshots.as_ref().filter(|_| frame % args.every.max(1) == 0) {
                 let image = culler.read_image(context).map_err(|e| e.to_string())?;
                 let pixels: Vec<u8> = image.color.iter().flatten().copied().collect();
@@ -148,7 +180,12 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             }
             gpu_frames.push(output);
         }
-        let saved = DrawSavings::of_frame(&flight.world, &slot_triangles, gpu_output.as_ref());
+        let saved = match &kept_sets {
+            Some((after_frustum, kept)) => {
+                DrawSavings::of_sets(&slot_triangles, after_frustum, kept, gpu_output.as_ref())
+            }
+            None => DrawSavings::of_frame(&flight.world, &slot_triangles, gpu_output.as_ref()),
+        };
         if args.stats.is_some() {
             let c = gpu_output.as_ref().map(|o| o.counters).unwrap_or_default();
             let gpu_us = gpu_output.as_ref().map_or(0.0, |o| micros(o.wall_time));

@@ -132,6 +132,22 @@ struct Args {
     /// What the window shows at first (V cycles through them).
     #[arg(long, value_enum, default_value = "shaded")]
     view: hud::controls::View,
+    /// Which culler removes what is hidden after the frustum: the pipeline's occlusion stage (`stages`), or
+    /// the occluders' shadow frusta (`shadow-frusta`, headless only; `--occluder-budget` is its budget). The
+    /// frustum stage, the light views and the GPU passes run as with the stages, and --validate judges
+    /// the culler chosen.
+    #[arg(long, value_enum, default_value = "stages")]
+    culler: CullerChoice,
+}
+
+/// The culler `--culler` chooses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum CullerChoice {
+    /// The pipeline's stages (`cullet::culler::ViewCuller`).
+    #[default]
+    Stages,
+    /// The occluders' shadow frusta (`cullet::culler::ShadowFrustaCuller`).
+    ShadowFrusta,
 }
 
 impl Args {
@@ -244,8 +260,8 @@ pub(crate) fn gpu_error_message(error: &GpuError) -> String {
 
 /// Runs in a window where a display exists and `--headless` is not given; otherwise headless.
 fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
-    if args.headless || args.cpu_only {
-        // The CPU-only run is a measurement along the camera path: no window.
+    if args.headless || args.cpu_only || args.culler != CullerChoice::Stages {
+        // The CPU-only run, and another culler's, are measurements along the camera path: no window.
         return headless::run(args, prepared);
     }
     match window::open_event_loop() {
@@ -317,7 +333,8 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
         OcclusionSettings::for_frame(width, height)
     };
     let occlusion = OcclusionSettings {
-        enabled: !args.no_occlusion,
+        // Another culler replaces the occlusion stage.
+        enabled: !args.no_occlusion && args.culler == CullerChoice::Stages,
         triangle_budget: args.occluder_budget.unwrap_or(chosen.triangle_budget),
         frame: Some((width, height)),
         ..chosen

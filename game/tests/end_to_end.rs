@@ -95,6 +95,21 @@ fn built_in_city_validates_with_zero_false_negatives() {
     assert!(culled, "occlusion never culled anything");
 }
 
+/// `--culler shadow-frusta`: the occluders' shadow frusta replace the occlusion stage, the GPU passes draw
+/// what they keep, and the judge finds nothing visible culled, far from the origin too.
+#[test]
+fn the_shadow_frusta_culler_validates_with_zero_false_negatives() {
+    for (name, offset) in [("shadow frusta", "0,0,0"), ("shadow frusta far away", "1e7,0,-1e7")] {
+        let args = ["--scene", "city:3000", "--culler", "shadow-frusta", "--world-offset", offset];
+        let (text, rows) = run_validated(name, &args, 16);
+        check(name, &text, &rows);
+        assert!(text.contains("culler: shadow frusta 4096"), "{text}");
+        let culled =
+            rows.iter().any(|r| r["after_occlusion"].parse::<u32>().unwrap() < r["after_frustum"].parse().unwrap());
+        assert!(culled, "{name}: the shadow frusta never culled anything");
+    }
+}
+
 #[test]
 fn city_far_from_the_origin_validates_with_zero_false_negatives() {
     let args = ["--scene", "city:2000", "--world-offset", "1e7,0,-1e7", "--light-views"];

@@ -543,18 +543,61 @@ impl GpuCuller {
         draw_camera: &Camera,
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
+        self.sync_world(context, world);
+        let state = world.resource::<CameraCuller>();
+        let visible: Vec<u32> = state.visible().iter().map(|slot| slot as u32).collect();
+        self.run_synced(context, world, draw_camera, &visible, state.depth(), settings)
+    }
+
+    /// [`GpuCuller::run_world`] for what a culler of your own kept ([`crate::culler::Culler`]): the store slots
+    /// `visible`, against `depth`, its occluder depth buffer (empty for none: the HZB then hides nothing),
+    /// from the world's [`Camera`]. The world's light views, where it has any, are drawn as the pipeline
+    /// culled them.
+    ///
+    /// # Errors
+    /// [`GpuError::SlotOutOfRange`] for a slot of `visible` that is not an object of the world (nothing is
+    /// run), [`GpuError::Lost`] when the device is lost.
+    ///
+    /// # Panics
+    /// As [`GpuCuller::run_world`].
+    pub fn run_world_culled(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        self.sync_world(context, world);
+        let camera = *world.resource::<Camera>();
+        self.run_synced(context, world, &camera, visible, depth, settings)
+    }
+
+    /// Brings the instances up to date with `world` and takes its [`GpuGating`], where it has one.
+    fn sync_world(&mut self, context: &GpuContext, world: &mut World) {
         if let Some(&gating) = world.get_resource::<GpuGating>() {
             self.set_gating(gating);
         }
         self.sync_instances(context, world, |_, instance| instance);
         self.recolored = false;
+    }
+
+    /// Culls and draws `visible` against `depth` from `world`'s [`Camera`], drawn from `draw_camera`, with the
+    /// world's sun cascades.
+    fn run_synced(
+        &mut self,
+        context: &GpuContext,
+        world: &World,
+        draw_camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+    ) -> Result<GpuFrameOutput, GpuError> {
         let suns = sun_casters(world).filter(|suns| !suns.is_empty() || self.shadows.cascades() > 0);
         let cascades: Option<Vec<Cascade<'_>>> =
             suns.as_ref().map(|suns| suns.iter().map(SunCasters::cascade).collect());
-        let state = world.resource::<CameraCuller>();
-        let visible: Vec<u32> = state.visible().iter().map(|slot| slot as u32).collect();
         let camera = *world.resource::<Camera>();
-        self.run_views(context, &camera, draw_camera, &visible, state.depth(), settings, cascades.as_deref())
+        self.run_views(context, &camera, draw_camera, visible, depth, settings, cascades.as_deref())
     }
 
     /// The shadow maps the draw shades with.
