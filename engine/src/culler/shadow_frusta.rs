@@ -4,14 +4,20 @@
 //! box against a few planes. Without occluder fusion, an object hidden only by two occluders together stays.
 //!
 //! # The region an occluder hides
-//! Only closed convex occluders are used (every edge shared by two triangles, every vertex on the inner side
-//! of every face). For such an occluder seen from an eye outside it, a point is hidden where it lies
+//! A closed convex occluder (every edge shared by two triangles, every vertex on the inner side of every
+//! face) gives one region; any other, one region for each of its triangles that faces the eye (no fusion
+//! between them either). For a closed convex occluder seen from an eye outside it, a point is hidden where it
+//! lies
 //! - inside the *cone* from the eye over the occluder: the intersection of the half-spaces bounded by the
 //!   planes through the eye and an edge of the occluder that have every vertex on one side (the supporting
 //!   planes; the silhouette edges' are among them, and every facet of the cone is one of them), and
 //! - on the inner side of every face that faces the eye: the ray from the eye to the point enters the
 //!   occluder through one of those faces, so the point lies beyond the occluder's surface there, which lies
 //!   inside the geometry it stands for.
+//!
+//! A single triangle facing the eye hides the points inside the planes through the eye and its edges and
+//! behind its own plane: the ray to such a point crosses the triangle. One facing away hides nothing, as
+//! neither the occluder raster nor the draw pass draws back faces.
 //!
 //! Every plane is built in f64 around the eye, and a box must clear each by a margin well above the
 //! rounding of its test, so the culler is conservative: it never removes an object a rendering shows.
@@ -49,8 +55,7 @@ const TASK_OBJECTS: usize = 1024;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShadowFrustaSettings {
     /// Occluder triangles per frame: the occluders chosen as the depth-buffer stage chooses them
-    /// ([`crate::occluders::select_occluders`]), best first while they fit; those that are not closed and
-    /// convex are then left out.
+    /// ([`crate::occluders::select_occluders`]), best first while they fit.
     pub triangle_budget: usize,
 }
 
@@ -206,18 +211,22 @@ struct ShadowFrusta {
 }
 
 impl ShadowFrusta {
-    /// The regions `occluders` hide from `camera`'s eye; occluders that are not closed and convex, that the eye
-    /// is not outside of, or that reach behind the eye, give none.
+    /// The regions `occluders` hide from `camera`'s eye: one for a closed convex occluder the eye is outside
+    /// of, else one for each of its triangles that faces the eye; none that reaches behind the eye.
     fn new(occluders: &[(u32, OccluderInstance<'_>)], camera: &Camera) -> Self {
         let eye = camera.position.as_dvec3();
         let clip_from_relative = camera.clip_from_relative_f64();
         let built: Vec<(Vec<DVec4>, [f64; 4], usize)> = occluders
             .par_iter()
-            .filter_map(|(_, instance)| {
+            .flat_map_iter(|(_, instance)| {
                 let vertices = relative_vertices(instance, eye);
-                let planes = region_planes(instance, &vertices)?;
-                let rect = screen_rect(&vertices, &clip_from_relative)?;
-                Some((planes, rect, instance.occluder.triangle_count()))
+                let regions = match region_planes(instance, &vertices) {
+                    Some(planes) => vec![(planes, vertices.clone(), instance.occluder.triangle_count())],
+                    None => triangle_regions(instance, &vertices),
+                };
+                regions.into_iter().filter_map(|(planes, corners, triangles)| {
+                    Some((planes, screen_rect(&corners, &clip_from_relative)?, triangles))
+                })
             })
             .collect();
         let cells_of = |&[x0, x1, y0, y1]: &[f64; 4]| [grid_index(x0), grid_index(x1), grid_index(y0), grid_index(y1)];
@@ -433,6 +442,47 @@ fn region_planes(instance: &OccluderInstance<'_>, vertices: &[DVec3]) -> Option<
     Some(distinct)
 }
 
+/// The region each triangle of the occluder (its `vertices` around the eye) that faces the eye hides: the
+/// planes through the eye and its edges, and the inner side of its own plane (seen from the eye, what lies
+/// behind it), each with the triangle's corners and a count of one triangle. A triangle facing away hides
+/// nothing: neither the occluder raster nor the draw pass draws back faces.
+fn triangle_regions(instance: &OccluderInstance<'_>, vertices: &[DVec3]) -> Vec<(Vec<DVec4>, Vec<DVec3>, usize)> {
+    let outward = if glam::Mat3::from(instance.transform.matrix3).determinant() < 0.0 { -1.0 } else { 1.0 };
+    let mut regions = Vec::new();
+    for triangle in instance.occluder.indexed().1.chunks_exact(3) {
+        let corners = [0, 1, 2].map(|k| vertices[triangle[k] as usize]);
+        let [a, b, c] = corners;
+        let normal = outward * (b - a).cross(c - a);
+        let d = -normal.dot(a);
+        let reach = a.length().max(b.length()).max(c.length());
+        let scale = normal.length();
+        // Facing the eye (the origin) by more than rounding, and not degenerate.
+        if !scale.is_normal() || d <= PLANE_TOLERANCE * scale * reach {
+            continue;
+        }
+        let mut planes = vec![(-normal).extend(-d)];
+        for k in 0..3 {
+            let (p, q, other) = (corners[k], corners[(k + 1) % 3], corners[(k + 2) % 3]);
+            let edge = p.cross(q);
+            let side = edge.dot(other);
+            // The third corner on the plane through the eye and this edge: seen edge-on, it hides nothing.
+            if !edge.length().is_normal() || side.abs() <= PLANE_TOLERANCE * edge.length() * reach {
+                planes.clear();
+                break;
+            }
+            planes.push(if side > 0.0 { edge } else { -edge }.extend(0.0));
+        }
+        if planes.is_empty() {
+            continue;
+        }
+        for plane in &mut planes {
+            *plane /= plane.truncate().length();
+        }
+        regions.push((planes, corners.to_vec(), 1));
+    }
+    regions
+}
+
 /// The rectangle `[x0, x1, y0, y1]` in normalized device coordinates that the vertices' projections span,
 /// widened for rounding; `None` where a vertex is not in front of the eye (the region would reach around it).
 fn screen_rect(vertices: &[DVec3], clip_from_relative: &DMat4) -> Option<[f64; 4]> {
@@ -524,6 +574,23 @@ mod tests {
         if SimdBackend::Auto.resolve() == SimdBackend::Avx2 {
             assert_eq!(frusta.hidden_of_with_backend(true, &store.soa(), &slots), portable);
         }
+    }
+
+    /// A lone triangle facing the eye hides what lies behind it within its edges; facing away, nothing.
+    #[test]
+    fn a_triangle_facing_the_eye_hides_what_lies_behind_it() {
+        let triangle =
+            Occluder::new(vec![Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)]);
+        let instance = OccluderInstance { occluder: &triangle, transform: Affine3A::IDENTITY };
+        let eye = DVec3::new(0.0, 0.0, 5.0);
+        let regions = triangle_regions(&instance, &relative_vertices(&instance, eye));
+        assert_eq!(regions.len(), 1);
+        let planes = &regions[0].0;
+        assert!(inside(planes, DVec3::new(0.0, 0.0, -10.0) - eye));
+        assert!(!inside(planes, DVec3::new(0.0, 0.0, 1.0) - eye));
+        assert!(!inside(planes, DVec3::new(3.0, 0.0, -10.0) - eye));
+        let behind = DVec3::new(0.0, 0.0, -5.0);
+        assert!(triangle_regions(&instance, &relative_vertices(&instance, behind)).is_empty());
     }
 
     /// Open, non-convex or surrounding the eye, an occluder gives no region; mirrored, it gives the same one.
