@@ -313,8 +313,8 @@ impl GpuCuller {
         self.run_views(context, camera, camera, visible, depth, settings, None)
     }
 
-    /// [`GpuCuller::run`] drawing the survivors as `draw_camera` sees them, and with `cascades` the shadow maps culled and drawn first, in the same
-    /// submission; with `None` the shadow maps stay as they are.
+    /// [`GpuCuller::run`] drawing the survivors as `draw_camera` sees them, and with `cascades` the shadow maps
+    /// culled and drawn first, in the same submission; with `None` the shadow maps stay as they are.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn run_views(
         &mut self,
