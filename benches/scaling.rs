@@ -5,6 +5,10 @@
 //! - Weak scaling: `CULLET_SCALING_WEAK` objects (default 100 000) per thread, so the work per thread stays
 //!   fixed: efficiency `T(1, n) / T(p, p n)`.
 //! - The memory-bandwidth bound: the time to read the seven SoA arrays once, in parallel, per object.
+//! - Work and span per stage and for the whole frame (`cullet::parallel`), measured on one thread: work is the
+//!   time, span the time outside parallel tasks plus each parallel region's slowest task, and their ratio, the
+//!   parallelism, bounds the speed-up on any number of cores. Recorded in a pass of its own (recording times
+//!   each task).
 //! - An Amdahl fit per stage, `T(p) = serial + parallel / p` (least squares over the thread counts), and the
 //!   parts of the occlusion stage timed apart (selection, raster with its pyramid, test), which names the serial ones.
 //!
@@ -13,8 +17,9 @@
 //! deterministic, the machine is not), a stage's figure the mean of those over the frames. The schedule runs on
 //! one thread, inside a rayon pool of `p` threads, so the stages' own parallelism is what scales.
 //!
-//! Writes `target/scaling/strong.csv`, `weak.csv`, `amdahl.csv`, `parts.csv`, `scaling.png` (speedup and
-//! efficiency against threads) and `ns_per_object.png` (against object count, with the bandwidth bound).
+//! Writes `target/scaling/strong.csv`, `weak.csv`, `amdahl.csv`, `parts.csv`, `work_span.csv`, `scaling.png`
+//! (speedup and efficiency against threads), `ns_per_object.png` (against object count, with the bandwidth
+//! bound) and `parallelism.png` (work over span against object count, on one thread).
 //!
 //! `cargo bench -p cullet-benches --bench scaling`; `CULLET_SCALING_SIZES=10000,100000` and
 //! `CULLET_SCALING_THREADS=1,2,4` choose other sizes and thread counts.
@@ -24,6 +29,7 @@ use cullet::depth::{DepthPyramid, ScreenView};
 use cullet::frustum::{FrustumOptions, cull_frustum};
 use cullet::occluders::{Occluder, OccluderInstance, select_occluders};
 use cullet::occlusion::test_occlusion;
+use cullet::parallel::{self, Stage};
 use cullet::pipeline::CullStats;
 
 use cullet::culler::{AdaptiveSettings, OcclusionSettings};
@@ -77,6 +83,37 @@ fn time_frames(flight: &mut Flight, frames: u32) -> [f64; 5] {
         }
     }
     std::array::from_fn(|stage| fastest.iter().map(|f| f[stage]).sum::<f64>() / f64::from(frames))
+}
+
+/// Work and span of each of [`STAGES`], in nanoseconds per frame (means over `frames` frames of `flight`,
+/// each frame's from the fastest of [`PASSES`] passes), recorded on a pool of one thread.
+fn work_span_frames(flight: &mut Flight, frames: u32) -> [(f64, f64); 5] {
+    let mut fastest = vec![(Duration::MAX, [(0.0, 0.0); 5]); frames as usize];
+    for frame in (0..PASSES).flat_map(|_| 0..frames) {
+        parallel::take_recorded();
+        parallel::set_recording(true);
+        let start = Instant::now();
+        let stats: CullStats = flight.run_frame(frame);
+        let wall = start.elapsed();
+        parallel::set_recording(false);
+        let recorded = parallel::take_recorded();
+        let stages = [
+            (recorded.stage(Stage::Bounds), stats.bounds_time),
+            (recorded.stage(Stage::Frustum), stats.frustum_time),
+            (recorded.stage(Stage::Raster), stats.raster_time),
+            (recorded.stage(Stage::Occlusion), stats.occlusion_time),
+            (recorded.total(), wall),
+        ];
+        let best = &mut fastest[frame as usize];
+        if wall < best.0 {
+            *best =
+                (wall, stages.map(|(times, wall)| (wall.as_secs_f64() * 1e9, times.span(wall).as_secs_f64() * 1e9)));
+        }
+    }
+    std::array::from_fn(|stage| {
+        let mean = |of: fn((f64, f64)) -> f64| fastest.iter().map(|f| of(f.1[stage])).sum::<f64>() / f64::from(frames);
+        (mean(|ws| ws.0), mean(|ws| ws.1))
+    })
 }
 
 /// A city flown with every stage on every frame, its schedule on the calling thread.
@@ -193,6 +230,12 @@ struct Strong {
     ns: [f64; 5],
 }
 
+/// Work and span per frame of each of [`STAGES`] on one thread, nanoseconds.
+struct WorkSpan {
+    objects: usize,
+    work_span: [(f64, f64); 5],
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     if std::env::args().skip(1).any(|a| !a.starts_with('-') && !"scaling".contains(a.as_str())) {
         return Ok(());
@@ -210,6 +253,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut strong = Vec::new();
     let mut bandwidth: Vec<(usize, usize, f64)> = Vec::new();
     let mut parts: Vec<(usize, usize, [f64; 3])> = Vec::new();
+    let mut work_span = Vec::new();
     for &objects in &sizes {
         if !fits_in_memory(objects) {
             println!("{objects} objects: skipped, not enough memory");
@@ -231,6 +275,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             bandwidth.push((objects, p, read));
             parts.push((objects, p, part_ns));
         }
+        // After the timed passes: the first frame stores every object.
+        let measured = with_threads(1, || work_span_frames(&mut flight, frames));
+        println!(
+            "  work/span on 1 thread: {}",
+            STAGES
+                .iter()
+                .zip(measured)
+                .map(|(s, (work, span))| format!("{s} {:.3}/{:.3} ms = {:.1}", work / 1e6, span / 1e6, work / span))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        work_span.push(WorkSpan { objects, work_span: measured });
     }
 
     // Weak scaling: the work per thread fixed.
@@ -277,6 +333,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     std::fs::write(out.join("parts.csv"), &csv)?;
+    let mut csv = String::from("objects,stage,work_ns,span_ns,parallelism\n");
+    for row in &work_span {
+        for (stage, (work, span)) in STAGES.iter().zip(row.work_span) {
+            writeln!(csv, "{},{stage},{work:.0},{span:.0},{:.2}", row.objects, work / span)?;
+        }
+    }
+    std::fs::write(out.join("work_span.csv"), &csv)?;
 
     // The Amdahl fit of every stage and part, per size.
     println!(
@@ -314,6 +377,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     plot_scaling(&strong, &weak, &out.join("scaling.png"))?;
     plot_per_object(&strong, &bandwidth, &out.join("ns_per_object.png"))?;
+    plot_parallelism(&work_span, &out.join("parallelism.png"))?;
     println!("\nwrote {}", out.display());
     Ok(())
 }
@@ -428,6 +492,34 @@ fn plot_per_object(
             .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED.stroke_width(2)));
     }
     chart.configure_series_labels().position(SeriesLabelPosition::UpperRight).border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+/// Work over span against object count, per stage.
+fn plot_parallelism(rows: &[WorkSpan], path: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    if rows.is_empty() {
+        return Ok(());
+    }
+    let (min_n, max_n) = (
+        rows.iter().map(|r| r.objects).min().unwrap_or(1) as f64,
+        rows.iter().map(|r| r.objects).max().unwrap_or(1) as f64,
+    );
+    let parallelism = |r: &WorkSpan, s: usize| r.work_span[s].0 / r.work_span[s].1;
+    let max_y = rows.iter().flat_map(|r| (0..STAGES.len()).map(move |s| parallelism(r, s))).fold(64.0, f64::max) * 1.5;
+    let root = BitMapBackend::new(path, (1200, 800)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Cullet CPU stages: work over span, measured on one thread", ("sans-serif", 24))
+        .margin(20)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d((min_n * 0.8..max_n * 1.25).log_scale(), (0.8..max_y).log_scale())?;
+    chart.configure_mesh().x_desc("objects").y_desc("parallelism (work / span): the speed-up bound").draw()?;
+    for s in 0..STAGES.len() {
+        draw_stage(&mut chart, s, rows.iter().map(|r| (r.objects as f64, parallelism(r, s))).collect())?;
+    }
+    chart.configure_series_labels().position(SeriesLabelPosition::UpperLeft).border_style(BLACK).draw()?;
     root.present()?;
     Ok(())
 }

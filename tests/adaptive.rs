@@ -74,6 +74,16 @@ fn unchanged_frames_reuse_the_last_result_and_any_change_reruns() {
     // A setting changes: run again.
     flight.world.resource_mut::<OcclusionSettings>().width = 128;
     assert!(!flight.run_with_camera(turned, 0.0).reused);
+    // The wall's occluder is replaced by a smaller one: run in full (neither reused nor re-tested), and the
+    // boxes it no longer hides come back.
+    let before = flight.run_with_camera(turned, 0.0);
+    assert!(before.reused);
+    let wall = flight.world.resource::<cullet::BoundsStore>().entities()[0];
+    let sliver = Occluder::new(Mesh::unit_cube(1).scaled(Vec3::new(0.05, 0.98, 0.98), Vec3::ZERO).triangle_soup());
+    flight.world.entity_mut(wall).insert(sliver);
+    let replaced = flight.run_with_camera(turned, 0.0);
+    assert!(!replaced.reused && replaced.retested == 0, "{replaced:?}");
+    assert!(replaced.after_occlusion > before.after_occlusion, "{before:?} -> {replaced:?}");
     // The fixed pipeline never reuses.
     let mut fixed = self::flight(&scene, AdaptiveSettings::fixed());
     fixed.run_with_camera(camera(), 0.0);

@@ -16,6 +16,7 @@
 use crate::DepthConvention;
 use crate::camera::Camera;
 use crate::frustum::LightView;
+use crate::parallel;
 use glam::{DMat4, DVec4, Mat4, Vec3, Vec4};
 use rayon::prelude::*;
 
@@ -362,7 +363,9 @@ impl DepthPyramid {
             }
             if coarse.texels.len() > PARALLEL_REDUCE_ABOVE {
                 let pairs = fine.texels.par_chunks(2 * fine_width).zip(coarse.texels.par_chunks_mut(coarse_width));
-                pairs.for_each(|(fine, coarse)| reduce_rows(fine, fine_width, coarse));
+                parallel::region(|region| {
+                    pairs.for_each(|(fine, coarse)| region.task(|| reduce_rows(fine, fine_width, coarse)))
+                });
             } else {
                 reduce_rows(&fine.texels, fine_width, &mut coarse.texels);
             }

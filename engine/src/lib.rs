@@ -45,6 +45,7 @@
 //! ```no_run
 //! rayon::ThreadPoolBuilder::new().use_current_thread().build_global().expect("rayon's global pool, once");
 //! ```
+//! [`parallel`] records each stage's work and span, which bound its speed-up on any number of cores.
 //!
 //! # Example
 //! ```
@@ -78,6 +79,7 @@ pub mod depth;
 #[cfg(feature = "gpu")]
 pub mod draw_cost;
 pub mod mesh;
+pub mod parallel;
 pub mod pipeline;
 pub mod scene;
 pub mod visible;

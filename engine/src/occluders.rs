@@ -18,6 +18,7 @@
 
 use crate::bounds::{BoundsStore, GroupBounds};
 use crate::depth::ScreenView;
+use crate::parallel;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
@@ -31,7 +32,11 @@ pub const NO_NEIGHBOUR: u32 = u32::MAX;
 /// An artist occluder: triangles in the entity's local space, meant to lie inside the rendered geometry, that
 /// the software occlusion stage rasterizes to hide what is behind them. Triangles are counter-clockwise seen
 /// from outside; closed meshes occlude best, since the raster covers the union of their front faces.
+///
+/// Immutable as a component: change an entity's occluder by inserting another, so that the pipeline learns of
+/// it through its observers rather than by scanning every occluder each frame.
 #[derive(Component, Clone, Debug, PartialEq)]
+#[component(immutable)]
 pub struct Occluder {
     /// Triangle list: every three vertices form one triangle, in the entity's local space. Shared, since many
     /// objects of one shape carry the same occluder.
@@ -232,7 +237,9 @@ fn rank_all(store: &BoundsStore, visible: &VisibleSet, viewpoint: Viewpoint) -> 
         rank_chunk((0, (visible, occluders)))
     } else {
         let chunks = visible.par_chunks(RANK_WORDS_PER_TASK).zip(occluders.par_chunks(RANK_WORDS_PER_TASK));
-        chunks.enumerate().map(rank_chunk).collect::<Vec<_>>().concat()
+        let ranked: Vec<_> =
+            parallel::region(|region| chunks.enumerate().map(|chunk| region.task(|| rank_chunk(chunk))).collect());
+        ranked.concat()
     }
 }
 

@@ -18,6 +18,7 @@ use crate::bounds::{BoundsStore, GroupBounds};
 use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor};
 use crate::frustum::SimdBackend;
 use crate::occluders::OccluderInstance;
+use crate::parallel::{self, Stage};
 use crate::raster::{RasterMode, RasterStats, rasterize};
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
@@ -110,6 +111,7 @@ pub fn occlude(
     let raster = rasterize(view, occluders, mode, pyramid);
     let raster_time = start.elapsed();
     let start = Instant::now();
+    let _stage = Stage::Occlusion.enter();
     let test = test_occlusion(store, frustum_visible, view, pyramid, visible, occluded);
     ViewOcclusion { raster, test, raster_time, test_time: start.elapsed() }
 }
@@ -132,22 +134,26 @@ pub fn test_occlusion(
         return OcclusionStats { tested, visible: tested };
     }
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
-    visible
+    let chunks = visible
         .words_mut()
         .par_chunks_mut(WORDS_PER_TASK)
         .zip(occluded.words_mut().par_chunks_mut(WORDS_PER_TASK))
         .zip(frustum_visible.words().par_chunks(WORDS_PER_TASK))
-        .enumerate()
-        .for_each(|(chunk, ((visible_words, occluded_words), input_words))| {
-            for (i, ((visible_word, occluded_word), &input)) in
-                visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words).enumerate()
-            {
-                let base = (chunk * WORDS_PER_TASK + i) * 64;
-                let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
-                *visible_word = kept;
-                *occluded_word = input & !kept;
-            }
-        });
+        .enumerate();
+    parallel::region(|region| {
+        chunks.for_each(|(chunk, ((visible_words, occluded_words), input_words))| {
+            region.task(|| {
+                for (i, ((visible_word, occluded_word), &input)) in
+                    visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words).enumerate()
+                {
+                    let base = (chunk * WORDS_PER_TASK + i) * 64;
+                    let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
+                    *visible_word = kept;
+                    *occluded_word = input & !kept;
+                }
+            })
+        })
+    });
     OcclusionStats { tested, visible: visible.count() }
 }
 

@@ -14,6 +14,7 @@
 
 use super::components::{BoundsError, LocalBounds, ObjectTransform, WorldBounds};
 use super::groups::{GROUPS_PER_SUPERGROUP, GroupBounds, outward_range};
+use crate::parallel;
 use crate::visible::VisibleSet;
 use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
@@ -27,6 +28,9 @@ pub const SOA_PADDING: usize = 64;
 
 /// [`BoundsStore::update_many`] writes in parallel from this many objects on.
 const PARALLEL_WRITES_FROM: usize = 1024;
+
+/// Objects whose world bounds one task of [`BoundsStore::update_many`] computes.
+const UPDATES_PER_TASK: usize = 256;
 
 /// Slots of one supergroup.
 const SUPERGROUP_SLOTS: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
@@ -171,8 +175,9 @@ pub struct BoundsStore {
     pub(crate) errors: Vec<BoundsError>,
     /// Counts every change of the stored bounds or occluder marks: equal generations mean equal contents.
     generation: u64,
-    /// Counts changes of which objects are stored where, and of occluder marks: inserts of new objects,
-    /// removals, occluder marks set or cleared. Equal layouts differ at most in the bounds of `moved` slots.
+    /// Counts changes of which objects are stored where, and of occluders: inserts of new objects, removals,
+    /// occluder marks set, cleared or set again (an occluder replaced). Equal layouts differ at most in the
+    /// bounds of `moved` slots.
     layout_generation: u64,
     /// Slots whose bounds were overwritten in place since the last [`BoundsStore::take_moved_slots`]
     /// (duplicates possible); `None` once there were too many to be worth listing.
@@ -275,8 +280,9 @@ impl BoundsStore {
     /// [`BoundsStore::set_occluder`] of a stored slot.
     pub(crate) fn mark_occluder(&mut self, slot: usize, has_occluder: bool) {
         self.generation += 1;
+        // Set again, the mark stands for a replaced occluder: what was culled against the old one is stale.
+        self.layout_generation += 1;
         if self.occluders.contains(slot) != has_occluder {
-            self.layout_generation += 1;
             // One fewer occluder may leave the group's radius larger than needed.
             self.mark_loose(slot / SOA_PADDING);
         }
@@ -547,17 +553,26 @@ impl BoundsStore {
     /// written in parallel, each thread a range of slots (the arrays' writes miss the caches of a large
     /// store, and were a serial part of the frame); only what depends on their order is recorded in order.
     pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
-        let computed: Vec<(Option<usize>, Result<WorldBounds, BoundsError>)> = objects
-            .par_iter()
-            .with_min_len(256)
-            .map(|(entity, local, transform)| {
+        // Per task, its objects' slots and bounds, and whether they all have a slot and valid bounds. Left in
+        // the tasks' lists: joining them would copy every object once more, on one thread.
+        type Computed = (Vec<(Option<usize>, Result<WorldBounds, BoundsError>)>, bool);
+        let computed: Vec<Computed> = parallel::region(|region| {
+            let compute = |(entity, local, transform): &(Entity, LocalBounds, Affine3A)| {
                 (self.slot_of(*entity), WorldBounds::from_local(*entity, local, transform))
-            })
-            .collect();
+            };
+            let task = |chunk: &[(Entity, LocalBounds, Affine3A)]| {
+                region.task(|| {
+                    let computed: Vec<_> = chunk.iter().map(compute).collect();
+                    let in_place = computed.iter().all(|(slot, bounds)| slot.is_some() && bounds.is_ok());
+                    (computed, in_place)
+                })
+            };
+            objects.par_chunks(UPDATES_PER_TASK).map(task).collect()
+        });
         // Every object stored already, none refused: no insert or removal moves a slot, so each write is an
         // overwrite of the slot looked up above.
-        let in_place = objects.len() >= PARALLEL_WRITES_FROM
-            && computed.iter().all(|(slot, bounds)| slot.is_some() && bounds.is_ok());
+        let in_place = objects.len() >= PARALLEL_WRITES_FROM && computed.iter().all(|(_, in_place)| *in_place);
+        let computed = computed.into_iter().flat_map(|(computed, _)| computed);
         if !in_place {
             return objects
                 .iter()
@@ -566,7 +581,7 @@ impl BoundsStore {
                 .collect();
         }
         let writes: Vec<(usize, WorldBounds)> =
-            computed.into_iter().filter_map(|(slot, bounds)| Some((slot?, bounds.ok()?))).collect();
+            computed.filter_map(|(slot, bounds)| Some((slot?, bounds.ok()?))).collect();
         for &(slot, _) in &writes {
             self.note_moved(slot);
         }
@@ -610,16 +625,20 @@ impl BoundsStore {
             supergroups.par_iter_mut(),
             written.par_chunks_mut(GROUPS_PER_SUPERGROUP),
         );
-        parts.into_par_iter().enumerate().for_each(
-            |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written))| {
-                let arrays = [cx, cy, cz, ex, ey, ez, r];
-                let mut part = SlotsMut { arrays, groups, occluder_radii, written, supergroup };
-                for &write in &order[starts[index]..starts[index + 1]] {
-                    let (slot, bounds) = &writes[write];
-                    part.write(slot % SUPERGROUP_SLOTS, bounds, occluders.contains(*slot));
-                }
-            },
-        );
+        parallel::region(|region| {
+            parts.into_par_iter().enumerate().for_each(
+                |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written))| {
+                    region.task(|| {
+                        let arrays = [cx, cy, cz, ex, ey, ez, r];
+                        let mut part = SlotsMut { arrays, groups, occluder_radii, written, supergroup };
+                        for &write in &order[starts[index]..starts[index + 1]] {
+                            let (slot, bounds) = &writes[write];
+                            part.write(slot % SUPERGROUP_SLOTS, bounds, occluders.contains(*slot));
+                        }
+                    })
+                },
+            )
+        });
     }
 
     /// Stores `bounds` computed by [`WorldBounds::from_local`] for `entity`, whose slot was looked up as `slot`

@@ -32,6 +32,7 @@ use crate::camera::Camera;
 use crate::frustum::SimdBackend;
 use crate::frustum::{FrustumOptions, cull_frustum};
 use crate::occluders::{NO_NEIGHBOUR, OccluderInstance, select_occluders};
+use crate::parallel::{self, Stage};
 use crate::visible::VisibleSet;
 use glam::{DMat4, DVec3, DVec4, Vec3};
 use rayon::prelude::*;
@@ -114,6 +115,7 @@ impl Culler for ShadowFrustaCuller {
         let start = Instant::now();
         match camera.frustum() {
             Ok(frustum) => {
+                let _stage = Stage::Frustum.enter();
                 cull_frustum(store, &frustum, FrustumOptions::default(), &mut self.frustum_visible);
             }
             Err(error) => {
@@ -126,6 +128,7 @@ impl Culler for ShadowFrustaCuller {
         self.visible.clone_from(&self.frustum_visible);
         if stats.frustum_error.is_none() {
             let start = Instant::now();
+            let stage = Stage::Raster.enter();
             let chosen = select_occluders(
                 store,
                 &self.frustum_visible,
@@ -134,10 +137,12 @@ impl Culler for ShadowFrustaCuller {
                 |slot| scene.occluder_of(slot),
             );
             let frusta = ShadowFrusta::new(&chosen, camera);
+            drop(stage);
             (stats.occluders, stats.occluder_triangles) = (frusta.rects.len(), frusta.triangles);
             stats.raster_time = start.elapsed();
             let start = Instant::now();
             if !frusta.rects.is_empty() {
+                let _stage = Stage::Occlusion.enter();
                 for slot in frusta.hidden(store, &self.frustum_visible) {
                     self.visible.set(slot as usize, false);
                 }
@@ -216,19 +221,20 @@ impl ShadowFrusta {
     fn new(occluders: &[(u32, OccluderInstance<'_>)], camera: &Camera) -> Self {
         let eye = camera.position.as_dvec3();
         let clip_from_relative = camera.clip_from_relative_f64();
-        let built: Vec<(Vec<DVec4>, [f64; 4], usize)> = occluders
-            .par_iter()
-            .flat_map_iter(|(_, instance)| {
-                let vertices = relative_vertices(instance, eye);
-                let regions = match region_planes(instance, &vertices) {
-                    Some(planes) => vec![(planes, vertices.clone(), instance.occluder.triangle_count())],
-                    None => triangle_regions(instance, &vertices),
-                };
-                regions.into_iter().filter_map(|(planes, corners, triangles)| {
-                    Some((planes, screen_rect(&corners, &clip_from_relative)?, triangles))
-                })
-            })
-            .collect();
+        let regions_of = |instance: &OccluderInstance| {
+            let vertices = relative_vertices(instance, eye);
+            let regions = match region_planes(instance, &vertices) {
+                Some(planes) => vec![(planes, vertices, instance.occluder.triangle_count())],
+                None => triangle_regions(instance, &vertices),
+            };
+            let on_screen = |(planes, corners, triangles): (Vec<DVec4>, Vec<DVec3>, usize)| {
+                Some((planes, screen_rect(&corners, &clip_from_relative)?, triangles))
+            };
+            regions.into_iter().filter_map(on_screen).collect::<Vec<_>>()
+        };
+        let built: Vec<(Vec<DVec4>, [f64; 4], usize)> = parallel::region(|region| {
+            occluders.par_iter().flat_map_iter(|(_, instance)| region.task(|| regions_of(instance))).collect()
+        });
         let cells_of = |&[x0, x1, y0, y1]: &[f64; 4]| [grid_index(x0), grid_index(x1), grid_index(y0), grid_index(y1)];
         let mut starts = vec![0; GRID * GRID + 1];
         for (_, rect, _) in &built {
@@ -269,7 +275,10 @@ impl ShadowFrusta {
         let slots: Vec<u32> = visible.iter().map(|slot| slot as u32).collect();
         let soa = store.soa();
         let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
-        slots.par_chunks(TASK_OBJECTS).flat_map_iter(|chunk| self.hidden_of_with_backend(avx2, &soa, chunk)).collect()
+        parallel::region(|region| {
+            let hidden_of = |chunk: &[u32]| region.task(|| self.hidden_of_with_backend(avx2, &soa, chunk));
+            slots.par_chunks(TASK_OBJECTS).flat_map_iter(hidden_of).collect()
+        })
     }
 
     /// [`ShadowFrusta::hidden_of`], compiled for AVX2 where `avx2` (detected on this processor): a block's

@@ -8,6 +8,7 @@ use crate::depth::{DepthBuffer, DepthPyramid};
 use crate::frustum::{Frustum, FrustumError, FrustumOptions, PlaneCoherence, View, cull_frustum, cull_views};
 use crate::occluders::{OccluderInstance, select_occluders};
 use crate::occlusion::{occlude, retest_occlusion};
+use crate::parallel::Stage;
 use crate::visible::VisibleSet;
 use std::borrow::Cow;
 use std::time::{Duration, Instant};
@@ -42,8 +43,8 @@ pub struct ViewFrame<'a> {
     /// ([`BoundsStore::take_moves`]), where the caller keeps them: where they are all the store changed since
     /// this view's last cull, only they are re-tested. `None` re-tests nothing alone.
     pub moves: Option<&'a StoreMoves>,
-    /// Something this culler cannot see changed since its last cull (an occluder's mesh, the views culled
-    /// with it): the frame runs in full.
+    /// Something this culler cannot see changed since its last cull (the views culled with it; an occluder
+    /// changed without [`BoundsStore::set_occluder`] marking its slot again): the frame runs in full.
     pub changed: bool,
 }
 
@@ -201,6 +202,7 @@ impl ViewCuller {
         also_visible: &mut Vec<VisibleSet>,
     ) -> Option<Vec<usize>> {
         let start = Instant::now();
+        let _stage = Stage::Frustum.enter();
         let settings = &frame.settings;
         self.plan = self.plan(store, frame, also.is_empty());
         self.stats.retested = 0;
@@ -268,11 +270,13 @@ impl ViewCuller {
         occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
     ) {
         let start = Instant::now();
+        let _stage = Stage::Raster.enter();
         let Some(LastCull { view, settings, .. }) = self.last else { return };
         let settings = &settings;
         match std::mem::take(&mut self.plan) {
             Plan::Reuse => return,
             Plan::Retest(moved) => {
+                let _stage = Stage::Occlusion.enter();
                 self.retest_occlusion(store, &view, settings, &moved);
                 self.stats.occlusion_time = start.elapsed();
                 self.plan = Plan::Retest(moved);

@@ -28,6 +28,7 @@
 
 use crate::bounds::{BoundsStore, GROUPS_PER_SUPERGROUP, GroupBounds, SIMD_LANES, SoaSlices, WorldBounds};
 use crate::camera::{Camera, DepthConvention};
+use crate::parallel;
 use crate::visible::VisibleSet;
 use glam::{DMat4, DVec4, Mat4, Vec3};
 use rayon::prelude::*;
@@ -450,13 +451,17 @@ fn cull_pass(
         // One view: its words straight from its set, with nothing allocated per task.
         visible.reset(len);
         let planes = task_planes(coherence.take(), words);
-        let count = visible
-            .words_mut()
-            .par_chunks_mut(WORDS_PER_TASK)
-            .zip(planes)
-            .enumerate()
-            .map(|(task, (words, planes))| cull_task::<1>(store, views, backend, task, &mut [(words, planes)])[0])
-            .sum();
+        let count = parallel::region(|region| {
+            visible
+                .words_mut()
+                .par_chunks_mut(WORDS_PER_TASK)
+                .zip(planes)
+                .enumerate()
+                .map(|(task, (words, planes))| {
+                    region.task(|| cull_task::<1>(store, views, backend, task, &mut [(words, planes)])[0])
+                })
+                .sum()
+        });
         return vec![count];
     }
     // Per task, per view: its bitset words and, with coherence, their blocks' planes.
@@ -468,17 +473,21 @@ fn cull_pass(
             task_outputs[task].push((chunk, planes));
         }
     }
-    let counts = task_outputs
-        .into_par_iter()
-        .enumerate()
-        .map(|(task, mut outputs)| cull_task::<MAX_VIEWS_PER_PASS>(store, views, backend, task, &mut outputs))
-        .reduce(
-            || [0; MAX_VIEWS_PER_PASS],
-            |mut total, counts| {
-                total.iter_mut().zip(counts).for_each(|(total, count)| *total += count);
-                total
-            },
-        );
+    let counts = parallel::region(|region| {
+        task_outputs
+            .into_par_iter()
+            .enumerate()
+            .map(|(task, mut outputs)| {
+                region.task(|| cull_task::<MAX_VIEWS_PER_PASS>(store, views, backend, task, &mut outputs))
+            })
+            .reduce(
+                || [0; MAX_VIEWS_PER_PASS],
+                |mut total, counts| {
+                    total.iter_mut().zip(counts).for_each(|(total, count)| *total += count);
+                    total
+                },
+            )
+    });
     counts[..views.len()].to_vec()
 }
 

@@ -2,6 +2,7 @@
 
 use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
 use crate::occluders::Occluder;
+use crate::parallel::Stage;
 use bevy_ecs::prelude::*;
 use glam::Affine3A;
 use std::time::Instant;
@@ -49,6 +50,7 @@ pub fn sync_bounds(
     >,
 ) {
     let start = Instant::now();
+    let _stage = Stage::Bounds.enter();
     // Many objects may move in a frame (200 000 cars in a 1e7-object city): their bounds are computed in
     // parallel, then stored in order (`BoundsStore::update_many`).
     let (objects, previous): (Vec<(Entity, LocalBounds, Affine3A)>, Vec<Option<BoundsRejected>>) = changed

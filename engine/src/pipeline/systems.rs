@@ -12,6 +12,7 @@ use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::{LightView, View, ViewError};
 use crate::occluders::{Occluder, OccluderInstance, select_occluders_for_view};
 use crate::occlusion::occlude;
+use crate::parallel::{self, Stage};
 use crate::raster::RasterMode;
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
@@ -56,7 +57,6 @@ pub(super) fn frustum_stage(
     mut lights: Lights,
     mut culler: ResMut<CameraCuller>,
     mut stats: ResMut<CullStats>,
-    changed_occluders: Query<(), Changed<Occluder>>,
 ) {
     let start = Instant::now();
     stats.bounds_recomputed = store.recomputed_last_sync();
@@ -75,7 +75,8 @@ pub(super) fn frustum_stage(
         view: ViewInput::of_camera(&camera),
         settings: settings.view(),
         moves: moves.as_ref(),
-        changed: lights_changed || !changed_occluders.is_empty(),
+        // A changed occluder changes the store's layout (`Occluder` is immutable: its observers see each).
+        changed: lights_changed,
     };
     // This frame's light views, culled with the camera; none are built where the camera's last result stands
     // (and with it, last frame's light views).
@@ -191,6 +192,7 @@ pub(super) fn light_occlusion_stage(
         return; // Last frame's light views, occlusion included, stand.
     }
     let start = Instant::now();
+    let _stage = Stage::LightOcclusion.enter();
     let views = light_views.0.len();
     let state = &mut *state;
     state.pyramids.resize_with(views, DepthPyramid::default);
@@ -232,27 +234,27 @@ pub(super) fn light_occlusion_stage(
         })
         .collect();
     stats.light_occlusion_gated = gated;
-    light_views
-        .0
-        .par_iter_mut()
-        .zip(&mut state.pyramids)
-        .zip(&mut state.occluded)
-        .zip(&mut state.survivors)
-        .zip(&chosen)
-        .for_each(|((((view, pyramid), occluded), survivors), chosen)| {
-            view.occluded = 0;
-            let Some((screen, chosen)) = chosen else {
-                *pyramid = DepthPyramid::default();
-                occluded.reset(0);
-                return;
-            };
-            let tested = view.kept;
-            let mode = RasterMode::Conservative;
-            view.kept =
-                occlude(&store, &view.visible, Some(screen), chosen, mode, pyramid, survivors, occluded).test.visible;
-            std::mem::swap(&mut view.visible, survivors);
-            view.occluded = tested - view.kept;
-        });
+    let views = light_views.0.par_iter_mut().zip(&mut state.pyramids).zip(&mut state.occluded);
+    let views = views.zip(&mut state.survivors).zip(&chosen);
+    parallel::region(|region| {
+        views.for_each(|((((view, pyramid), occluded), survivors), chosen)| {
+            region.task(|| {
+                view.occluded = 0;
+                let Some((screen, chosen)) = chosen else {
+                    *pyramid = DepthPyramid::default();
+                    occluded.reset(0);
+                    return;
+                };
+                let tested = view.kept;
+                let mode = RasterMode::Conservative;
+                view.kept = occlude(&store, &view.visible, Some(screen), chosen, mode, pyramid, survivors, occluded)
+                    .test
+                    .visible;
+                std::mem::swap(&mut view.visible, survivors);
+                view.occluded = tested - view.kept;
+            })
+        })
+    });
     for ((view, gate), chosen) in light_views.0.iter().zip(&mut memory.light_occlusion).zip(&chosen) {
         if chosen.is_some() {
             let (min_benefit, low_frames, reprobe) =

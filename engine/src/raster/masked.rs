@@ -37,6 +37,7 @@ use super::binning::{BLOCK_COLUMNS, Bins, all_nearer, band_levels, reduce_band, 
 use super::setup::{PendingOccluder, QUAD_EDGES, SetupQuad, SetupScratch, TexelRect};
 use crate::depth::{DepthPyramid, ScreenView, farther};
 use crate::frustum::SimdBackend;
+use crate::parallel;
 use rayon::prelude::*;
 use std::cmp::Ordering;
 
@@ -77,29 +78,33 @@ pub(super) fn rasterize_blocks(view: &ScreenView, pending: &[PendingOccluder], p
     // Working memory once per rayon job rather than once per band, as in the texel raster.
     let scratches = || (SetupScratch::default(), Vec::new());
     let bands = band_blocks.zip(bins.par_iter()).enumerate();
-    bands.for_each_init(scratches, |(scratch, summary), (band, (((mut levels, working), mask), bin))| {
-        let known = &mut *levels[0];
-        known.fill(0.0);
-        working.fill(f32::INFINITY);
-        mask.fill(0);
-        let y0 = (band * band_rows) as u32;
-        // No known depth in the band yet.
-        summary.clear();
-        summary.resize(blocks_wide.div_ceil(BLOCK_COLUMNS), 0.0);
-        let mut blocks = Blocks {
-            known,
-            working,
-            mask,
-            blocks_wide,
-            y0,
-            y1: (y0 + band_rows as u32).min(view.height),
-            view: (view.width, view.height),
-            outside_columns: outside_columns(view.width),
-            avx2,
-            summary,
-        };
-        draw_band_with_backend(avx2, &mut blocks, bin, view, pending, scratch);
-        reduce_band(&mut levels, &level_widths);
+    parallel::region(|region| {
+        bands.for_each_init(scratches, |(scratch, summary), (band, (((mut levels, working), mask), bin))| {
+            region.task(|| {
+                let known = &mut *levels[0];
+                known.fill(0.0);
+                working.fill(f32::INFINITY);
+                mask.fill(0);
+                let y0 = (band * band_rows) as u32;
+                // No known depth in the band yet.
+                summary.clear();
+                summary.resize(blocks_wide.div_ceil(BLOCK_COLUMNS), 0.0);
+                let mut blocks = Blocks {
+                    known,
+                    working,
+                    mask,
+                    blocks_wide,
+                    y0,
+                    y1: (y0 + band_rows as u32).min(view.height),
+                    view: (view.width, view.height),
+                    outside_columns: outside_columns(view.width),
+                    avx2,
+                    summary,
+                };
+                draw_band_with_backend(avx2, &mut blocks, bin, view, pending, scratch);
+                reduce_band(&mut levels, &level_widths);
+            })
+        })
     });
     pyramid.reduce_from(fused);
 }
