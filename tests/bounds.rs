@@ -385,10 +385,12 @@ fn every_write_path_refuses_invalid_bounds_and_changes_nothing() {
 /// returns the same outcomes, also when a refused object's removal moves another object mid-batch.
 #[test]
 fn update_many_equals_update_one_by_one() {
+    // Three supergroups of slots, written by tasks of their own.
+    const OBJECTS: u32 = 10_000;
     let entity = |i: u32| Entity::from_raw_u32(i + 1).unwrap();
     let unit = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::splat(0.5) };
     let mut one_by_one = BoundsStore::default();
-    for i in 0..3000 {
+    for i in 0..OBJECTS {
         one_by_one
             .update(entity(i), &unit, &ObjectTransform(Affine3A::from_translation(Vec3::splat(i as f32))))
             .unwrap();
@@ -400,7 +402,10 @@ fn update_many_equals_update_one_by_one() {
     let batch: Vec<(Entity, LocalBounds, Affine3A)> = (0..2000)
         .map(|i| (entity(i), unit, Affine3A::from_translation(Vec3::new(i as f32, -1.0, 0.0))))
         .chain([(entity(2500), nan, Affine3A::IDENTITY)])
-        .chain([(entity(2999), unit, Affine3A::from_translation(Vec3::X)), (entity(5000), unit, Affine3A::IDENTITY)])
+        .chain([
+            (entity(OBJECTS - 1), unit, Affine3A::from_translation(Vec3::X)),
+            (entity(2 * OBJECTS), unit, Affine3A::IDENTITY),
+        ])
         .collect();
     let expected: Vec<_> =
         batch.iter().map(|(e, local, t)| one_by_one.update(*e, local, &ObjectTransform(*t))).collect();
@@ -413,15 +418,15 @@ fn update_many_equals_update_one_by_one() {
     assert_eq!(many.soa().all(), one_by_one.soa().all());
     assert_eq!(many.groups(), one_by_one.groups());
     // Moves only, enough of them and out of slot order: written in parallel, to the same store.
-    let moves: Vec<(Entity, LocalBounds, Affine3A)> = (0..2999)
-        .map(|i| (i * 7) % 2999)
+    let moves: Vec<(Entity, LocalBounds, Affine3A)> = (0..OBJECTS - 1)
+        .map(|i| (i * 7) % (OBJECTS - 1))
         .filter(|&i| i != 2500) // refused above: no longer stored
         .map(|i| (entity(i), unit, Affine3A::from_translation(Vec3::new(-(i as f32), 2.0 * i as f32, 1.0))))
         .collect();
     many.take_moved_slots();
     one_by_one.take_moved_slots();
     // Some of them occluders, so that their groups' occluder radii grow too.
-    for slot in (0..2999).step_by(5) {
+    for slot in (0..OBJECTS as usize - 1).step_by(5) {
         many.set_occluder(slot, true).unwrap();
         one_by_one.set_occluder(slot, true).unwrap();
     }

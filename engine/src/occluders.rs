@@ -144,6 +144,14 @@ const RANK_WORDS_PER_TASK: usize = 256;
 /// Bitset words above which ranking runs in parallel (about 260,000 objects): below, waking the pool costs
 /// more than it saves (docs/performance.md).
 const RANK_IN_PARALLEL_ABOVE: usize = 4096;
+
+/// One chunk's groups with candidates, each `(bound, group)` in order, and their candidates per binary exponent
+/// of the bound.
+type BoundedGroups = (Vec<(f32, u32)>, [u32; 256]);
+
+/// Bitset words whose groups one task bounds when choosing which groups to rank: each task's counts per
+/// exponent are summed on one thread afterwards, so tasks are fewer than when ranking.
+const BOUND_WORDS_PER_TASK: usize = 1024;
 /// Candidates ranked first, from the groups that can rank best (see [`select_occluders`]): two rounds.
 const FIRST_CANDIDATES: usize = 2 * ROUND;
 /// Relative room for f32 rounding in a group's bound on its occluders' ranks: each of the distances and the
@@ -256,16 +264,31 @@ fn rank_best_groups(
     wanted: usize,
 ) -> (Vec<(f32, u32)>, Option<f32>) {
     let (visible, occluders) = (visible.words(), store.occluders().words());
-    let groups: Vec<(f32, u32)> = (visible.iter().zip(occluders).enumerate())
-        .filter(|(_, (v, o))| *v & *o != 0)
-        .map(|(group, _)| (group_bound(store, group, viewpoint), group as u32))
-        .collect();
     // Bounds are never negative, so their bits order as they do, and bits >> 23 is the exponent.
     let exponent = |bound: f32| (bound.to_bits() >> 23) as usize;
+    // Per chunk of groups, in order: each group's bound, and the candidates per exponent of the bound.
+    let bound_chunk = |chunk: usize| {
+        let words = chunk * BOUND_WORDS_PER_TASK..((chunk + 1) * BOUND_WORDS_PER_TASK).min(visible.len());
+        let mut by_exponent = [0u32; 256];
+        let groups: Vec<(f32, u32)> = words
+            .filter(|&group| visible[group] & occluders[group] != 0)
+            .map(|group| {
+                let bound = group_bound(store, group, viewpoint);
+                by_exponent[exponent(bound)] += (visible[group] & occluders[group]).count_ones();
+                (bound, group as u32)
+            })
+            .collect();
+        (groups, by_exponent)
+    };
+    let chunks = visible.len().div_ceil(BOUND_WORDS_PER_TASK);
+    let bounded: Vec<BoundedGroups> = if visible.len() < RANK_IN_PARALLEL_ABOVE {
+        (0..chunks).map(bound_chunk).collect()
+    } else {
+        parallel::region(|region| (0..chunks).into_par_iter().map(|chunk| region.task(|| bound_chunk(chunk))).collect())
+    };
     let mut candidates_by_exponent = [0usize; 256];
-    for &(bound, group) in &groups {
-        let group = group as usize;
-        candidates_by_exponent[exponent(bound)] += (visible[group] & occluders[group]).count_ones() as usize;
+    for (_, by_exponent) in &bounded {
+        candidates_by_exponent.iter_mut().zip(by_exponent).for_each(|(total, &n)| *total += n as usize);
     }
     let mut taken = 0;
     let lowest = (0..256).rev().find(|&e| {
@@ -275,11 +298,22 @@ fn rank_best_groups(
     // Below the lowest exponent taken, every bound (and so every rank) is under its least value.
     let threshold = lowest.filter(|&e| e > 0 && candidates_by_exponent[..e].iter().any(|&n| n > 0));
     let least_taken = threshold.unwrap_or(0);
-    let mut ranked = Vec::with_capacity(taken);
-    for &(_, group) in groups.iter().filter(|(bound, _)| exponent(*bound) >= least_taken) {
-        let group = group as usize;
-        rank_word(store, group * 64, visible[group] & occluders[group], viewpoint, &mut ranked);
-    }
+    let rank_chunk = |groups: &[(f32, u32)]| {
+        let mut ranked = Vec::new();
+        for &(_, group) in groups.iter().filter(|(bound, _)| exponent(*bound) >= least_taken) {
+            let group = group as usize;
+            rank_word(store, group * 64, visible[group] & occluders[group], viewpoint, &mut ranked);
+        }
+        ranked
+    };
+    let ranked = if visible.len() < RANK_IN_PARALLEL_ABOVE {
+        bounded.iter().flat_map(|(groups, _)| rank_chunk(groups)).collect()
+    } else {
+        let ranked: Vec<Vec<(f32, u32)>> = parallel::region(|region| {
+            bounded.par_iter().map(|(groups, _)| region.task(|| rank_chunk(groups))).collect()
+        });
+        ranked.concat()
+    };
     (ranked, threshold.map(|e| f32::from_bits((e as u32) << 23)))
 }
 

@@ -36,4 +36,5 @@ pub mod store;
 
 pub use components::{BoundsError, BoundsRejected, LocalBounds, ObjectTransform, Static, WorldBounds};
 pub use groups::{GROUPS_PER_SUPERGROUP, GroupBounds};
+pub(crate) use store::UpdatePiece;
 pub use store::{BoundsStore, SOA_PADDING, SoaSlices, StoreMoves};

@@ -29,8 +29,28 @@ pub const SOA_PADDING: usize = 64;
 /// [`BoundsStore::update_many`] writes in parallel from this many objects on.
 const PARALLEL_WRITES_FROM: usize = 1024;
 
-/// Objects whose world bounds one task of [`BoundsStore::update_many`] computes.
+/// Objects whose world bounds one task of [`BoundsStore::update_many`] computes, at least.
 const UPDATES_PER_TASK: usize = 256;
+
+/// Loose groups one task of [`BoundsStore::tighten_some_groups`] tightens.
+const TIGHTEN_GROUPS_PER_TASK: usize = 16;
+
+/// Pieces [`BoundsStore::update_many`] cuts its objects into, at most: each supergroup's writer looks at each.
+const MAX_UPDATE_PIECES: usize = 64;
+
+/// Updates computed apart from the store ([`BoundsStore::compute_piece`]) by one task, to be applied with the
+/// other tasks' in order ([`BoundsStore::apply_pieces`]).
+#[derive(Debug, Default)]
+pub(crate) struct UpdatePiece {
+    /// Each `(entity, its slot as looked up, its world bounds or why they were refused)`, in order.
+    pub(crate) updates: Vec<(Entity, Option<usize>, Result<WorldBounds, BoundsError>)>,
+    /// Every update has a slot and valid bounds.
+    in_place: bool,
+    /// Where `in_place`: the updates' indices grouped by supergroup, in order within each.
+    by_supergroup: Vec<u32>,
+    /// Where `in_place`: each supergroup's first index in `by_supergroup`, and one past the last.
+    starts: Vec<u32>,
+}
 
 /// Slots of one supergroup.
 const SUPERGROUP_SLOTS: usize = SOA_PADDING * GROUPS_PER_SUPERGROUP;
@@ -48,6 +68,8 @@ struct StoreParts<'a> {
     /// The written marks' words.
     written: &'a mut [u64],
     occluders: &'a VisibleSet,
+    /// Per group, whether it is queued to be tightened.
+    loose_flags: &'a mut [bool],
 }
 
 /// The store's slots from the first of a supergroup on (or all of them), to write them: their seven arrays,
@@ -322,27 +344,39 @@ impl BoundsStore {
     /// [`BoundsStore::tighten_groups`] for at most `budget` groups, the longest-loose first: the work of many
     /// moving objects is spread over frames, while every group box stays conservative in between.
     pub fn tighten_some_groups(&mut self, budget: usize) {
-        let mut supergroups = Vec::new();
-        for _ in 0..budget {
+        let mut tightened = Vec::new();
+        while tightened.len() < budget {
             let Some(group) = self.loose_groups.pop_front() else { break };
             let group = group as usize;
             if group >= self.groups.len() {
                 continue; // Truncated away since it was queued.
             }
             self.loose_flags[group] = false;
+            tightened.push(group);
+        }
+        // Each group's box and occluder radius from its members, read in parallel, then stored.
+        let tight = |group: usize| {
             let slots = group * SOA_PADDING..((group + 1) * SOA_PADDING).min(self.len());
             let axes =
                 [(&self.center_x, &self.extent_x), (&self.center_y, &self.extent_y), (&self.center_z, &self.extent_z)]
                     .map(|(centers, extents)| outward_range(&centers[slots.clone()], &extents[slots.clone()]));
-            self.groups[group] = GroupBounds {
+            let bounds = GroupBounds {
                 min: Vec3::new(axes[0].0, axes[1].0, axes[2].0),
                 max: Vec3::new(axes[0].1, axes[1].1, axes[2].1),
             };
             let occluders = self.occluders.words()[group];
-            self.occluder_radii[group] = crate::visible::set_slots(group, &[occluders])
+            let radius = crate::visible::set_slots(group, &[occluders])
                 .fold(0.0, |largest: f32, slot| largest.max(self.radius[slot]));
-            supergroups.push(group / GROUPS_PER_SUPERGROUP);
+            (bounds, radius)
+        };
+        let boxes: Vec<Vec<(GroupBounds, f32)>> = parallel::region(|region| {
+            let chunk = |groups: &[usize]| region.task(|| groups.iter().map(|&group| tight(group)).collect());
+            tightened.par_chunks(TIGHTEN_GROUPS_PER_TASK).map(chunk).collect()
+        });
+        for (&group, (bounds, radius)) in tightened.iter().zip(boxes.into_iter().flatten()) {
+            (self.groups[group], self.occluder_radii[group]) = (bounds, radius);
         }
+        let mut supergroups: Vec<usize> = tightened.iter().map(|group| group / GROUPS_PER_SUPERGROUP).collect();
         supergroups.sort_unstable();
         supergroups.dedup();
         for supergroup in supergroups {
@@ -432,6 +466,7 @@ impl BoundsStore {
             occluder_radii,
             written,
             occluders,
+            loose_flags,
             ..
         } = self;
         StoreParts {
@@ -441,6 +476,7 @@ impl BoundsStore {
             occluder_radii,
             written: written.words_mut(),
             occluders,
+            loose_flags,
         }
     }
 
@@ -551,64 +587,106 @@ impl BoundsStore {
     ///
     /// Where there are many and each already has a slot and valid bounds (objects that moved), they are
     /// written in parallel, each thread a range of slots (the arrays' writes miss the caches of a large
-    /// store, and were a serial part of the frame); only what depends on their order is recorded in order.
+    /// store); only what depends on their order is recorded in order.
     pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
-        // Per task, its objects' slots and bounds, and whether they all have a slot and valid bounds. Left in
-        // the tasks' lists: joining them would copy every object once more, on one thread.
-        type Computed = (Vec<(Option<usize>, Result<WorldBounds, BoundsError>)>, bool);
-        let computed: Vec<Computed> = parallel::region(|region| {
-            let compute = |(entity, local, transform): &(Entity, LocalBounds, Affine3A)| {
-                (self.slot_of(*entity), WorldBounds::from_local(*entity, local, transform))
-            };
-            let task = |chunk: &[(Entity, LocalBounds, Affine3A)]| {
+        // Few enough pieces that each supergroup's writer looks through all of them cheaply.
+        let per_piece = objects.len().div_ceil(MAX_UPDATE_PIECES).max(UPDATES_PER_TASK);
+        let pieces: Vec<UpdatePiece> = parallel::region(|region| {
+            let piece = |chunk: &[(Entity, LocalBounds, Affine3A)]| {
                 region.task(|| {
-                    let computed: Vec<_> = chunk.iter().map(compute).collect();
-                    let in_place = computed.iter().all(|(slot, bounds)| slot.is_some() && bounds.is_ok());
-                    (computed, in_place)
+                    self.compute_piece(chunk.iter().map(|(entity, local, transform)| (*entity, local, transform)))
                 })
             };
-            objects.par_chunks(UPDATES_PER_TASK).map(task).collect()
+            objects.par_chunks(per_piece).map(piece).collect()
         });
-        // Every object stored already, none refused: no insert or removal moves a slot, so each write is an
-        // overwrite of the slot looked up above.
-        let in_place = objects.len() >= PARALLEL_WRITES_FROM && computed.iter().all(|(_, in_place)| *in_place);
-        let computed = computed.into_iter().flat_map(|(computed, _)| computed);
-        if !in_place {
-            return objects
-                .iter()
-                .zip(computed)
-                .map(|(&(entity, ..), (slot, bounds))| self.apply_update(entity, slot, bounds))
-                .collect();
+        let slots: Vec<Option<usize>> =
+            pieces.iter().flat_map(|piece| piece.updates.iter().map(|update| update.1)).collect();
+        match self.apply_pieces(pieces) {
+            Some(outcomes) => outcomes.into_iter().map(|(_, outcome)| outcome).collect(),
+            // Written in place: each in the slot it was found in (every one found).
+            None => slots.into_iter().flatten().map(Ok).collect(),
         }
-        let writes: Vec<(usize, WorldBounds)> =
-            computed.filter_map(|(slot, bounds)| Some((slot?, bounds.ok()?))).collect();
-        for &(slot, _) in &writes {
-            self.note_moved(slot);
-        }
-        self.generation += writes.len() as u64;
-        self.write_in_parallel(&writes);
-        writes.iter().map(|&(slot, _)| Ok(slot)).collect()
     }
 
-    /// Writes each `(slot, bounds)` as [`BoundsStore::write`] does but the generation, in parallel over
-    /// supergroups ([`SlotsMut`]: no two share a slot, a group or a word). Where a slot appears twice, the
-    /// later write stands, as written one by one.
-    fn write_in_parallel(&mut self, writes: &[(usize, WorldBounds)]) {
-        // The writes grouped by supergroup, in their order within each (a counting sort: no comparisons).
-        let mut starts = vec![0; self.padded_len().div_ceil(SUPERGROUP_SLOTS) + 1];
-        for &(slot, _) in writes {
-            starts[slot / SUPERGROUP_SLOTS + 1] += 1;
+    /// The updates of `objects` (each `(entity, local bounds, transform)`), computed without changing the store,
+    /// as one task of [`BoundsStore::update_many`] or of the bounds stage does: to be applied with the other
+    /// tasks' pieces, in order, by [`BoundsStore::apply_pieces`].
+    pub(crate) fn compute_piece<'a>(
+        &self,
+        objects: impl Iterator<Item = (Entity, &'a LocalBounds, &'a Affine3A)>,
+    ) -> UpdatePiece {
+        let updates: Vec<_> = objects
+            .map(|(entity, local, transform)| {
+                (entity, self.slot_of(entity), WorldBounds::from_local(entity, local, transform))
+            })
+            .collect();
+        let in_place = updates.iter().all(|(_, slot, bounds)| slot.is_some() && bounds.is_ok());
+        if !in_place || updates.is_empty() {
+            return UpdatePiece { updates, in_place, ..UpdatePiece::default() };
         }
-        for range in 1..starts.len() {
-            starts[range] += starts[range - 1];
+        // The updates by supergroup, in order within each (a counting sort: no comparisons).
+        let supergroup_of = |update: &(Entity, Option<usize>, _)| update.1.unwrap_or(0) / SUPERGROUP_SLOTS;
+        let mut starts = vec![0u32; self.padded_len().div_ceil(SUPERGROUP_SLOTS) + 1];
+        for update in &updates {
+            starts[supergroup_of(update) + 1] += 1;
         }
-        let mut order = vec![0; writes.len()];
+        for supergroup in 1..starts.len() {
+            starts[supergroup] += starts[supergroup - 1];
+        }
+        let mut by_supergroup = vec![0; updates.len()];
         let mut next = starts.clone();
-        for (index, &(slot, _)) in writes.iter().enumerate() {
-            order[next[slot / SUPERGROUP_SLOTS]] = index;
-            next[slot / SUPERGROUP_SLOTS] += 1;
+        for (index, update) in updates.iter().enumerate() {
+            let next = &mut next[supergroup_of(update)];
+            by_supergroup[*next as usize] = index as u32;
+            *next += 1;
         }
-        let StoreParts { arrays, groups, supergroups, occluder_radii, written, occluders } = self.parts_mut();
+        UpdatePiece { updates, in_place, by_supergroup, starts }
+    }
+
+    /// Applies `pieces` of updates from [`BoundsStore::compute_piece`], in order, as [`BoundsStore::update`]
+    /// would one by one. Where there are many and every one has a slot and valid bounds, they are written in
+    /// parallel, each task a supergroup's slots, and `None` is returned (each object is in the slot looked up);
+    /// otherwise they are applied one by one and each object's outcome returned, in order.
+    pub(crate) fn apply_pieces(
+        &mut self,
+        pieces: Vec<UpdatePiece>,
+    ) -> Option<Vec<(Entity, Result<usize, BoundsError>)>> {
+        let total: usize = pieces.iter().map(|piece| piece.updates.len()).sum();
+        let supergroups = self.padded_len().div_ceil(SUPERGROUP_SLOTS);
+        // Every object stored already, none refused, and the store's layout as when they were looked up: each
+        // write is an overwrite of the slot looked up.
+        let in_place = total >= PARALLEL_WRITES_FROM
+            && pieces.iter().all(|p| p.in_place && (p.updates.is_empty() || p.starts.len() == supergroups + 1));
+        if !in_place {
+            let updates = pieces.into_iter().flat_map(|piece| piece.updates);
+            return Some(
+                updates.map(|(entity, slot, bounds)| (entity, self.apply_update(entity, slot, bounds))).collect(),
+            );
+        }
+        self.generation += total as u64;
+        // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
+        let list_moves = self.moved.as_ref().is_some_and(|moved| moved.len() + total <= self.len() / 8);
+        let written = self.write_pieces(&pieces, list_moves);
+        for (moved, loose) in written {
+            if let Some(listed) = self.moved.as_mut().filter(|_| list_moves) {
+                listed.extend(moved);
+            }
+            self.loose_groups.extend(loose);
+        }
+        if !list_moves {
+            self.moved = None;
+        }
+        None
+    }
+
+    /// Writes every update of `pieces` (each in place: a slot and valid bounds, grouped by supergroup) as
+    /// [`BoundsStore::write`] does but the generation and the moves, in parallel over supergroups ([`SlotsMut`]:
+    /// no two share a slot, a group or a word). Where a slot appears twice, the later write stands, as written
+    /// one by one. Returns, per supergroup, the slots written (increasing, where `list_moves`) and the groups
+    /// that became loose.
+    fn write_pieces(&mut self, pieces: &[UpdatePiece], list_moves: bool) -> Vec<(Vec<u32>, Vec<u32>)> {
+        let StoreParts { arrays, groups, supergroups, occluder_radii, written, occluders, loose_flags } =
+            self.parts_mut();
         let [center_x, center_y, center_z, extent_x, extent_y, extent_z, radius] = arrays;
         // One item per supergroup. The written marks may have more words than the store has groups: the zip
         // stops at the shortest.
@@ -624,21 +702,41 @@ impl BoundsStore {
             occluder_radii.par_chunks_mut(GROUPS_PER_SUPERGROUP),
             supergroups.par_iter_mut(),
             written.par_chunks_mut(GROUPS_PER_SUPERGROUP),
+            loose_flags.par_chunks_mut(GROUPS_PER_SUPERGROUP),
         );
         parallel::region(|region| {
-            parts.into_par_iter().enumerate().for_each(
-                |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written))| {
-                    region.task(|| {
-                        let arrays = [cx, cy, cz, ex, ey, ez, r];
-                        let mut part = SlotsMut { arrays, groups, occluder_radii, written, supergroup };
-                        for &write in &order[starts[index]..starts[index + 1]] {
-                            let (slot, bounds) = &writes[write];
-                            part.write(slot % SUPERGROUP_SLOTS, bounds, occluders.contains(*slot));
-                        }
-                    })
-                },
-            )
-        });
+            parts
+                .into_par_iter()
+                .enumerate()
+                .map(
+                    |(index, (cx, cy, cz, ex, ey, ez, r, groups, occluder_radii, supergroup, written, loose_flags))| {
+                        region.task(|| {
+                            let arrays = [cx, cy, cz, ex, ey, ez, r];
+                            let mut part = SlotsMut { arrays, groups, occluder_radii, written, supergroup };
+                            let (mut moved, mut loose) = (Vec::new(), Vec::new());
+                            for piece in pieces.iter().filter(|piece| !piece.updates.is_empty()) {
+                                let range = piece.starts[index] as usize..piece.starts[index + 1] as usize;
+                                for &update in &piece.by_supergroup[range] {
+                                    let (_, Some(slot), Ok(bounds)) = &piece.updates[update as usize] else { continue };
+                                    part.write(slot % SUPERGROUP_SLOTS, bounds, occluders.contains(*slot));
+                                    let group = slot / SOA_PADDING;
+                                    let flag = &mut loose_flags[group % GROUPS_PER_SUPERGROUP];
+                                    if !*flag {
+                                        *flag = true;
+                                        loose.push(group as u32);
+                                    }
+                                    if list_moves {
+                                        moved.push(*slot as u32);
+                                    }
+                                }
+                            }
+                            moved.sort_unstable();
+                            (moved, loose)
+                        })
+                    },
+                )
+                .collect()
+        })
     }
 
     /// Stores `bounds` computed by [`WorldBounds::from_local`] for `entity`, whose slot was looked up as `slot`

@@ -1,10 +1,12 @@
 //! The `bevy_ecs` systems and observers that keep the [`BoundsStore`] in step with the entities' components.
 
-use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
+use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static, UpdatePiece};
 use crate::occluders::Occluder;
-use crate::parallel::Stage;
+use crate::parallel::{self, Stage};
+use bevy_ecs::change_detection::Tick;
+use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
-use glam::Affine3A;
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// Group boxes [`sync_bounds`] tightens per frame at most (seed 001 section 4.3.4: spread work over frames).
@@ -40,30 +42,112 @@ fn report(
 ///
 /// Invalid input is never stored: the entity gets [`BoundsRejected`], the error is logged and kept in
 /// [`BoundsStore::take_errors`], and an entity that was stored before is removed from the store.
-#[allow(clippy::type_complexity)]
-pub fn sync_bounds(
-    mut commands: Commands,
-    mut store: ResMut<BoundsStore>,
-    changed: Query<
-        (Entity, &LocalBounds, &ObjectTransform, Option<&BoundsRejected>),
-        (Without<Static>, Or<(Changed<LocalBounds>, Changed<ObjectTransform>)>),
-    >,
-) {
+pub fn sync_bounds(mut commands: Commands, mut store: ResMut<BoundsStore>, objects: MovableObjects) {
     let start = Instant::now();
     let _stage = Stage::Bounds.enter();
-    // Many objects may move in a frame (200 000 cars in a 1e7-object city): their bounds are computed in
-    // parallel, then stored in order (`BoundsStore::update_many`).
-    let (objects, previous): (Vec<(Entity, LocalBounds, Affine3A)>, Vec<Option<BoundsRejected>>) = changed
-        .iter()
-        .map(|(entity, local, transform, previous)| ((entity, *local, transform.0), previous.cloned()))
-        .unzip();
-    let outcomes = store.update_many(&objects);
-    for ((&(entity, ..), outcome), previous) in objects.iter().zip(outcomes).zip(&previous) {
-        report(&mut store, &mut commands, entity, outcome, previous.as_ref());
+    // Many objects may move in a frame (200 000 cars in a 1e7-object city): the walk over every movable
+    // object's change ticks and the bounds of those that changed are cut into tasks, then stored in order.
+    let (pieces, previous) = changed_pieces(&store, &objects);
+    let updated = pieces.iter().map(|piece| piece.updates.len()).sum();
+    match store.apply_pieces(pieces) {
+        // Each object stored in place: only an earlier rejection has something to report (that it is over).
+        None => {
+            for (&entity, rejected) in &previous {
+                report(&mut store, &mut commands, entity, Ok(0), Some(rejected));
+            }
+        }
+        Some(outcomes) => {
+            for (entity, outcome) in outcomes {
+                report(&mut store, &mut commands, entity, outcome, previous.get(&entity));
+            }
+        }
     }
     store.tighten_some_groups(TIGHTEN_BUDGET);
-    store.recomputed_last_sync = objects.len();
+    store.recomputed_last_sync = updated;
     store.last_sync_time = start.elapsed();
+}
+
+/// The objects the bounds stage keeps up to date: every one not [`Static`], with an earlier rejection where
+/// there was one.
+type MovableObjects<'w, 's> = Query<
+    'w,
+    's,
+    (Entity, Ref<'static, LocalBounds>, Ref<'static, ObjectTransform>, Option<&'static BoundsRejected>),
+    Without<Static>,
+>;
+
+/// Rows of one table of movable objects, walked by one task of the bounds stage.
+struct TableRows<'w> {
+    entities: &'w [Entity],
+    locals: &'w [LocalBounds],
+    transforms: &'w [ObjectTransform],
+    /// The change ticks of the local bounds and of the transforms.
+    changed: [&'w [Tick]; 2],
+    rejected: Option<&'w [BoundsRejected]>,
+    rows: std::ops::Range<usize>,
+    /// The stage's last run and this one: rows changed in between are updated.
+    last_run: Tick,
+    this_run: Tick,
+}
+
+/// Rows of a table one task of the bounds stage walks: looks at their change ticks, and computes the bounds of
+/// those that changed.
+const WALK_ROWS: usize = 1024;
+
+/// The updates of every object of `objects` whose [`LocalBounds`] or [`ObjectTransform`] changed since the
+/// stage last ran, computed in parallel over ranges of table rows, in the order of the query; and the earlier
+/// rejection of each that had one.
+fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdatePiece>, EntityHashMap<BoundsRejected>) {
+    let Ok(tables) = objects.contiguous_iter() else {
+        // Not stored in tables (not the case of the engine's components): one walk on this thread.
+        let changed = objects.iter().filter(|(_, local, transform, _)| local.is_changed() || transform.is_changed());
+        let (mut moved, mut previous) = (Vec::new(), EntityHashMap::default());
+        for (entity, local, transform, rejected) in changed {
+            moved.push((entity, *local, transform.0));
+            if let Some(rejected) = rejected {
+                previous.insert(entity, rejected.clone());
+            }
+        }
+        let piece = store.compute_piece(moved.iter().map(|(entity, local, transform)| (*entity, local, transform)));
+        return (vec![piece], previous);
+    };
+    let mut ranges = Vec::new();
+    for (entities, locals, transforms, rejected) in tables {
+        let (last_run, this_run) = (locals.last_run_tick(), locals.this_run_tick());
+        let changed = [locals.changed_ticks_slice(), transforms.changed_ticks_slice()];
+        let (locals, transforms) = (locals.into_inner(), transforms.into_inner());
+        for first in (0..entities.len()).step_by(WALK_ROWS) {
+            let rows = first..(first + WALK_ROWS).min(entities.len());
+            ranges.push(TableRows { entities, locals, transforms, changed, rejected, rows, last_run, this_run });
+        }
+    }
+    let walked: Vec<(UpdatePiece, Vec<(Entity, BoundsRejected)>)> = parallel::region(|region| {
+        let walk = |table: TableRows| {
+            region.task(|| {
+                let newer = |row: &usize| {
+                    table.changed.iter().any(|ticks| ticks[*row].is_newer_than(table.last_run, table.this_run))
+                };
+                let rows: Vec<usize> = table.rows.clone().filter(newer).collect();
+                let objects =
+                    rows.iter().map(|&row| (table.entities[row], &table.locals[row], &table.transforms[row].0));
+                let previous: Vec<(Entity, BoundsRejected)> = match table.rejected {
+                    Some(rejected) => rows.iter().map(|&row| (table.entities[row], rejected[row].clone())).collect(),
+                    None => Vec::new(),
+                };
+                (store.compute_piece(objects), previous)
+            })
+        };
+        ranges.into_par_iter().map(walk).collect()
+    });
+    let mut previous = EntityHashMap::default();
+    let pieces = walked
+        .into_iter()
+        .map(|(piece, rejected)| {
+            previous.extend(rejected);
+            piece
+        })
+        .collect();
+    (pieces, previous)
 }
 
 /// Observer: stores an object as soon as it has both [`LocalBounds`] and [`ObjectTransform`], and re-stores it
