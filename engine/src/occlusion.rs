@@ -126,13 +126,34 @@ pub fn test_occlusion(
     visible: &mut VisibleSet,
     occluded: &mut VisibleSet,
 ) -> OcclusionStats {
-    visible.reset(store.len());
-    occluded.reset(store.len());
-    let tested = frustum_visible.count();
-    if pyramid.level_count() == 0 {
-        visible.clone_from(frustum_visible);
-        return OcclusionStats { tested, visible: tested };
+    if pyramid.level_count() == 0 || frustum_visible.len() != store.len() {
+        visible.reset(store.len());
+        occluded.reset(store.len());
+        let tested = frustum_visible.count();
+        if pyramid.level_count() == 0 {
+            visible.clone_from(frustum_visible);
+            return OcclusionStats { tested, visible: tested };
+        }
+        test_words(store, frustum_visible, view, pyramid, visible, occluded);
+        return OcclusionStats { tested, visible: visible.count() };
     }
+    // Every word of both is written below, and counted there.
+    visible.resize_for_overwrite(store.len());
+    occluded.resize_for_overwrite(store.len());
+    let (tested, kept) = test_words(store, frustum_visible, view, pyramid, visible, occluded);
+    OcclusionStats { tested, visible: kept }
+}
+
+/// Tests the objects set in each word of `frustum_visible` and writes the word's survivors to `visible` and
+/// its hidden objects to `occluded`, in parallel over words; returns the objects tested and kept.
+fn test_words(
+    store: &BoundsStore,
+    frustum_visible: &VisibleSet,
+    view: &ScreenView,
+    pyramid: &DepthPyramid,
+    visible: &mut VisibleSet,
+    occluded: &mut VisibleSet,
+) -> (usize, usize) {
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let chunks = visible
         .words_mut()
@@ -141,20 +162,25 @@ pub fn test_occlusion(
         .zip(frustum_visible.words().par_chunks(WORDS_PER_TASK))
         .enumerate();
     parallel::region(|region| {
-        chunks.for_each(|(chunk, ((visible_words, occluded_words), input_words))| {
-            region.task(|| {
-                for (i, ((visible_word, occluded_word), &input)) in
-                    visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words).enumerate()
-                {
-                    let base = (chunk * WORDS_PER_TASK + i) * 64;
-                    let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
-                    *visible_word = kept;
-                    *occluded_word = input & !kept;
-                }
-            })
-        })
-    });
-    OcclusionStats { tested, visible: visible.count() }
+        let task =
+            |(chunk, ((visible_words, occluded_words), input_words)): (usize, ((&mut [u64], &mut [u64]), &[u64]))| {
+                region.task(|| {
+                    let (mut tested, mut visible) = (0, 0);
+                    for (i, ((visible_word, occluded_word), &input)) in
+                        visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words).enumerate()
+                    {
+                        let base = (chunk * WORDS_PER_TASK + i) * 64;
+                        let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
+                        *visible_word = kept;
+                        *occluded_word = input & !kept;
+                        tested += input.count_ones() as usize;
+                        visible += kept.count_ones() as usize;
+                    }
+                    (tested, visible)
+                })
+            };
+        chunks.map(task).reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    })
 }
 
 /// Re-tests only the objects in `slots` after their bounds changed, against the same view and pyramid as the

@@ -28,6 +28,14 @@ impl VisibleSet {
         self.len = len;
     }
 
+    /// Resizes to `len` slots without clearing the words it keeps, for a caller that then writes every word
+    /// (with the bits past `len` clear) before the set is read: a pass over the words saved where the writes
+    /// are spread over tasks.
+    pub(crate) fn resize_for_overwrite(&mut self, len: usize) {
+        self.words.resize(len.div_ceil(64), 0);
+        self.len = len;
+    }
+
     /// Grows or shrinks to `len` slots, keeping the bits of the slots that remain; new slots are clear.
     pub fn resize(&mut self, len: usize) {
         self.words.resize(len.div_ceil(64), 0);

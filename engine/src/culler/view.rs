@@ -229,34 +229,36 @@ impl ViewCuller {
         self.stats.objects = store.len();
         self.stats.frustum_error = None;
         let mut also_kept = None;
-        match &frame.view.frustum {
-            Ok(_) if !settings.frustum => self.frustum_visible = VisibleSet::all(store.len()),
+        // The stage's passes count what they keep: no pass over the set to count it again.
+        self.stats.after_frustum = match &frame.view.frustum {
+            Ok(_) if !settings.frustum => {
+                self.frustum_visible = VisibleSet::all(store.len());
+                store.len()
+            }
             Ok(frustum) if !also.is_empty() => {
                 let views: Vec<View> = std::iter::once(View::new(*frustum)).chain(also.iter().cloned()).collect();
                 also_visible.insert(0, std::mem::take(&mut self.frustum_visible));
                 let mut counts = cull_views(store, &views, also_visible);
                 self.frustum_visible = also_visible.remove(0);
-                counts.remove(0);
+                let kept = counts.remove(0);
                 also_kept = Some(counts);
+                kept
             }
             Ok(frustum) => {
                 let pass = Instant::now();
                 let coherence = settings.adaptive.plane_coherence.then_some(&mut self.coherence);
-                cull_frustum(
-                    store,
-                    frustum,
-                    FrustumOptions { coherence, ..Default::default() },
-                    &mut self.frustum_visible,
-                );
+                let options = FrustumOptions { coherence, ..Default::default() };
+                let kept = cull_frustum(store, frustum, options, &mut self.frustum_visible);
                 self.retest_cost.record_full(pass.elapsed(), store.len());
+                kept
             }
             Err(error) => {
                 tracing::warn!("a view keeps every object: {error}");
                 self.stats.frustum_error = Some(*error);
                 self.frustum_visible = VisibleSet::all(store.len());
+                store.len()
             }
-        }
-        self.stats.after_frustum = self.frustum_visible.count();
+        };
         self.stats.frustum_time = start.elapsed();
         also_kept
     }

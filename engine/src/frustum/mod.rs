@@ -448,8 +448,8 @@ fn cull_pass(
     let tasks = words.div_ceil(WORDS_PER_TASK);
     let backend = backend.resolve();
     if let [(visible, coherence)] = &mut outputs[..] {
-        // One view: its words straight from its set, with nothing allocated per task.
-        visible.reset(len);
+        // One view: its words straight from its set, with nothing allocated per task (each task clears its own).
+        visible.resize_for_overwrite(len);
         let planes = task_planes(coherence.take(), words);
         let count = parallel::region(|region| {
             visible
@@ -467,7 +467,7 @@ fn cull_pass(
     // Per task, per view: its bitset words and, with coherence, their blocks' planes.
     let mut task_outputs: Vec<Vec<TaskOutput<'_>>> = (0..tasks).map(|_| Vec::with_capacity(views.len())).collect();
     for (visible, coherence) in outputs {
-        visible.reset(len);
+        visible.resize_for_overwrite(len);
         let chunks = visible.words_mut().chunks_mut(WORDS_PER_TASK);
         for ((task, chunk), planes) in chunks.enumerate().zip(task_planes(coherence, words)) {
             task_outputs[task].push((chunk, planes));
@@ -506,7 +506,7 @@ fn task_planes(coherence: Option<&mut PlaneCoherence>, words: usize) -> Vec<Opti
 }
 
 /// One task of [`cull_pass`]: the words of supergroup `task` for every view, written to `outputs` (per view,
-/// its words of this task, cleared, and their coherence planes). Returns the visible counts, per view.
+/// its words of this task, cleared here first, and their coherence planes). Returns the visible counts, per view.
 ///
 /// Views take turns per block of 8 words (512 objects, whose bounds stay in the L1 cache between views), and
 /// a view skips the words of a supergroup it has wholly outside (they stay clear).
@@ -518,6 +518,10 @@ fn cull_task<const VIEWS: usize>(
     outputs: &mut [TaskOutput<'_>],
 ) -> [usize; VIEWS] {
     let len = store.len();
+    // The sets were resized without clearing: words outside the views stay as cleared here.
+    for (words, _) in outputs.iter_mut() {
+        words.fill(0);
+    }
     let mut counts = [0; VIEWS];
     // Per view: the supergroup's class, then the bits of its blocks of 8 groups outside and inside.
     let mut blocks_outside = [u8::MAX; VIEWS];
