@@ -161,22 +161,21 @@ fn test_words(
         .zip(occluded.words_mut().par_chunks_mut(WORDS_PER_TASK))
         .zip(frustum_visible.words().par_chunks(WORDS_PER_TASK))
         .enumerate();
-    // Per word: the objects tested and kept, written to both sets.
-    let test_word = |base: usize, input: u64, visible_word: &mut u64, occluded_word: &mut u64| {
-        let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
-        (*visible_word, *occluded_word) = (kept, input & !kept);
-        (input.count_ones() as usize, kept.count_ones() as usize)
-    };
     parallel::region(|region| {
         chunks
             .map(|(chunk, ((visible_words, occluded_words), input_words))| {
                 region.task(|| {
+                    let (mut tested, mut visible) = (0, 0);
                     let words = visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words);
-                    words.enumerate().fold((0, 0), |(tested, kept), (i, ((visible_word, occluded_word), &input))| {
+                    for (i, ((visible_word, occluded_word), &input)) in words.enumerate() {
                         let base = (chunk * WORDS_PER_TASK + i) * 64;
-                        let (tested_here, kept_here) = test_word(base, input, visible_word, occluded_word);
-                        (tested + tested_here, kept + kept_here)
-                    })
+                        let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
+                        *visible_word = kept;
+                        *occluded_word = input & !kept;
+                        tested += input.count_ones() as usize;
+                        visible += kept.count_ones() as usize;
+                    }
+                    (tested, visible)
                 })
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
