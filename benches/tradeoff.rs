@@ -10,8 +10,13 @@
 //! 1920x1080 frame (`OcclusionSettings::for_frame`) are timed against each other in alternating passes, on
 //! rayon's threads and on one (CPU time), into `target/tradeoff/paired.csv`.
 //!
+//! truck_town, nobody here's scene (with automatic occluders, around its orbit), is judged the same way with
+//! fewer configurations (frustum only, the default buffer at each budget, the masked buffers for the frame,
+//! the shadow frusta at each budget, MOC); its rows are in the same CSV (column `scene`), and no plot.
+//!
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
-//! `CULLET_TRADEOFF_FRAMES` (default 200) size the run.
+//! `CULLET_TRADEOFF_FRAMES` (default 200) size the city's run, `CULLET_TRADEOFF_SCENE_FRAMES` (default 60)
+//! truck_town's, and `CULLET_TRADEOFF_SCENES` (default `city,truck_town`) chooses the scenes.
 
 #[path = "moc/mod.rs"]
 mod moc;
@@ -19,9 +24,13 @@ mod moc;
 use cullet::culler::{
     Culled, Culler, OcclusionSettings, ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
 };
+use cullet::camera::CameraPath;
 use cullet::raster::RasterMode;
+use cullet::scene::Scene;
+use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
+use cullet::scene::gltf_import::load_gltf;
 use cullet_truth::FrameMetrics;
 use cullet_truth::judge::{occlusion_ideal_of, render_world};
 use cullet_truth::metrics::OcclusionIdeal;
@@ -83,8 +92,10 @@ fn culler_for(series: Series, settings: OcclusionSettings) -> Box<dyn Culler> {
     }
 }
 
-/// One configuration's results over the path.
+/// One configuration's results over a scene's path.
 struct Row {
+    /// The scene judged.
+    scene: &'static str,
     series: Series,
     /// The occlusion buffer's settings (a shadow frusta row: its budget).
     settings: OcclusionSettings,
@@ -98,9 +109,9 @@ struct Row {
 
 impl Row {
     /// A row not timed yet: its time infinite until a pass is timed.
-    fn untimed(series: Series, settings: OcclusionSettings, accuracy: PathMetrics) -> Self {
+    fn untimed(scene: &'static str, series: Series, settings: OcclusionSettings, accuracy: PathMetrics) -> Self {
         let (frustum_us, raster_us, occlusion_us) = (f64::INFINITY, 0.0, 0.0);
-        Self { series, settings, frustum_us, raster_us, occlusion_us, accuracy, on_front: false }
+        Self { scene, series, settings, frustum_us, raster_us, occlusion_us, accuracy, on_front: false }
     }
 
     /// Whether it never hides what a rendering of `viewport` shows.
@@ -155,6 +166,30 @@ fn env_or(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
 }
 
+/// A scene flown along a camera path, every frame judged against the exact ground truth.
+struct JudgedScene<'a> {
+    name: &'static str,
+    scene: &'a Scene,
+    path: CameraPath,
+    frames: u32,
+}
+
+impl JudgedScene<'_> {
+    /// The scene flown with the pipeline's stages installed, with `settings`.
+    fn flight(&self, settings: OcclusionSettings) -> Flight {
+        Flight::new(self.path.clone(), 16.0 / 9.0, self.frames, settings, |world| {
+            self.scene.spawn(world);
+        })
+    }
+
+    /// The scene flown for a culler of its own (`Flight::cull_frame`): the same path, frames and moving objects.
+    fn culler_flight(&self) -> Flight {
+        Flight::for_cullers(self.path.clone(), 16.0 / 9.0, self.frames, |world| {
+            self.scene.spawn(world);
+        })
+    }
+}
+
 fn main() {
     // `cargo bench` passes `--bench`; a filter argument from `cargo bench -- x` that is not ours skips the run.
     if std::env::args().skip(1).any(|a| !a.starts_with('-') && !"tradeoff".contains(a.as_str())) {
@@ -162,34 +197,61 @@ fn main() {
     }
     let objects = env_or("CULLET_TRADEOFF_OBJECTS", 100_000);
     let frames = env_or("CULLET_TRADEOFF_FRAMES", 200) as u32;
-    let city = CityScene::generate(CityParams::with_objects(objects));
+    let chosen = std::env::var("CULLET_TRADEOFF_SCENES").unwrap_or_else(|_| "city,truck_town".into());
+    let chosen: Vec<&str> = chosen.split(',').map(str::trim).collect();
     let reference = ReferenceSettings::default();
-    let flight = |settings| {
-        Flight::new(city.flythrough(), 16.0 / 9.0, frames, settings, |world| {
-            city.spawn(world);
-        })
-    };
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tradeoff");
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut rows = Vec::new();
 
-    // Each configuration's culler is driven over the same path, frames and moving objects as the pipeline.
-    let culler_flight = || {
-        Flight::for_cullers(city.flythrough(), 16.0 / 9.0, frames, |world| {
-            city.spawn(world);
-        })
-    };
+    if chosen.contains(&"city") {
+        let city = CityScene::generate(CityParams::with_objects(objects));
+        let judged = JudgedScene { name: "city", scene: &city.scene, path: city.flythrough(), frames };
+        let mut city_rows = sweep(&judged, city_configs(&reference), &reference);
+        mark_pareto_front(&mut city_rows, (reference.width, reference.height));
+        let default = city_rows.iter().find(|r| r.is_default()).unwrap();
+        println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
+        plot(&city_rows, &dir.join("tradeoff.png"), objects, frames).unwrap();
+        rows.extend(city_rows);
 
-    let start = Instant::now();
-    let mut truth_flight = flight(OcclusionSettings::default());
-    let truth: Vec<ExactVisibility> = (0..frames)
-        .map(|frame| {
-            truth_flight.run_frame(frame);
-            render_world(&truth_flight.world, &city.scene.meshes, &reference).visibility()
-        })
-        .collect();
-    println!(
-        "exact visibility of {frames} frames of a {objects}-object city in {:.1} s",
-        start.elapsed().as_secs_f64()
-    );
+        let mut paired_csv = String::from("threads,passes,default_us,for_frame_us,median_ratio\n");
+        let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        for threads in [rayon::current_num_threads(), 1] {
+            let pool = if threads == 1 { Some(&one_thread) } else { None };
+            let (default, for_frame, ratio) = paired(&|settings| judged.flight(settings), frames, pool);
+            println!(
+                "default against for_frame(1920, 1080), {threads} thread(s), {PAIRED_PASSES} alternating passes: \
+                 fastest {default:.1} and {for_frame:.1} us/frame, median ratio {ratio:.3}"
+            );
+            writeln!(paired_csv, "{threads},{PAIRED_PASSES},{default:.1},{for_frame:.1},{ratio:.4}").unwrap();
+        }
+        std::fs::write(dir.join("paired.csv"), paired_csv).unwrap();
+    }
 
+    // Nobody here's scene: truck_town with automatic occluders (it has no artist ones), around its orbit.
+    let town_file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/truck_town/town_model.gltf");
+    if chosen.contains(&"truck_town") {
+        match load_gltf(&town_file) {
+            Ok(mut town) => {
+                add_auto_occluders(&mut town.scene, &AutoOccluderSettings::default());
+                let frames = env_or("CULLET_TRADEOFF_SCENE_FRAMES", 60) as u32;
+                let path = town.scene.orbit_path();
+                let judged = JudgedScene { name: "truck_town", scene: &town.scene, path, frames };
+                let mut town_rows = sweep(&judged, scene_configs(&reference), &reference);
+                mark_pareto_front(&mut town_rows, (reference.width, reference.height));
+                rows.extend(town_rows);
+            }
+            Err(error) => println!("SKIPPED truck_town: {error}"),
+        }
+    }
+
+    std::fs::write(dir.join("tradeoff.csv"), csv(&rows)).unwrap();
+    println!("wrote {}", dir.canonicalize().unwrap().display());
+}
+
+/// The city's configurations: every resolution, mode and budget of the sweep, and the shadow frusta at each
+/// budget.
+fn city_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings)> {
     let frame = Some((reference.width, reference.height));
     let mut configs = vec![OcclusionSettings { enabled: false, ..OcclusionSettings::default() }];
     for (width, height) in RESOLUTIONS {
@@ -221,13 +283,56 @@ fn main() {
     for triangle_budget in BUDGETS {
         configs.push((Series::ShadowFrusta, OcclusionSettings { triangle_budget, ..OcclusionSettings::default() }));
     }
+    configs
+}
+
+/// A shared scene's configurations, fewer than the city's: frustum only, the default buffer at each budget,
+/// the masked buffers for the viewport's frame at the default budget, and the shadow frusta at each budget.
+fn scene_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings)> {
+    let frame = Some((reference.width, reference.height));
+    let default = OcclusionSettings { frame, ..OcclusionSettings::default() };
+    let mut configs = vec![(Series::Stages, OcclusionSettings { enabled: false, ..default })];
+    for triangle_budget in BUDGETS {
+        configs.push((Series::Stages, OcclusionSettings { triangle_budget, ..default }));
+    }
+    let masked = OcclusionSettings { mode: RasterMode::Masked, ..default };
+    let (width, height) = (reference.width, reference.height);
+    configs.push((Series::Stages, OcclusionSettings { width, height, ..masked }));
+    for (width, height) in MASKED_BELOW_FRAME {
+        configs.push((Series::Stages, OcclusionSettings { width, height, triangle_budget: 5120, ..masked }));
+    }
+    for triangle_budget in BUDGETS {
+        configs.push((Series::ShadowFrusta, OcclusionSettings { triangle_budget, ..OcclusionSettings::default() }));
+    }
+    configs
+}
+
+/// Judges every configuration of `configs` over `judged`'s path against the exact rendering, times each in
+/// [`TIMED_ROUNDS`] rounds, and adds Intel MOC's rows where it is built. The rows, untouched by the Pareto
+/// front.
+fn sweep(judged: &JudgedScene, configs: Vec<(Series, OcclusionSettings)>, reference: &ReferenceSettings) -> Vec<Row> {
+    let frames = judged.frames;
+    let start = Instant::now();
+    let mut truth_flight = judged.flight(OcclusionSettings::default());
+    let truth: Vec<ExactVisibility> = (0..frames)
+        .map(|frame| {
+            truth_flight.run_frame(frame);
+            render_world(&truth_flight.world, &judged.scene.meshes, reference).visibility()
+        })
+        .collect();
+    println!(
+        "{}: exact visibility of {frames} frames of {} objects in {:.1} s",
+        judged.name,
+        judged.scene.objects.len(),
+        start.elapsed().as_secs_f64()
+    );
     // Frustum survivors an exact 1920x1080 buffer of the same occluders culls, per budget and frame.
     let mut ideal: HashMap<usize, Vec<usize>> = HashMap::new();
     let mut rows = Vec::new();
     for (series, settings) in configs {
         let start = Instant::now();
         let mut accuracy = PathMetrics::default();
-        let run = &mut culler_flight();
+        let run = &mut judged.culler_flight();
         let mut stages_culler = StageCuller::new("", ViewSettings { occlusion: settings, ..ViewSettings::default() });
         let mut other = culler_for(series, settings);
         let budget_ideal = settings.enabled.then(|| ideal.contains_key(&settings.triangle_budget));
@@ -244,7 +349,7 @@ fn main() {
                     _ if stages_culler.view().occluder_slots().is_empty() => 0,
                     _ => {
                         let camera = run.world.resource::<cullet::Camera>();
-                        occlusion_ideal_of(&run.world, camera, stages_culler.view(), &reference).ideal_culled
+                        occlusion_ideal_of(&run.world, camera, stages_culler.view(), reference).ideal_culled
                     }
                 };
                 ideal_this_budget.push(ideal_culled);
@@ -255,15 +360,15 @@ fn main() {
         if budget_ideal == Some(false) {
             ideal.insert(settings.triangle_budget, ideal_this_budget);
         }
-        let row = Row::untimed(series, settings, accuracy);
+        let row = Row::untimed(judged.name, series, settings, accuracy);
         println!("{:<28} judged in {:.1} s", row.label(), start.elapsed().as_secs_f64());
         rows.push(row);
     }
-    let mut moc = MocSeries::new(flight(OcclusionSettings::default()), &truth);
+    let mut moc = MocSeries::new(judged.flight(OcclusionSettings::default()), &truth, judged.name);
     let start = Instant::now();
     for round in 0..TIMED_ROUNDS {
         for row in rows.iter_mut() {
-            let (mut run, mut culler) = (culler_flight(), culler_for(row.series, row.settings));
+            let (mut run, mut culler) = (judged.culler_flight(), culler_for(row.series, row.settings));
             let pass: Vec<[Duration; 3]> = (0..frames)
                 .map(|frame| {
                     let (bounds_time, Culled { stats, .. }) = run.cull_frame(frame, culler.as_mut());
@@ -277,7 +382,7 @@ fn main() {
             }
         }
         if let Some(moc) = &mut moc {
-            moc.time_pass(flight(OcclusionSettings::default()));
+            moc.time_pass(judged.flight(OcclusionSettings::default()));
         }
         println!("timed round {} of {TIMED_ROUNDS} in {:.1} s", round + 1, start.elapsed().as_secs_f64());
     }
@@ -289,28 +394,7 @@ fn main() {
     if let Some(moc) = moc {
         rows.extend(moc.rows(frustum_us));
     }
-    mark_pareto_front(&mut rows, (reference.width, reference.height));
-    let default = rows.iter().find(|r| r.is_default()).unwrap();
-    println!("default {} is {}on the Pareto front", default.label(), if default.on_front { "" } else { "NOT " });
-
-    let mut paired_csv = String::from("threads,passes,default_us,for_frame_us,median_ratio\n");
-    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-    for threads in [rayon::current_num_threads(), 1] {
-        let pool = if threads == 1 { Some(&one_thread) } else { None };
-        let (default, for_frame, ratio) = paired(&flight, frames, pool);
-        println!(
-            "default against for_frame(1920, 1080), {threads} thread(s), {PAIRED_PASSES} alternating passes: fastest \
-             {default:.1} and {for_frame:.1} us/frame, median ratio {ratio:.3}"
-        );
-        writeln!(paired_csv, "{threads},{PAIRED_PASSES},{default:.1},{for_frame:.1},{ratio:.4}").unwrap();
-    }
-
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tradeoff");
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("tradeoff.csv"), csv(&rows)).unwrap();
-    std::fs::write(dir.join("paired.csv"), paired_csv).unwrap();
-    plot(&rows, &dir.join("tradeoff.png"), objects, frames).unwrap();
-    println!("wrote {}", dir.canonicalize().unwrap().display());
+    rows
 }
 
 /// The default settings against those for the 1920x1080 frame (`OcclusionSettings::for_frame`), the new
@@ -377,12 +461,13 @@ struct MocSeries {
     fastest: Vec<(f64, f64, f64)>,
     frames: u32,
     scratch: Occludees,
+    scene: &'static str,
 }
 
 impl MocSeries {
     /// Builds MOC at each size and judges it over the path `run` flies against `truth`. None, with a message,
     /// where MOC is not built.
-    fn new(mut run: Flight, truth: &[ExactVisibility]) -> Option<Self> {
+    fn new(mut run: Flight, truth: &[ExactVisibility], scene: &'static str) -> Option<Self> {
         let start = Instant::now();
         let sizes: Vec<(u32, u32)> = RESOLUTIONS.iter().copied().chain([(1920, 1080)]).collect();
         let near = run.path.camera_at(0.0, run.aspect).near;
@@ -404,7 +489,7 @@ impl MocSeries {
         }
         println!("MOC judged in {:.1} s", start.elapsed().as_secs_f64());
         let fastest = vec![(f64::INFINITY, 0.0, 0.0); sizes.len()];
-        Some(Self { sizes, peers, accuracy, fastest, frames: truth.len() as u32, scratch })
+        Some(Self { sizes, peers, accuracy, fastest, frames: truth.len() as u32, scratch, scene })
     }
 
     /// Times one pass of every size over the path `run` flies, keeping each size's fastest.
@@ -434,7 +519,7 @@ impl MocSeries {
             .zip(self.accuracy.into_iter().zip(self.fastest))
             .map(|((width, height), (accuracy, (raster, test, project)))| {
                 let settings = OcclusionSettings { width, height, ..OcclusionSettings::default() };
-                let mut row = Row::untimed(Series::Moc, settings, accuracy);
+                let mut row = Row::untimed(self.scene, Series::Moc, settings, accuracy);
                 (row.frustum_us, row.raster_us, row.occlusion_us) =
                     (frustum_us, raster / frames * 1e6, test / frames * 1e6);
                 print_row(&row);
@@ -461,7 +546,7 @@ fn mark_pareto_front(rows: &mut [Row], viewport: (u32, u32)) {
 
 fn csv(rows: &[Row]) -> String {
     let mut out = String::from(
-        "config,peer,occlusion,width,height,mode,triangle_budget,frames,mean_cull_us,mean_raster_us,mean_occlusion_us,\
+        "scene,config,peer,occlusion,width,height,mode,triangle_budget,frames,mean_cull_us,mean_raster_us,mean_occlusion_us,\
          frustum_efficiency,culling_efficiency,occlusion_efficiency_vs_ideal,false_negatives,\
          frames_with_false_negatives,image_error_pixels_per_frame,worst_image_error_pixels,pareto_front\n",
     );
@@ -469,7 +554,8 @@ fn csv(rows: &[Row]) -> String {
         let s = &r.settings;
         writeln!(
             out,
-            "{},{},{},{},{},{:?},{},{},{:.1},{:.1},{:.1},{:.4},{:.4},{},{},{},{:.1},{},{}",
+            "{},{},{},{},{},{},{:?},{},{},{:.1},{:.1},{:.1},{:.4},{:.4},{},{},{},{:.1},{},{}",
+            r.scene,
             r.label(),
             r.series.name(),
             s.enabled,
