@@ -21,10 +21,10 @@
 #[path = "moc/mod.rs"]
 mod moc;
 
+use cullet::camera::CameraPath;
 use cullet::culler::{
     Culled, Culler, OcclusionSettings, ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
 };
-use cullet::camera::CameraPath;
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
