@@ -11,7 +11,7 @@ use cullet::gpu::interface::GpuView;
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::{GpuContext, GpuError, STORAGE_BUFFERS_PER_STAGE};
-use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating};
+use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, ReadBack};
 use cullet::pipeline::CameraCuller;
 use cullet_test_support::context_for_tests;
 
@@ -610,4 +610,45 @@ fn every_pass_fits_the_storage_buffers_asked_of_the_adapter() {
         Err(error) => panic!("refused for another reason: {error}"),
         Ok(_) => panic!("a device with too few storage buffers was opened"),
     }
+}
+
+/// Counters read a frame late ([`ReadBack::Late`]): each frame returns the previous frame's counters, exactly
+/// those a culler that waits returned for it, draws the same image and leaves the same survivors; switched back,
+/// a frame returns its own again.
+#[test]
+fn counters_read_a_frame_late_are_the_previous_frames() {
+    let Some(context) = context_for_tests() else { return };
+    let (mut waits, mut late) = (setup(&context, 3000), setup(&context, 3000));
+    // Passes never skipped: the gates would learn a frame later in one than in the other.
+    waits.culler.set_gating(GpuGating::fixed());
+    late.culler.set_gating(GpuGating::fixed());
+    late.culler.set_read_back(ReadBack::Late);
+    let settings = GpuCullSettings::default();
+    let mut previous: Option<GpuFrameOutput> = None;
+    for frame in 0..5 {
+        waits.flight.run_frame(frame);
+        late.flight.run_frame(frame);
+        let own = waits.culler.run_world(&context, &mut waits.flight.world, &settings).unwrap();
+        let lagged = late.culler.run_world(&context, &mut late.flight.world, &settings).unwrap();
+        assert!(!own.counters_late && lagged.counters_late);
+        let expected = previous.as_ref().map_or(GpuCounters::default(), |output| output.counters);
+        assert_eq!(lagged.counters, expected, "frame {frame}");
+        let (image, late_image) =
+            (waits.culler.read_image(&context).unwrap(), late.culler.read_image(&context).unwrap());
+        assert!(image.depth == late_image.depth && image.object == late_image.object, "frame {frame}: images differ");
+        let sorted = |(mut clusters, indices): cullet::gpu::Survivors| {
+            clusters.sort_unstable();
+            (clusters, indices.len())
+        };
+        let survivors = sorted(waits.culler.read_survivors(&context).unwrap());
+        assert_eq!(survivors, sorted(late.culler.read_survivors(&context).unwrap()), "frame {frame}");
+        previous = Some(own);
+    }
+    late.culler.set_read_back(ReadBack::Wait);
+    waits.flight.run_frame(5);
+    late.flight.run_frame(5);
+    let own = waits.culler.run_world(&context, &mut waits.flight.world, &settings).unwrap();
+    let again = late.culler.run_world(&context, &mut late.flight.world, &settings).unwrap();
+    assert!(!again.counters_late);
+    assert_eq!(again.counters, own.counters);
 }

@@ -9,10 +9,11 @@ use crate::{Args, CullerChoice, Prepared, gpu_error_message};
 use cullet::culler::{CullScene, Culled, Culler, ShadowFrustaCuller, ShadowFrustaSettings};
 use cullet::depth::DepthBuffer;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
-use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
+use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput, ReadBack};
 use cullet::{BoundsStore, Camera};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressFinish, ProgressStyle};
 use std::io::IsTerminal;
+use std::time::Instant;
 
 /// The run's progress bar, on stderr: hidden where stderr is not a terminal, with `--quiet` (the summary only)
 /// and with `--verbose` (whose line per frame shows the progress).
@@ -42,7 +43,11 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             Ok(context) => {
                 let info = &context.adapter_info;
                 println!("GPU: {} ({:?}, {:?})", info.name, info.backend, info.device_type);
-                let culler = GpuCuller::for_world(&context, &flight.world, &scene.meshes, (width, height));
+                let mut culler = GpuCuller::for_world(&context, &flight.world, &scene.meshes, (width, height));
+                if args.late_readback {
+                    culler.set_read_back(ReadBack::Late);
+                    println!("--late-readback: each frame's GPU counters are read at the next frame");
+                }
                 Some((context, culler))
             }
             Err(error) => {
@@ -79,6 +84,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         }
     };
     let progress = progress_bar(args);
+    let frames_start = Instant::now();
     for frame in 0..args.headless_frames() {
         let mut stats = flight.run_frame(frame);
         let camera = *flight.world.resource::<Camera>();
@@ -144,11 +150,12 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 micros(stats.occlusion_time),
             );
         }
-        let kept_sets = own.map(|culled| (culled.stages[0].1.clone(), culled.kept().clone()));
+        // The culler's sets borrow only the culler: the world stays free for the GPU passes.
+        let kept_sets = own.as_ref().map(|culled| (culled.stages[0].1, culled.kept()));
         let mut gpu_output: Option<GpuFrameOutput> = None;
         if let Some((context, culler)) = gpu.as_mut() {
             let settings = GpuCullSettings::default();
-            let output = match &kept_sets {
+            let output = match kept_sets {
                 Some((_, kept)) => {
                     let visible: Vec<u32> = kept.iter().map(|slot| slot as u32).collect();
                     culler.run_world_culled(context, &mut flight.world, &visible, &DepthBuffer::default(), &settings)
@@ -178,9 +185,12 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                     micros(output.wall_time)
                 );
             }
-            gpu_frames.push(output);
+            // Read a frame late, the first frame's counters never come: it returns none.
+            if !(output.counters_late && frame == 0) {
+                gpu_frames.push(output);
+            }
         }
-        let saved = match &kept_sets {
+        let saved = match kept_sets {
             Some((after_frustum, kept)) => {
                 DrawSavings::of_sets(&slot_triangles, after_frustum, kept, gpu_output.as_ref())
             }
@@ -219,6 +229,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         progress.inc(1);
     }
     progress.finish_and_clear();
+    let frames_time = frames_start.elapsed();
     let errors = flight.world.resource_mut::<BoundsStore>().take_errors();
     for error in &errors {
         eprintln!("rejected: {error}");
@@ -228,9 +239,21 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         println!("per-frame statistics written to {}", file.display());
     }
     print_summary(&per_frame);
+    println!(
+        "{} frames in {:.2} s: {:.2} ms a frame, wall time (every stage, the GPU's work{}, and all this run adds)",
+        per_frame.len(),
+        frames_time.as_secs_f64(),
+        frames_time.as_secs_f64() * 1e3 / per_frame.len().max(1) as f64,
+        if args.late_readback { " overlapping the next frame's CPU stages" } else { " waited for" }
+    );
     light_views.print();
     print_gpu_summary(&gpu_frames);
-    print_savings(&savings, &gpu_frames);
+    if args.late_readback {
+        // A frame's savings pair its CPU sets with its GPU counters, which came with the next frame.
+        println!("--late-readback: the draw savings are not summarized");
+    } else {
+        print_savings(&savings, &gpu_frames);
+    }
     if let Some(validation) = validation {
         println!("\n{}", validation.summary());
         validation.verdict()?;

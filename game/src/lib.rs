@@ -123,6 +123,11 @@ struct Args {
     /// Frames between screenshots.
     #[arg(long, default_value_t = 30)]
     every: u32,
+    /// Read each frame's GPU counters back at the next frame, so that no frame waits for its own GPU work: the
+    /// CPU stages of a frame run while the GPU works on the one before (headless). The GPU columns of --stats
+    /// and the GPU summary are then each the previous frame's, and pass times are not read.
+    #[arg(long)]
+    late_readback: bool,
     /// Run without a window along the camera path (the default where no display exists).
     #[arg(long)]
     headless: bool,

@@ -10,6 +10,7 @@ use super::interface::{
     GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
     VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
 };
+use super::late_read::LateRead;
 use super::output::{COUNTER_BYTES, GpuCounters, GpuFrameOutput, PassTimer, TIMED_PASSES};
 use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
 use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
@@ -58,6 +59,30 @@ impl Default for GpuCullSettings {
             small_triangles: true,
         }
     }
+}
+
+/// When a frame's counters come back to the CPU ([`GpuCuller::set_read_back`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ReadBack {
+    /// Each frame waits for its own GPU work and returns its own counters: what tests and the judge need.
+    #[default]
+    Wait,
+    /// Each frame returns the previous frame's counters, copied in that frame's own submission, and waits at
+    /// most for that earlier work: the CPU prepares frame N while the GPU works on frame N-1. The first such
+    /// frame returns zero counters; pass times and light views' counters are not read.
+    /// ([`GpuFrameOutput::counters_late`] says which a frame returned.) A frame split into batches waits.
+    Late,
+}
+
+/// What [`GpuCuller::run_batch`] needs to know of its frame.
+#[derive(Clone, Copy)]
+struct BatchFrame {
+    /// The passes the frame skips.
+    gate: PassGate,
+    /// The frame's first batch (it builds the HZB and clears the targets).
+    first: bool,
+    /// Its counters come back a frame late ([`ReadBack::Late`]).
+    late: bool,
 }
 
 /// Which GPU passes a frame may skip where they cannot pay off. Insert it as a resource of the world to have
@@ -176,6 +201,14 @@ pub struct GpuCuller {
     /// The instance buffer holds colours other than the objects' own ([`DebugDraw::recolored`](super::DebugDraw::recolored)):
     /// the next [`GpuCuller::run_world`] rewrites every instance.
     pub(super) recolored: bool,
+    /// When the counters come back (see [`GpuCuller::set_read_back`]).
+    read_back: ReadBack,
+    /// The copies of the counters read a frame late, each with its frame's instance count and pass gate.
+    late: Option<LateRead<(u32, PassGate)>>,
+    /// The last frame's counters are still on the GPU (it read the frame before's): `last_counters` is stale.
+    counters_pending: bool,
+    /// The instances the last frame culled.
+    last_instances: u32,
 }
 
 impl GpuCuller {
@@ -219,7 +252,16 @@ impl GpuCuller {
             batch_bytes: None,
             gating: GpuGating::default(),
             recolored: false,
+            read_back: ReadBack::Wait,
+            late: None,
+            counters_pending: false,
+            last_instances: 0,
         }
+    }
+
+    /// Sets when frames' counters come back to the CPU: [`ReadBack::Wait`] (the default) or a frame late.
+    pub fn set_read_back(&mut self, read_back: ReadBack) {
+        self.read_back = read_back;
     }
 
     /// The scene's buffers and cluster library.
@@ -338,18 +380,26 @@ impl GpuCuller {
         }
         let (candidate_clusters, _) = candidates(&self.scene, visible);
         let gate = self.camera.gate(&self.gating, candidate_clusters as usize);
+        let batches = self.batches(context, visible);
+        let late = self.read_back == ReadBack::Late && batches.len() == 1;
+        if !late && let Some(pending) = self.late.as_mut() {
+            pending.forget(context)?;
+        }
         let mut total: Option<GpuFrameOutput> = None;
-        for (i, batch) in self.batches(context, visible).into_iter().enumerate() {
+        for (i, batch) in batches.into_iter().enumerate() {
             let (first, cascades) = (i == 0, cascades.take());
+            let frame = BatchFrame { gate, first, late };
             let output =
-                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, gate, first, cascades)?;
+                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, frame, cascades)?;
             total = Some(match total {
                 None => output,
                 Some(sum) => sum.plus(&output),
             });
         }
         let total = total.unwrap_or_default();
-        self.camera.record_benefit(&self.gating, gate, &total.counters);
+        if !late {
+            self.camera.record_benefit(&self.gating, gate, &total.counters);
+        }
         Ok(total)
     }
 
@@ -412,8 +462,7 @@ impl GpuCuller {
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
-        gate: PassGate,
-        first: bool,
+        BatchFrame { gate, first, late }: BatchFrame,
         cascades: Option<&[Cascade<'_>]>,
     ) -> Result<GpuFrameOutput, GpuError> {
         let mut view = self.view_for(camera, settings, visible.len() as u32);
@@ -454,13 +503,17 @@ impl GpuCuller {
         if let Some(timer) = timer {
             encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
         }
+        self.last_gate = gate;
+        self.last_instances = visible.len() as u32;
+        if late {
+            return self.submit_late(context, encoder, gate);
+        }
         let start = Instant::now();
         context.queue.submit([encoder.finish()]);
         let counter_bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
         let wall_time = start.elapsed();
         let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
-        self.last_counters = counters;
-        self.last_gate = gate;
+        (self.last_counters, self.counters_pending) = (counters, false);
         let pass_times = timer.map(|t| t.read(context)).transpose()?;
         let light_views = match cascades {
             Some(_) => self.shadows.read_counters(context, &self.gating)?,
@@ -473,6 +526,42 @@ impl GpuCuller {
             cluster_pass_skipped: gate.skip_clusters,
             triangle_pass_skipped: gate.skip_triangles,
             light_views,
+            counters_late: false,
+        })
+    }
+
+    /// Submits a frame's work with a copy of its counters, and returns the previous frame's ([`ReadBack::Late`]),
+    /// waiting at most for the previous frame's work. The gates learn from the previous frame's counters.
+    fn submit_late(
+        &mut self,
+        context: &GpuContext,
+        mut encoder: wgpu::CommandEncoder,
+        gate: PassGate,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        let late = self.late.get_or_insert_with(|| LateRead::new(context, COUNTER_BYTES));
+        let slot = late.record(&mut encoder, &self.camera.counters);
+        let start = Instant::now();
+        let submission = context.queue.submit([encoder.finish()]);
+        late.submitted(slot, submission, (self.last_instances, gate));
+        let previous = late.take_previous(context)?;
+        let wall_time = start.elapsed();
+        self.counters_pending = true;
+        let counters = match previous {
+            Some((bytes, (instances, previous_gate))) => {
+                let counters = GpuCounters::from_slots(instances, bytemuck::cast_slice(&bytes));
+                self.camera.record_benefit(&self.gating, previous_gate, &counters);
+                counters
+            }
+            None => GpuCounters::default(),
+        };
+        Ok(GpuFrameOutput {
+            counters,
+            pass_times: None,
+            wall_time,
+            cluster_pass_skipped: gate.skip_clusters,
+            triangle_pass_skipped: gate.skip_triangles,
+            light_views: Vec::new(),
+            counters_late: true,
         })
     }
 
@@ -483,9 +572,14 @@ impl GpuCuller {
     /// # Errors
     /// [`GpuError::Lost`] when the device is lost.
     pub fn read_survivors(&self, context: &GpuContext) -> Result<Survivors, GpuError> {
-        let (Some(frame), counters) = (self.camera.frame.as_ref(), self.last_counters) else {
+        let (Some(frame), mut counters) = (self.camera.frame.as_ref(), self.last_counters) else {
             return Ok(Default::default());
         };
+        if self.counters_pending {
+            // Read a frame late: this frame's counters, which say how much of the buffers to read, are read now.
+            let bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
+            counters = GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes));
+        }
         let clusters = if counters.clusters_out > 0 {
             let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out))?;
             bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()

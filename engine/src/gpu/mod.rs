@@ -47,6 +47,7 @@ pub mod frame;
 pub mod hzb;
 pub mod indirect;
 pub mod interface;
+mod late_read;
 pub mod output;
 pub mod scene;
 pub mod shadow;
@@ -54,7 +55,7 @@ pub mod triangle_cull;
 mod view_cull;
 
 pub use debug_draw::DebugDraw;
-pub use frame::{GpuCullSettings, GpuCuller, GpuGating, Survivors};
+pub use frame::{GpuCullSettings, GpuCuller, GpuGating, ReadBack, Survivors};
 pub use indirect::DrawBuffers;
 pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes};
 

@@ -237,6 +237,9 @@ pub struct GpuFrameOutput {
     /// The counters of each sun cascade's culling, nearest first, where the frame drew shadow maps
     /// ([`super::GpuCuller::run_world`] with [`crate::pipeline::LightViews`]); empty otherwise.
     pub light_views: Vec<GpuCounters>,
+    /// `counters` are the previous frame's ([`super::ReadBack::Late`]; zero on the first such frame), and
+    /// `wall_time` ran from submitting this frame until they were back.
+    pub counters_late: bool,
 }
 
 impl GpuFrameOutput {
@@ -258,6 +261,7 @@ impl GpuFrameOutput {
             triangle_pass_skipped: self.triangle_pass_skipped || other.triangle_pass_skipped,
             // Only a frame's first batch draws the shadow maps.
             light_views: if self.light_views.is_empty() { &other.light_views } else { &self.light_views }.clone(),
+            counters_late: self.counters_late || other.counters_late,
         }
     }
 }
