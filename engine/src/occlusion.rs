@@ -126,34 +126,21 @@ pub fn test_occlusion(
     visible: &mut VisibleSet,
     occluded: &mut VisibleSet,
 ) -> OcclusionStats {
-    if pyramid.level_count() == 0 || frustum_visible.len() != store.len() {
+    if pyramid.level_count() == 0 {
+        occluded.reset(store.len());
+        visible.clone_from(frustum_visible);
+        let tested = frustum_visible.count();
+        return OcclusionStats { tested, visible: tested };
+    }
+    if frustum_visible.len() == store.len() {
+        // Every word of both is written below, and counted there.
+        visible.resize_for_overwrite(store.len());
+        occluded.resize_for_overwrite(store.len());
+    } else {
+        // A set of another size: the words past the shorter stay clear.
         visible.reset(store.len());
         occluded.reset(store.len());
-        let tested = frustum_visible.count();
-        if pyramid.level_count() == 0 {
-            visible.clone_from(frustum_visible);
-            return OcclusionStats { tested, visible: tested };
-        }
-        test_words(store, frustum_visible, view, pyramid, visible, occluded);
-        return OcclusionStats { tested, visible: visible.count() };
     }
-    // Every word of both is written below, and counted there.
-    visible.resize_for_overwrite(store.len());
-    occluded.resize_for_overwrite(store.len());
-    let (tested, kept) = test_words(store, frustum_visible, view, pyramid, visible, occluded);
-    OcclusionStats { tested, visible: kept }
-}
-
-/// Tests the objects set in each word of `frustum_visible` and writes the word's survivors to `visible` and
-/// its hidden objects to `occluded`, in parallel over words; returns the objects tested and kept.
-fn test_words(
-    store: &BoundsStore,
-    frustum_visible: &VisibleSet,
-    view: &ScreenView,
-    pyramid: &DepthPyramid,
-    visible: &mut VisibleSet,
-    occluded: &mut VisibleSet,
-) -> (usize, usize) {
     let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
     let chunks = visible
         .words_mut()
@@ -161,7 +148,7 @@ fn test_words(
         .zip(occluded.words_mut().par_chunks_mut(WORDS_PER_TASK))
         .zip(frustum_visible.words().par_chunks(WORDS_PER_TASK))
         .enumerate();
-    parallel::region(|region| {
+    let (tested, kept) = parallel::region(|region| {
         chunks
             .map(|(chunk, ((visible_words, occluded_words), input_words))| {
                 region.task(|| {
@@ -179,7 +166,8 @@ fn test_words(
                 })
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
-    })
+    });
+    OcclusionStats { tested, visible: kept }
 }
 
 /// Re-tests only the objects in `slots` after their bounds changed, against the same view and pyramid as the
