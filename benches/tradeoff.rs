@@ -83,7 +83,8 @@ impl Series {
 fn culler_for(series: Series, settings: OcclusionSettings) -> Box<dyn Culler> {
     match series {
         Series::ShadowFrusta => {
-            Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget: settings.triangle_budget }))
+            let triangle_budget = settings.triangle_budget;
+            Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget, ..Default::default() }))
         }
         Series::Stages | Series::Moc => {
             let settings = ViewSettings { occlusion: settings, ..ViewSettings::default() };

@@ -79,3 +79,57 @@ fn shadow_frusta_lose_nothing_on_truck_town() {
     let (metrics, occluded) = fly_and_judge(&town.scene, path, 24, &mut ShadowFrustaCuller::default());
     println!("truck_town: {occluded} objects culled by shadow frusta over 24 frames; {metrics:?}");
 }
+
+/// Where the regions remove nothing (an occluder in view with nothing behind it), they are skipped after the
+/// occlusion stage's low-benefit frames, as the depth buffer's stage is, and re-probed; with fixed adaptive
+/// settings, never.
+#[test]
+fn shadow_frusta_that_remove_nothing_are_skipped() {
+    use cullet::culler::{AdaptiveSettings, ShadowFrustaSettings};
+    use cullet::mesh::Mesh;
+    use cullet::scene::SceneObject;
+    use glam::{Affine3A, Vec3};
+    let cube = Mesh::unit_cube(1);
+    let wall = SceneObject {
+        mesh: 0,
+        transform: Affine3A::from_scale_rotation_translation(
+            Vec3::new(20.0, 10.0, 1.0),
+            glam::Quat::IDENTITY,
+            Vec3::new(0.0, 0.0, -20.0),
+        ),
+        occluder: Some(cullet::Occluder::new(cube.scaled(Vec3::splat(0.98), Vec3::ZERO).triangle_soup())),
+        velocity: None,
+        color: [200; 4],
+    };
+    // Boxes in front of the wall and beside it: nothing is behind it.
+    let boxes = (0..8).map(|i| SceneObject {
+        mesh: 0,
+        transform: Affine3A::from_translation(Vec3::new(i as f32 * 2.0 - 8.0, 0.0, -10.0)),
+        occluder: None,
+        velocity: None,
+        color: [200; 4],
+    });
+    let scene = Scene::new(vec![cube], std::iter::once(wall).chain(boxes).collect());
+    let path = cullet::CameraPath { fov_y_deg: 90.0, near: 0.1, far: None, keys: Vec::new() };
+    let mut flight = Flight::for_cullers(path, 1.0, 1, |world| {
+        scene.spawn(world);
+    });
+    flight.schedule.run(&mut flight.world);
+    let camera = cullet::Camera { aspect: 1.0, ..cullet::Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z) };
+    let gated = |adaptive| {
+        let mut culler = ShadowFrustaCuller::new(ShadowFrustaSettings { adaptive, ..Default::default() });
+        (0..40)
+            .map(|_| {
+                let stats = culler.cull(&CullScene::new(&flight.world), &camera).stats;
+                assert_eq!(stats.after_occlusion, stats.after_frustum, "nothing is behind the wall");
+                stats.occlusion_gated
+            })
+            .collect::<Vec<bool>>()
+    };
+    let adaptive = gated(AdaptiveSettings::default());
+    let low = AdaptiveSettings::default().low_benefit_frames as usize;
+    assert!(adaptive[..low].iter().all(|&gated| !gated), "{adaptive:?}");
+    assert!(adaptive[low], "skipped after {low} frames that removed nothing: {adaptive:?}");
+    assert!(adaptive[low..].iter().any(|&gated| !gated), "re-probed: {adaptive:?}");
+    assert!(gated(AdaptiveSettings::fixed()).iter().all(|&gated| !gated));
+}

@@ -78,7 +78,8 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         CullerChoice::Stages => None,
         CullerChoice::ShadowFrusta => {
             let budget = args.occluder_budget.unwrap_or(ShadowFrustaSettings::default().triangle_budget);
-            let culler = ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget: budget });
+            let settings = ShadowFrustaSettings { triangle_budget: budget, ..Default::default() };
+            let culler = ShadowFrustaCuller::new(settings);
             println!("culler: {}", culler.name());
             Some(culler)
         }

@@ -26,7 +26,8 @@
 //! inside a region only where its centre is, so each box is tested against the regions of its centre's cell
 //! only.
 
-use super::{CullScene, Culled, Culler, ViewStats};
+use super::adaptive::BenefitGate;
+use super::{AdaptiveSettings, CullScene, Culled, Culler, ViewStats};
 use crate::bounds::{BoundsStore, SoaSlices};
 use crate::camera::Camera;
 use crate::frustum::SimdBackend;
@@ -53,17 +54,22 @@ const LANES: usize = 8;
 const TASK_OBJECTS: usize = 1024;
 
 /// What [`ShadowFrustaCuller`] culls with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShadowFrustaSettings {
     /// Occluder triangles per frame: the occluders chosen as the depth-buffer stage chooses them
     /// ([`crate::occluders::select_occluders`]), best first while they fit.
     pub triangle_budget: usize,
+    /// When the regions are skipped for removing too little lately: the occlusion stage's benefit gate
+    /// ([`AdaptiveSettings::min_occlusion_benefit`], its frames and re-probes); [`AdaptiveSettings::fixed`]
+    /// never skips.
+    pub adaptive: AdaptiveSettings,
 }
 
 impl Default for ShadowFrustaSettings {
-    /// The depth-buffer stage's default budget ([`super::OcclusionSettings::default`]).
+    /// The depth-buffer stage's default budget ([`super::OcclusionSettings::default`]) and benefit gate.
     fn default() -> Self {
-        Self { triangle_budget: super::OcclusionSettings::default().triangle_budget }
+        let triangle_budget = super::OcclusionSettings::default().triangle_budget;
+        Self { triangle_budget, adaptive: AdaptiveSettings::default() }
     }
 }
 
@@ -91,6 +97,8 @@ pub struct ShadowFrustaCuller {
     pub settings: ShadowFrustaSettings,
     frustum_visible: VisibleSet,
     visible: VisibleSet,
+    /// Skips the regions where they have removed too little lately.
+    gate: BenefitGate,
 }
 
 impl ShadowFrustaCuller {
@@ -126,7 +134,8 @@ impl Culler for ShadowFrustaCuller {
         stats.after_frustum = self.frustum_visible.count();
         stats.frustum_time = start.elapsed();
         self.visible.clone_from(&self.frustum_visible);
-        if stats.frustum_error.is_none() {
+        stats.occlusion_gated = stats.frustum_error.is_none() && self.gate.skip_this_frame();
+        if stats.frustum_error.is_none() && !stats.occlusion_gated {
             let start = Instant::now();
             let stage = Stage::Raster.enter();
             let chosen = select_occluders(
@@ -137,6 +146,7 @@ impl Culler for ShadowFrustaCuller {
                 |slot| scene.occluder_of(slot),
             );
             let frusta = ShadowFrusta::new(&chosen, camera);
+            let chosen_none = chosen.is_empty();
             drop(stage);
             (stats.occluders, stats.occluder_triangles) = (frusta.rects.len(), frusta.triangles);
             stats.raster_time = start.elapsed();
@@ -148,6 +158,13 @@ impl Culler for ShadowFrustaCuller {
                 }
             }
             stats.occlusion_time = start.elapsed();
+            // A frame without occluders says nothing of what the regions are worth here.
+            if !chosen_none {
+                let adaptive = &self.settings.adaptive;
+                let removed = stats.after_frustum - self.visible.count();
+                let (frames, reprobe) = (adaptive.low_benefit_frames, adaptive.reprobe_every);
+                self.gate.record(removed, stats.after_frustum, adaptive.min_occlusion_benefit, frames, reprobe);
+            }
         }
         stats.after_occlusion = self.visible.count();
         Culled { stages: vec![("frustum", &self.frustum_visible), ("shadow frusta", &self.visible)], stats }
