@@ -14,7 +14,10 @@
 //! fewer configurations (frustum only, the default buffer at each budget, the masked buffers for the frame,
 //! the shadow frusta at each budget, MOC); its rows are in the same CSV (column `scene`), and no plot.
 //!
-//! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
+//! Detail culling (`cullet::detail`, lossy) before the default buffer is a series at 1, 2 and 4 pixels.
+//!
+//! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_ONLY` (series names as in the CSV's
+//! `peer` column, comma-separated) runs only those with the default and frustum only; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
 //! `CULLET_TRADEOFF_FRAMES` (default 200) size the city's run, `CULLET_TRADEOFF_SCENE_FRAMES` (default 60)
 //! truck_town's, and `CULLET_TRADEOFF_SCENES` (default `city,truck_town`) chooses the scenes.
 
@@ -25,6 +28,7 @@ use cullet::camera::CameraPath;
 use cullet::culler::{
     Culled, Culler, OcclusionSettings, ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
 };
+use cullet::detail::DetailSettings;
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
@@ -51,6 +55,8 @@ const MASKED_BUDGETS: [usize; 6] = [1024, 2048, 3072, 4096, 8192, 16_384];
 const MASKED_BELOW_FRAME: [(u32, u32); 1] = [(960, 540)];
 /// Their budgets.
 const MASKED_BELOW_FRAME_BUDGETS: [usize; 5] = [2048, 4096, 5120, 6144, 8192];
+/// Detail culling's thresholds: objects projecting under this many pixels of the frame are dropped.
+const DETAIL_PIXELS: [u32; 3] = [1, 2, 4];
 /// Timed passes per configuration, after the judged one; the fastest is kept (the machine is noisy, the work is
 /// deterministic). Each round times every configuration once, so that a slow stretch of the machine slows one
 /// pass of each rather than every pass of a few.
@@ -67,6 +73,9 @@ enum Series {
     Moc,
     /// The occluders' shadow frusta at the row's budget (`ShadowFrustaCuller`).
     ShadowFrusta,
+    /// The pipeline's stages with the row's settings, dropping the frustum's survivors that project under
+    /// this many pixels of the frame judged (`cullet::detail`, lossy).
+    Detail(u32),
 }
 
 impl Series {
@@ -75,6 +84,7 @@ impl Series {
             Self::Stages => "cullet",
             Self::Moc => "moc",
             Self::ShadowFrusta => "cullet-shadow-frusta",
+            Self::Detail(_) => "cullet-detail",
         }
     }
 }
@@ -86,8 +96,11 @@ fn culler_for(series: Series, settings: OcclusionSettings) -> Box<dyn Culler> {
             let triangle_budget = settings.triangle_budget;
             Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget, ..Default::default() }))
         }
-        Series::Stages | Series::Moc => {
-            let settings = ViewSettings { occlusion: settings, ..ViewSettings::default() };
+        Series::Stages | Series::Moc | Series::Detail(_) => {
+            let min_pixels = if let Series::Detail(pixels) = series { pixels as f32 } else { 0.0 };
+            let viewport_height = settings.frame.map_or(1080, |(_, height)| height);
+            let detail = DetailSettings { min_pixels, viewport_height };
+            let settings = ViewSettings { occlusion: settings, detail, ..ViewSettings::default() };
             Box::new(StageCuller::new(format!("{settings:?}"), settings))
         }
     }
@@ -120,7 +133,7 @@ impl Row {
         match self.series {
             Series::Stages => self.settings.is_conservative_for(viewport),
             Series::ShadowFrusta => true,
-            Series::Moc => false,
+            Series::Moc | Series::Detail(_) => false,
         }
     }
 
@@ -136,6 +149,16 @@ impl Row {
                 return format!("MOC {}x{} {}", s.width, s.height, s.triangle_budget);
             }
             Series::ShadowFrusta => return format!("shadow frusta {}", self.settings.triangle_budget),
+            Series::Detail(pixels) => {
+                let s = &self.settings;
+                return format!(
+                    "{}x{} {} {} + detail {pixels} px",
+                    s.width,
+                    s.height,
+                    s.mode.name(),
+                    s.triangle_budget
+                );
+            }
             Series::Stages => {}
         }
         if !self.settings.enabled {
@@ -284,6 +307,10 @@ fn city_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings
     for triangle_budget in BUDGETS {
         configs.push((Series::ShadowFrusta, OcclusionSettings { triangle_budget, ..OcclusionSettings::default() }));
     }
+    // Detail culling (lossy) before the default buffer.
+    for pixels in DETAIL_PIXELS {
+        configs.push((Series::Detail(pixels), OcclusionSettings { frame, ..OcclusionSettings::default() }));
+    }
     configs
 }
 
@@ -313,6 +340,17 @@ fn scene_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSetting
 /// front.
 fn sweep(judged: &JudgedScene, configs: Vec<(Series, OcclusionSettings)>, reference: &ReferenceSettings) -> Vec<Row> {
     let frames = judged.frames;
+    // `CULLET_TRADEOFF_ONLY` (series names, comma-separated) keeps those series, the default and frustum only.
+    let only = std::env::var("CULLET_TRADEOFF_ONLY").ok();
+    let wanted =
+        |series: Series| only.as_ref().is_none_or(|only| only.split(',').any(|name| name.trim() == series.name()));
+    let configs: Vec<(Series, OcclusionSettings)> = configs
+        .into_iter()
+        .filter(|&(series, settings)| {
+            let default = OcclusionSettings { frame: settings.frame, ..OcclusionSettings::default() };
+            wanted(series) || (series == Series::Stages && (settings == default || !settings.enabled))
+        })
+        .collect();
     let start = Instant::now();
     let mut truth_flight = judged.flight(OcclusionSettings::default());
     let truth: Vec<ExactVisibility> = (0..frames)
@@ -365,7 +403,10 @@ fn sweep(judged: &JudgedScene, configs: Vec<(Series, OcclusionSettings)>, refere
         println!("{:<28} judged in {:.1} s", row.label(), start.elapsed().as_secs_f64());
         rows.push(row);
     }
-    let mut moc = MocSeries::new(judged.flight(OcclusionSettings::default()), &truth, judged.name);
+    let mut moc = match wanted(Series::Moc) {
+        true => MocSeries::new(judged.flight(OcclusionSettings::default()), &truth, judged.name),
+        false => None,
+    };
     let start = Instant::now();
     for round in 0..TIMED_ROUNDS {
         for row in rows.iter_mut() {

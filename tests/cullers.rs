@@ -133,3 +133,44 @@ fn shadow_frusta_that_remove_nothing_are_skipped() {
     assert!(adaptive[low..].iter().any(|&gated| !gated), "re-probed: {adaptive:?}");
     assert!(gated(AdaptiveSettings::fixed()).iter().all(|&gated| !gated));
 }
+
+/// Detail culling drops exactly the frustum's survivors whose bounding sphere projects under the threshold,
+/// nothing with it off, and makes the culler lossy; the judge measures what it costs.
+#[test]
+fn detail_culling_drops_exactly_what_projects_under_its_threshold() {
+    use cullet::culler::{StageCuller, ViewSettings};
+    use cullet::detail::{DetailSettings, projected_diameter};
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(20_000));
+    let mut flight = Flight::for_cullers(city.flythrough(), 16.0 / 9.0, 10, |world| {
+        city.spawn(world);
+    });
+    let frustum_only = ViewSettings {
+        occlusion: cullet::culler::OcclusionSettings { enabled: false, ..Default::default() },
+        ..ViewSettings::default()
+    };
+    let detail = DetailSettings { min_pixels: 4.0, viewport_height: 360 };
+    let mut plain = StageCuller::new("plain", frustum_only);
+    let mut small_dropped = StageCuller::new("detail", ViewSettings { detail, ..frustum_only });
+    assert!(plain.is_conservative((640, 360)) && !small_dropped.is_conservative((640, 360)));
+    let mut dropped = 0;
+    for frame in 0..10 {
+        let kept = flight.cull_frame(frame, &mut plain).1.kept().clone();
+        let camera = *flight.world.resource::<cullet::Camera>();
+        let culled = small_dropped.cull(&CullScene::new(&flight.world), &camera);
+        let store = flight.world.resource::<cullet::BoundsStore>();
+        let soa = store.soa();
+        for slot in kept.iter() {
+            let centre = glam::Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]);
+            let diameter = projected_diameter(&camera, 360, soa.radius[slot], (centre - camera.position).length());
+            assert_eq!(culled.kept().contains(slot), diameter >= 4.0, "frame {frame}, slot {slot}: {diameter} px");
+        }
+        assert_eq!(culled.stats.detail_culled, kept.count() - culled.kept().count());
+        dropped += culled.stats.detail_culled;
+    }
+    assert!(dropped > 0, "nothing projects under 4 pixels on the city's path");
+    // Off (0 pixels), nothing is dropped.
+    let mut off =
+        StageCuller::new("off", ViewSettings { detail: DetailSettings { min_pixels: 0.0, ..detail }, ..frustum_only });
+    let camera = *flight.world.resource::<cullet::Camera>();
+    assert_eq!(off.cull(&CullScene::new(&flight.world), &camera).stats.detail_culled, 0);
+}

@@ -240,8 +240,12 @@ pub(crate) fn cull_views(
         let culled = convert::view_of(transform, projection);
         let mut occlusion = occlusion_for(settings.occlusion, camera.physical_viewport_size());
         occlusion.enabled &= !no_occlusion && !no_cpu_culling;
-        let frame_settings =
-            ViewSettings { frustum: settings.frustum && !no_cpu_culling, occlusion, adaptive: settings.adaptive };
+        let frame_settings = ViewSettings {
+            frustum: settings.frustum && !no_cpu_culling,
+            occlusion,
+            adaptive: settings.adaptive,
+            ..ViewSettings::default()
+        };
         let same_view = view.culler.last_view() == Some(culled);
         let frame = ViewFrame {
             view: culled,

@@ -7,7 +7,8 @@
 //!    transforms changed;
 //! 2. [`frustum`]: SIMD, parallel box-versus-frustum test, writing a [`visible::VisibleSet`] bitset; many
 //!    views (cameras, shadow cascades, cube faces) in one pass with [`frustum::cull_views`], a light view
-//!    keeping only the shadow casters whose shadows the camera can see;
+//!    keeping only the shadow casters whose shadows the camera can see; [`detail`], opt-in and lossy, then drops
+//!    the survivors that project under a size in pixels;
 //! 3. [`occluders`]: the artist occluders, and which of them to rasterize this frame;
 //! 4. [`raster`]: those occluders rasterized into a small conservative [`depth::DepthBuffer`], reduced to its
 //!    farthest-depth [`depth::DepthPyramid`];
@@ -66,6 +67,7 @@
 #![warn(missing_docs)]
 
 pub mod bounds;
+pub mod detail;
 pub mod frustum;
 #[cfg(feature = "gpu")]
 pub mod gpu;

@@ -132,7 +132,7 @@ impl Culler for StageCuller {
     }
 
     fn is_conservative(&self, viewport: (u32, u32)) -> bool {
-        self.settings.occlusion.is_conservative_for(viewport)
+        self.settings.occlusion.is_conservative_for(viewport) && !self.settings.detail.enabled()
     }
 
     fn cull(&mut self, scene: &CullScene, camera: &Camera) -> Culled<'_> {

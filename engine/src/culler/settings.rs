@@ -2,6 +2,7 @@
 
 use crate::camera::Camera;
 use crate::depth::ScreenView;
+use crate::detail::DetailSettings;
 use crate::raster::RasterMode;
 use bevy_ecs::prelude::*;
 
@@ -284,12 +285,15 @@ pub struct ViewSettings {
     pub occlusion: OcclusionSettings,
     /// What may be skipped or reused where it cannot pay off.
     pub adaptive: AdaptiveSettings,
+    /// Detail culling after the frustum (lossy; off by default).
+    pub detail: DetailSettings,
 }
 
 impl Default for ViewSettings {
-    /// Both stages, with [`OcclusionSettings::default`] and [`AdaptiveSettings::default`].
+    /// Both stages, with [`OcclusionSettings::default`] and [`AdaptiveSettings::default`]; no detail culling.
     fn default() -> Self {
-        Self { frustum: true, occlusion: OcclusionSettings::default(), adaptive: AdaptiveSettings::default() }
+        let (occlusion, adaptive) = (OcclusionSettings::default(), AdaptiveSettings::default());
+        Self { frustum: true, occlusion, adaptive, detail: DetailSettings::default() }
     }
 }
 

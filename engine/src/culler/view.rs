@@ -5,6 +5,7 @@ use super::settings::{SettingsError, ViewSettings};
 use crate::bounds::{BoundsStore, StoreMoves};
 use crate::camera::Camera;
 use crate::depth::{DepthBuffer, DepthPyramid};
+use crate::detail::cull_small;
 use crate::frustum::{Frustum, FrustumError, FrustumOptions, PlaneCoherence, View, cull_frustum, cull_views};
 use crate::occluders::{OccluderInstance, select_occluders};
 use crate::occlusion::{occlude, retest_occlusion};
@@ -80,6 +81,9 @@ pub struct ViewStats {
     /// The occlusion stage was skipped because it had removed too little lately
     /// ([`super::AdaptiveSettings::min_occlusion_benefit`]).
     pub occlusion_gated: bool,
+    /// Objects the frustum kept that detail culling dropped ([`ViewSettings::detail`]; already left out of
+    /// `after_frustum`).
+    pub detail_culled: usize,
     /// Time of the frustum stage (the whole call, where the result was reused).
     pub frustum_time: Duration,
     /// Time selecting and rasterizing occluders and building the depth pyramid.
@@ -259,6 +263,12 @@ impl ViewCuller {
                 store.len()
             }
         };
+        // Detail culling, where asked, of what a valid view's frustum kept.
+        self.stats.detail_culled = match frame.view.camera.filter(|_| settings.frustum && frame.view.frustum.is_ok()) {
+            Some(camera) => cull_small(store, &camera, &settings.detail, &mut self.frustum_visible),
+            None => 0,
+        };
+        self.stats.after_frustum -= self.stats.detail_culled;
         self.stats.frustum_time = start.elapsed();
         also_kept
     }

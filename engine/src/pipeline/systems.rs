@@ -32,7 +32,8 @@ pub(super) struct StageSettings<'w> {
 impl StageSettings<'_> {
     /// What the camera's culler culls with.
     fn view(&self) -> ViewSettings {
-        ViewSettings { frustum: self.frustum.enabled, occlusion: *self.occlusion, adaptive: *self.adaptive }
+        let (frustum, occlusion, adaptive) = (self.frustum.enabled, *self.occlusion, *self.adaptive);
+        ViewSettings { frustum, occlusion, adaptive, ..ViewSettings::default() }
     }
 }
 

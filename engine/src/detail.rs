@@ -1,0 +1,89 @@
+//! Detail culling (seed 000 section 19.6): the frustum's survivors whose projected size is under a threshold
+//! in pixels are dropped. Lossy by design and off by default: an object that small may still cover pixels,
+//! and the judge measures what dropping it costs in image error.
+
+use crate::bounds::BoundsStore;
+use crate::camera::Camera;
+use crate::parallel;
+use crate::visible::VisibleSet;
+use rayon::prelude::*;
+
+/// Bitset words (of 64 objects) one task of [`cull_small`] looks at.
+const WORDS_PER_TASK: usize = 16;
+
+/// When objects are too small to draw.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DetailSettings {
+    /// Objects whose bounding sphere projects to a diameter under this many pixels are dropped; 0 (the
+    /// default), or anything not above 0, drops nothing.
+    pub min_pixels: f32,
+    /// The height of the frame in pixels, which sizes a pixel.
+    pub viewport_height: u32,
+}
+
+impl Default for DetailSettings {
+    /// Off.
+    fn default() -> Self {
+        Self { min_pixels: 0.0, viewport_height: 1080 }
+    }
+}
+
+impl DetailSettings {
+    /// Whether it drops anything.
+    pub fn enabled(&self) -> bool {
+        self.min_pixels > 0.0 && self.viewport_height > 0
+    }
+}
+
+/// The diameter in pixels that a sphere of `radius` at `distance` from `camera`'s eye projects to, seen
+/// straight ahead in a frame `viewport_height` pixels tall: `2 f tan(asin(radius / distance))`, with `f` the
+/// focal length in pixels. Infinite for an eye inside the sphere. Off the view axis a sphere projects larger,
+/// never smaller.
+pub fn projected_diameter(camera: &Camera, viewport_height: u32, radius: f32, distance: f32) -> f32 {
+    let focal = 0.5 * viewport_height as f32 / (0.5 * camera.fov_y).tan();
+    let beyond = distance * distance - radius * radius;
+    if beyond <= 0.0 { f32::INFINITY } else { 2.0 * focal * radius / beyond.sqrt() }
+}
+
+/// Clears in `visible` (a set of `store`'s slots) every object whose bounding sphere projects under
+/// `settings.min_pixels` across, seen from `camera`; in parallel over words. Returns the objects cleared.
+pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSettings, visible: &mut VisibleSet) -> usize {
+    if !settings.enabled() {
+        return 0;
+    }
+    let soa = store.soa();
+    let eye = camera.position;
+    let len = store.len();
+    parallel::region(|region| {
+        visible
+            .words_mut()
+            .par_chunks_mut(WORDS_PER_TASK)
+            .enumerate()
+            .map(|(chunk, words)| {
+                region.task(|| {
+                    let mut cleared = 0;
+                    for (i, word) in words.iter_mut().enumerate() {
+                        let base = (chunk * WORDS_PER_TASK + i) * 64;
+                        let mut bits = *word;
+                        while bits != 0 {
+                            let slot = base + bits.trailing_zeros() as usize;
+                            bits &= bits - 1;
+                            if slot >= len {
+                                break;
+                            }
+                            let centre = glam::Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]);
+                            let distance = (centre - eye).length();
+                            let diameter =
+                                projected_diameter(camera, settings.viewport_height, soa.radius[slot], distance);
+                            if diameter < settings.min_pixels {
+                                *word &= !(1 << (slot - base));
+                                cleared += 1;
+                            }
+                        }
+                    }
+                    cleared
+                })
+            })
+            .sum()
+    })
+}
