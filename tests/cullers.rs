@@ -162,7 +162,10 @@ fn detail_culling_drops_exactly_what_projects_under_its_threshold() {
         for slot in kept.iter() {
             let centre = glam::Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]);
             let diameter = projected_diameter(&camera, 360, soa.radius[slot], (centre - camera.position).length());
-            assert_eq!(culled.kept().contains(slot), diameter >= 4.0, "frame {frame}, slot {slot}: {diameter} px");
+            // The stage compares squares: within rounding of the threshold, either way stands.
+            if (diameter - 4.0).abs() > 1e-3 {
+                assert_eq!(culled.kept().contains(slot), diameter >= 4.0, "frame {frame}, slot {slot}: {diameter} px");
+            }
         }
         assert_eq!(culled.stats.detail_culled, kept.count() - culled.kept().count());
         dropped += culled.stats.detail_culled;

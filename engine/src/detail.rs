@@ -54,6 +54,10 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
     let soa = store.soa();
     let eye = camera.position;
     let len = store.len();
+    // Under the threshold: 2 f r / sqrt(d^2 - r^2) < min, squared as 4 f^2 r^2 < min^2 (d^2 - r^2) with
+    // d^2 > r^2, with no root or division per object.
+    let focal = 0.5 * settings.viewport_height as f32 / (0.5 * camera.fov_y).tan();
+    let (four_focal_squared, min_squared) = (4.0 * focal * focal, settings.min_pixels * settings.min_pixels);
     parallel::region(|region| {
         visible
             .words_mut()
@@ -72,10 +76,10 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
                                 break;
                             }
                             let centre = glam::Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]);
-                            let distance = (centre - eye).length();
-                            let diameter =
-                                projected_diameter(camera, settings.viewport_height, soa.radius[slot], distance);
-                            if diameter < settings.min_pixels {
+                            let (radius_squared, distance_squared) =
+                                (soa.radius[slot] * soa.radius[slot], (centre - eye).length_squared());
+                            let beyond = distance_squared - radius_squared;
+                            if beyond > 0.0 && four_focal_squared * radius_squared < min_squared * beyond {
                                 *word &= !(1 << (slot - base));
                                 cleared += 1;
                             }
