@@ -6,13 +6,15 @@ use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::parallel;
 use crate::visible::VisibleSet;
+use bevy_ecs::prelude::Resource;
 use rayon::prelude::*;
 
 /// Bitset words (of 64 objects) one task of [`cull_small`] looks at.
 const WORDS_PER_TASK: usize = 16;
 
-/// When objects are too small to draw.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// When objects are too small to draw; a resource of a world set up by [`crate::install`] (off there until
+/// changed).
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct DetailSettings {
     /// Objects whose bounding sphere projects to a diameter under this many pixels are dropped; 0 (the
     /// default), or anything not above 0, drops nothing.

@@ -241,11 +241,15 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     }
     print_summary(&per_frame);
     println!(
-        "{} frames in {:.2} s: {:.2} ms a frame, wall time (every stage, the GPU's work{}, and all this run adds)",
+        "{} frames in {:.2} s: {:.2} ms a frame, wall time (every stage{}, and all this run adds)",
         per_frame.len(),
         frames_time.as_secs_f64(),
         frames_time.as_secs_f64() * 1e3 / per_frame.len().max(1) as f64,
-        if args.late_readback { " overlapping the next frame's CPU stages" } else { " waited for" }
+        match (gpu.is_some(), args.late_readback) {
+            (false, _) => "",
+            (true, true) => ", the GPU's work overlapping the next frame's CPU stages",
+            (true, false) => ", the GPU's work waited for",
+        }
     );
     light_views.print();
     print_gpu_summary(&gpu_frames);

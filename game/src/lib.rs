@@ -13,6 +13,7 @@ mod window;
 
 use clap::Parser;
 use cullet::CameraPath;
+use cullet::detail::DetailSettings;
 use cullet::frustum::LightSource;
 use cullet::gpu::{GpuError, GpuGating};
 use cullet::pipeline::LightViews;
@@ -95,6 +96,10 @@ struct Args {
     /// --validate judges them exactly.
     #[arg(long)]
     light_views: bool,
+    /// Detail culling (lossy): drop the objects whose bounding sphere projects under this many pixels of the
+    /// --resolution frame. --validate counts what it costs and does not fail on it.
+    #[arg(long, value_name = "PIXELS")]
+    detail_pixels: Option<f32>,
     /// Most occluder triangles rasterized per frame (default: 5120 for the buffer standing for the frame's
     /// pixels, 4096 for the others).
     #[arg(long)]
@@ -379,6 +384,9 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
             },
             LightSource::Lamp { position: lamp, near: 0.05, range: Some(60.0) },
         ]));
+    }
+    if let Some(min_pixels) = args.detail_pixels {
+        flight.world.insert_resource(DetailSettings { min_pixels, viewport_height: height });
     }
     if args.fixed_pipeline {
         flight.world.insert_resource(AdaptiveSettings::fixed());

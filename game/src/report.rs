@@ -321,6 +321,12 @@ pub fn print_summary(frames: &[CullStats]) {
          objects that moved (same view); occlusion skipped in {gated} (it had removed under the threshold)",
         frames.len()
     );
+    let detail = frames.iter().map(|f| f.detail_culled as f64).sum::<f64>() / n;
+    if detail > 0.0 {
+        println!(
+            "detail culling (lossy): {detail:.0} objects a frame dropped for projecting too small, in `kept` above"
+        );
+    }
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 use bevy_ecs::world::World;
 use cullet::Camera;
 use cullet::culler::{Culled, OcclusionSettings};
+use cullet::detail::DetailSettings;
 use cullet::mesh::Mesh;
 use cullet::pipeline::CameraCuller;
 use cullet_truth::judge::judge_culled;
@@ -48,8 +49,10 @@ impl Validation {
     pub fn judge(&mut self, world: &World, meshes: &[Mesh]) -> &FrameMetrics {
         let culled = world.resource::<CameraCuller>().culled();
         let reference = &self.judge.reference;
+        // Detail culling (lossy) drops what may be visible.
+        let detail = world.get_resource::<DetailSettings>().is_some_and(DetailSettings::enabled);
         let conservative =
-            world.resource::<OcclusionSettings>().is_conservative_for((reference.width, reference.height));
+            world.resource::<OcclusionSettings>().is_conservative_for((reference.width, reference.height)) && !detail;
         self.judge_culled(world, world.resource::<Camera>(), &culled, conservative, meshes)
     }
 

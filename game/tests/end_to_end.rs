@@ -440,3 +440,15 @@ fn an_oversized_occlusion_buffer_is_refused_with_a_clear_error() {
     assert!(!ok, "an oversized buffer should be refused:\n{stdout}");
     assert!(stderr.contains("100000x100000") && stderr.contains("too large"), "{stderr}");
 }
+
+/// Detail culling is lossy: --validate measures its false negatives and image error and still passes; it
+/// drops objects the frustum kept.
+#[test]
+fn detail_culling_is_judged_as_lossy() {
+    let args = ["--scene", "city:3000", "--detail-pixels", "4", "--cpu-only"];
+    let (text, rows) = run_validated("detail", &args, 8);
+    assert!(text.contains("detail culling (lossy):"), "{text}");
+    assert!(text.contains("validation over 8 frames"), "{text}");
+    let image_error: u64 = rows.iter().map(|r| r["image_error_pixels"].parse::<u64>().unwrap()).sum();
+    println!("detail culling at 4 px: {image_error} pixels of image error over 8 frames");
+}

@@ -12,6 +12,7 @@ use systems::{frustum_stage, light_occlusion_stage, occlusion_stage};
 use crate::bounds::BoundsStore;
 use crate::culler::{AdaptiveSettings, BenefitGate, OcclusionSettings, SettingsError, ViewCuller};
 use crate::depth::DepthPyramid;
+use crate::detail::DetailSettings;
 use crate::frustum::{FrustumError, LightSource, LightView, ViewError};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
@@ -102,8 +103,11 @@ pub struct CullStats {
     pub objects: usize,
     /// Objects whose bounds were recomputed this frame.
     pub bounds_recomputed: usize,
-    /// Objects left after frustum culling.
+    /// Objects left after frustum culling (and detail culling, where on).
     pub after_frustum: usize,
+    /// Objects the frustum kept that detail culling dropped ([`DetailSettings`]; already left out of
+    /// `after_frustum`).
+    pub detail_culled: usize,
     /// Time spent bringing bounds up to date.
     pub bounds_time: Duration,
     /// Time spent frustum culling.
@@ -246,6 +250,8 @@ pub struct PipelineSettings {
     pub light_occlusion: LightOcclusionSettings,
     /// What the pipeline may skip or reuse when it cannot pay off.
     pub adaptive: AdaptiveSettings,
+    /// Detail culling after the frustum stage (lossy; off by default).
+    pub detail: DetailSettings,
 }
 
 /// What the pipeline remembers between frames besides the camera's culler.
@@ -296,6 +302,7 @@ pub fn install(world: &mut World, schedule: &mut Schedule, settings: PipelineSet
     world.insert_resource(settings.occlusion);
     world.insert_resource(settings.light_occlusion);
     world.insert_resource(settings.adaptive);
+    world.insert_resource(settings.detail);
     add_systems(schedule);
 }
 

@@ -9,6 +9,7 @@ use crate::bounds::{BoundsStore, ObjectTransform};
 use crate::camera::Camera;
 use crate::culler::{AdaptiveSettings, BenefitGate, OcclusionSettings, ViewFrame, ViewInput, ViewSettings};
 use crate::depth::{DepthPyramid, ScreenView};
+use crate::detail::DetailSettings;
 use crate::frustum::{LightView, View, ViewError};
 use crate::occluders::{Occluder, OccluderInstance, select_occluders_for_view};
 use crate::occlusion::occlude;
@@ -27,13 +28,14 @@ pub(super) struct StageSettings<'w> {
     occlusion: Res<'w, OcclusionSettings>,
     light_occlusion: Res<'w, LightOcclusionSettings>,
     adaptive: Res<'w, AdaptiveSettings>,
+    detail: Res<'w, DetailSettings>,
 }
 
 impl StageSettings<'_> {
     /// What the camera's culler culls with.
     fn view(&self) -> ViewSettings {
         let (frustum, occlusion, adaptive) = (self.frustum.enabled, *self.occlusion, *self.adaptive);
-        ViewSettings { frustum, occlusion, adaptive, ..ViewSettings::default() }
+        ViewSettings { frustum, occlusion, adaptive, detail: *self.detail }
     }
 }
 
@@ -119,7 +121,7 @@ pub(super) fn frustum_stage(
     }
     memory.spare_sets = sets;
     (stats.reused, stats.retested, stats.frustum_error) = (view.reused, view.retested, view.frustum_error);
-    (stats.objects, stats.after_frustum) = (view.objects, view.after_frustum);
+    (stats.objects, stats.after_frustum, stats.detail_culled) = (view.objects, view.after_frustum, view.detail_culled);
     if view.reused {
         (stats.raster_time, stats.occlusion_time) = (view.raster_time, view.occlusion_time);
     } else {
