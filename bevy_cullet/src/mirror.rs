@@ -119,7 +119,7 @@ pub(crate) fn add_observers(app: &mut App) {
     };
     let occluder_added = |event: On<Insert<Occluder>>, mut cullet: ResMut<CulletStore>| {
         if let Some(slot) = cullet.store.slot_of(event.entity) {
-            let _ = cullet.store.set_occluder(slot, true);
+            let _ = cullet.store.replace_occluder(slot);
         }
     };
     let occluder_removed = |event: On<Remove<Occluder>>, mut cullet: ResMut<CulletStore>| {

@@ -198,8 +198,8 @@ pub struct BoundsStore {
     /// Counts every change of the stored bounds or occluder marks: equal generations mean equal contents.
     generation: u64,
     /// Counts changes of which objects are stored where, and of occluders: inserts of new objects, removals,
-    /// occluder marks set, cleared or set again (an occluder replaced). Equal layouts differ at most in the
-    /// bounds of `moved` slots.
+    /// occluder marks set or cleared, occluders replaced. Equal layouts differ at most in the bounds of `moved`
+    /// slots.
     layout_generation: u64,
     /// Slots whose bounds were overwritten in place since the last [`BoundsStore::take_moved_slots`]
     /// (duplicates possible); `None` once there were too many to be worth listing.
@@ -299,12 +299,24 @@ impl BoundsStore {
         Ok(())
     }
 
+    /// Marks the object in `slot` as carrying an occluder that was just inserted or replaced: unlike
+    /// [`BoundsStore::set_occluder`], the store's layout changes even where the slot had an occluder already,
+    /// since what was culled against the old one is stale. The engine's observer of inserted occluders calls it.
+    ///
+    /// # Errors
+    /// [`BoundsError::SlotOutOfRange`] past [`BoundsStore::len`]; nothing changes.
+    pub fn replace_occluder(&mut self, slot: usize) -> Result<(), BoundsError> {
+        self.check_slot(slot)?;
+        self.mark_occluder(slot, true);
+        self.layout_generation += 1;
+        Ok(())
+    }
+
     /// [`BoundsStore::set_occluder`] of a stored slot.
     pub(crate) fn mark_occluder(&mut self, slot: usize, has_occluder: bool) {
         self.generation += 1;
-        // Set again, the mark stands for a replaced occluder: what was culled against the old one is stale.
-        self.layout_generation += 1;
         if self.occluders.contains(slot) != has_occluder {
+            self.layout_generation += 1;
             // One fewer occluder may leave the group's radius larger than needed.
             self.mark_loose(slot / SOA_PADDING);
         }

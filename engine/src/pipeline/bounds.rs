@@ -172,7 +172,8 @@ pub fn on_bounds_inserted(
 /// [`on_bounds_inserted`] marks it when it is).
 pub fn on_occluder_inserted(event: On<Insert<Occluder>>, mut store: ResMut<BoundsStore>) {
     if let Some(slot) = store.slot_of(event.entity) {
-        store.mark_occluder(slot, true);
+        // The slot was just looked up.
+        let _ = store.replace_occluder(slot);
     }
 }
 
