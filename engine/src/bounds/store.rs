@@ -436,13 +436,17 @@ impl BoundsStore {
     /// among those moved.
     fn note_moved(&mut self, slot: usize) {
         self.mark_loose(slot / SOA_PADDING);
-        // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
-        let limit = self.len() / 8;
-        if let Some(moved) = self.moved.as_mut().filter(|moved| moved.len() < limit) {
-            moved.push(slot as u32);
-        } else {
-            self.moved = None;
+        let listed = self.lists_moves(1);
+        match self.moved.as_mut().filter(|_| listed) {
+            Some(moved) => moved.push(slot as u32),
+            None => self.moved = None,
         }
+    }
+
+    /// Whether the moved slots are still listed and `more` of them fit the list: past an eighth of the store,
+    /// re-culling everything is as cheap as re-culling the list.
+    fn lists_moves(&self, more: usize) -> bool {
+        self.moved.as_ref().is_some_and(|moved| moved.len() + more <= self.len() / 8)
     }
 
     fn write(&mut self, slot: usize, bounds: &WorldBounds) {
@@ -676,8 +680,7 @@ impl BoundsStore {
             );
         }
         self.generation += total as u64;
-        // Past an eighth of the store, re-culling everything is as cheap as re-culling the list.
-        let list_moves = self.moved.as_ref().is_some_and(|moved| moved.len() + total <= self.len() / 8);
+        let list_moves = self.lists_moves(total);
         let written = self.write_pieces(&pieces, list_moves);
         for (moved, loose) in written {
             if let Some(listed) = self.moved.as_mut().filter(|_| list_moves) {

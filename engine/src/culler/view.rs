@@ -45,7 +45,7 @@ pub struct ViewFrame<'a> {
     /// this view's last cull, only they are re-tested. `None` re-tests nothing alone.
     pub moves: Option<&'a StoreMoves>,
     /// Something this culler cannot see changed since its last cull (the views culled with it; an occluder
-    /// changed without [`BoundsStore::set_occluder`] marking its slot again): the frame runs in full.
+    /// replaced without [`BoundsStore::replace_occluder`] telling the store): the frame runs in full.
     pub changed: bool,
 }
 

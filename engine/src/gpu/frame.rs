@@ -510,9 +510,8 @@ impl GpuCuller {
         }
         let start = Instant::now();
         context.queue.submit([encoder.finish()]);
-        let counter_bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
+        let counters = self.read_counters(context)?;
         let wall_time = start.elapsed();
-        let counters = GpuCounters::from_slots(visible.len() as u32, bytemuck::cast_slice(&counter_bytes));
         (self.last_counters, self.counters_pending) = (counters, false);
         let pass_times = timer.map(|t| t.read(context)).transpose()?;
         let light_views = match cascades {
@@ -528,6 +527,12 @@ impl GpuCuller {
             light_views,
             counters_late: false,
         })
+    }
+
+    /// The last submitted frame's counters, waiting for the GPU.
+    fn read_counters(&self, context: &GpuContext) -> Result<GpuCounters, GpuError> {
+        let bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
+        Ok(GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes)))
     }
 
     /// Submits a frame's work with a copy of its counters, and returns the previous frame's ([`ReadBack::Late`]),
@@ -577,8 +582,7 @@ impl GpuCuller {
         };
         if self.counters_pending {
             // Read a frame late: this frame's counters, which say how much of the buffers to read, are read now.
-            let bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
-            counters = GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes));
+            counters = self.read_counters(context)?;
         }
         let clusters = if counters.clusters_out > 0 {
             let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out))?;
