@@ -613,8 +613,9 @@ fn every_pass_fits_the_storage_buffers_asked_of_the_adapter() {
 }
 
 /// Counters read a frame late ([`ReadBack::Late`]): each frame returns the previous frame's counters, exactly
-/// those a culler that waits returned for it, draws the same image and leaves the same survivors; switched back,
-/// a frame returns its own again.
+/// those a culler that waits returned for it, draws the same image (the same depths; objects differing only
+/// at exact depth ties, as between any two runs) and leaves the same survivors; switched back, a frame returns
+/// its own again.
 #[test]
 fn counters_read_a_frame_late_are_the_previous_frames() {
     let Some(context) = context_for_tests() else { return };
@@ -635,7 +636,10 @@ fn counters_read_a_frame_late_are_the_previous_frames() {
         assert_eq!(lagged.counters, expected, "frame {frame}");
         let (image, late_image) =
             (waits.culler.read_image(&context).unwrap(), late.culler.read_image(&context).unwrap());
-        assert!(image.depth == late_image.depth && image.object == late_image.object, "frame {frame}: images differ");
+        assert!(image.depth == late_image.depth, "frame {frame}: depths differ");
+        // Only exact depth ties between objects may resolve differently: the GPU appends draws in any order.
+        let differing = image.object.iter().zip(&late_image.object).filter(|(a, b)| a != b).count();
+        assert!(differing < image.object.len() / 1000, "frame {frame}: {differing} pixels differ");
         let sorted = |(mut clusters, indices): cullet::gpu::Survivors| {
             clusters.sort_unstable();
             (clusters, indices.len())
