@@ -64,8 +64,9 @@ struct View {
     depth_from_negative_one: u32,
     // Pixels per unit of size at unit view distance, vertically: the projection's y scale times half the height.
     focal_pixels: f32,
-    _pad1: u32,
-    _pad2: u32,
+    // Two-phase occlusion's frame number: clusters marked with `frame - 1` were visible last frame.
+    frame: u32,
+    _pad: u32,
 }
 
 // The draw's shadows: each sun cascade's clip space (x, y in -1..1, z in 0..1 from the sun) from the draw

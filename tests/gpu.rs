@@ -39,8 +39,19 @@ fn setup(context: &GpuContext, objects: usize) -> Setup {
 
 /// [`setup`] for a `size` frame with `occlusion` settings.
 fn setup_with(context: &GpuContext, objects: usize, size: (u32, u32), occlusion: OcclusionSettings) -> Setup {
+    setup_flying(context, objects, size, occlusion, 10)
+}
+
+/// [`setup_with`] for a fly-through of `frames` frames.
+fn setup_flying(
+    context: &GpuContext,
+    objects: usize,
+    size: (u32, u32),
+    occlusion: OcclusionSettings,
+    frames: u32,
+) -> Setup {
     let city = CityScene::generate(CityParams::with_objects(objects));
-    let flight = Flight::new(city.flythrough(), size.0 as f32 / size.1 as f32, 10, occlusion, |world| {
+    let flight = Flight::new(city.flythrough(), size.0 as f32 / size.1 as f32, frames, occlusion, |world| {
         city.spawn(world);
     });
     let culler = GpuCuller::for_world(context, &flight.world, &city.scene.meshes, size);
@@ -655,4 +666,85 @@ fn counters_read_a_frame_late_are_the_previous_frames() {
     let again = late.culler.run_world(&context, &mut late.flight.world, &settings).unwrap();
     assert!(!again.counters_late);
     assert_eq!(again.counters, own.counters);
+}
+
+/// Flies `flight` for `frames` frames in two phases, cutting to each of `cuts` (a frame index and a camera off
+/// the path), checking every frame's image against the unculled one: no pixel may differ. `between` runs before
+/// each frame (to resize, spawn or despawn). Returns each frame's phase counters.
+fn fly_two_phase(
+    context: &GpuContext,
+    (flight, culler): (&mut Flight, &mut GpuCuller),
+    frames: u32,
+    cuts: &[(u32, Camera)],
+    mut between: impl FnMut(u32, &mut Flight, &mut GpuCuller),
+) -> Vec<cullet::gpu::PhaseCounters> {
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    let mut phases_per_frame = Vec::new();
+    for frame in 0..frames {
+        between(frame, flight, culler);
+        match cuts.iter().find(|(at, _)| *at == frame) {
+            Some(&(_, camera)) => flight.run_with_camera(camera, 0.0),
+            None => flight.run_frame(frame),
+        };
+        let output = culler.run_world(context, &mut flight.world, &settings).expect("GPU frame");
+        let phases = output.phases.expect("a frame of two phases");
+        let (early, late) = (phases.early, phases.late);
+        assert_eq!(output.counters.triangles_out, early.triangles_out + late.triangles_out);
+        // The late phase keeps every cluster drawn early but those the merged HZB hides, and tests every one.
+        assert!(late.clusters_drawn_early <= early.clusters_out, "frame {frame}: {phases:?}");
+        let culled = late.clusters_frustum + late.clusters_cone + late.clusters_hzb + late.clusters_small;
+        assert_eq!(late.clusters_in, culled + late.clusters_out + late.clusters_drawn_early, "frame {frame}");
+        let camera = *flight.world.resource::<Camera>();
+        let (differing, covered) = pixels_differing_from_unculled(context, culler, &camera);
+        assert!(covered > 0, "frame {frame}: nothing drawn");
+        assert_eq!(differing, 0, "frame {frame}: two-phase culling changed {differing} pixels; {phases:?}");
+        phases_per_frame.push(phases);
+    }
+    phases_per_frame
+}
+
+/// Two-phase occlusion draws exactly the unculled image on the city, with the software occluders on and off,
+/// over the fly-through with moving cars, camera cuts (beside a wall, across the city, straight down), a
+/// window resize, and objects despawned and spawned; on the frames that follow the path the early phase draws
+/// most of what is seen, and the late phase's HZB removes clusters.
+#[test]
+fn two_phase_draws_the_unculled_image_through_cuts_resizes_and_spawns() {
+    let Some(context) = context_for_tests() else { return };
+    for occluders in [true, false] {
+        let occlusion = OcclusionSettings { enabled: occluders, ..OcclusionSettings::default() };
+        // Frames of the fly-through at 15 a second.
+        let mut setup = setup_flying(&context, 3000, (WIDTH, HEIGHT), occlusion, 300);
+        let city = CityScene::generate(CityParams::with_objects(3000));
+        let views = cameras(setup.half);
+        let cuts = [(4, views[4].1), (5, views[2].1), (9, views[3].1)];
+        let flying = (&mut setup.flight, &mut setup.culler);
+        let phases = fly_two_phase(&context, flying, 13, &cuts, |frame, flight, culler| match frame {
+            3 => culler.resize(&context, WIDTH + 37, HEIGHT + 21),
+            7 => {
+                let store = flight.world.resource::<cullet::bounds::BoundsStore>();
+                let entities: Vec<_> = store.entities().iter().step_by(15).copied().collect();
+                for entity in entities {
+                    flight.world.despawn(entity);
+                }
+            }
+            8 => {
+                let mut moved = city.scene.clone();
+                moved.objects.truncate(100);
+                for object in &mut moved.objects {
+                    object.transform.translation += glam::Vec3A::new(3.0, 0.0, 2.0);
+                }
+                moved.spawn(&mut flight.world);
+            }
+            _ => {}
+        });
+        for (frame, phases) in phases.iter().enumerate() {
+            println!("occluders {occluders}, frame {frame}: {phases:?}");
+        }
+        // Frames after a frame on the path, and those after a despawn and a spawn.
+        for frame in [1, 2, 7, 8, 11, 12] {
+            let (early, late) = (phases[frame].early, phases[frame].late);
+            assert!(early.triangles_out > 4 * late.triangles_out, "occluders {occluders}, frame {frame}");
+        }
+        assert!(phases.iter().map(|p| p.late.clusters_hzb).sum::<u32>() > 0, "occluders {occluders}");
+    }
 }

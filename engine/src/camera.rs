@@ -107,6 +107,20 @@ impl Camera {
         }
     }
 
+    /// The affine map from a depth-buffer value (wgpu's 0..1, an OpenGL-style depth already mapped there as the
+    /// engine's draw maps it) to `1/w`, the depth the HZB holds: `1/w = depth * scale + offset`, returned as
+    /// `(scale, offset)`. Exact for every convention and for an infinite far plane, since a perspective
+    /// projection's depth is affine in `1/w`.
+    pub fn inv_w_from_depth(&self) -> (f64, f64) {
+        let projection = self.clip_from_view_f64();
+        // A view-space point at distance d: clip z = -m22 d + m32, clip w = d, so depth = -m22 + m32 / d.
+        let (mut alpha, mut beta) = (-projection.z_axis.z, projection.w_axis.z);
+        if self.depth == DepthConvention::NegativeOneToOne {
+            (alpha, beta) = (0.5 * (alpha + 1.0), 0.5 * beta);
+        }
+        (1.0 / beta, -alpha / beta)
+    }
+
     /// Clip from camera-relative world space: `clip_from_view * view_from_relative`. Apply it to
     /// `world_point - position`.
     pub fn clip_from_relative(&self) -> Mat4 {
@@ -300,6 +314,25 @@ fn catmull_rom(p0: Vec3, p1: Vec3, p2: Vec3, p3: Vec3, u: f32) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn depth_maps_back_to_inverse_w_in_every_convention() {
+        for depth in [DepthConvention::Standard, DepthConvention::Reversed, DepthConvention::NegativeOneToOne] {
+            for far in [None, Some(500.0)] {
+                let camera = Camera { depth, far, near: 0.05, ..Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z) };
+                let (scale, offset) = camera.inv_w_from_depth();
+                for distance in [0.05, 1.0, 37.0, 499.0] {
+                    let clip = camera.clip_from_view_f64() * glam::DVec4::new(0.3, -0.2, -distance, 1.0);
+                    let mut ndc_z = clip.z / clip.w;
+                    if depth == DepthConvention::NegativeOneToOne {
+                        ndc_z = 0.5 * (ndc_z + 1.0);
+                    }
+                    let inv_w = ndc_z * scale + offset;
+                    assert!((inv_w * distance - 1.0).abs() < 1e-9, "{depth:?} {far:?} at {distance}: {inv_w}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn camera_paths_parse_from_the_documented_json_and_bad_ones_are_refused() {

@@ -40,7 +40,13 @@ fn figures(i: u64) -> HudFrame {
         draws: 5000,
         ..Default::default()
     };
-    let pass_times = GpuPassTimes { hzb: us(20, 5), clusters: us(60, 10), triangles: us(200, 30), draw: us(900, 100) };
+    let pass_times = GpuPassTimes {
+        hzb: us(20, 5),
+        clusters: us(60, 10),
+        triangles: us(200, 30),
+        draw: us(900, 100),
+        ..Default::default()
+    };
     HudFrame {
         stats,
         gpu: Some(GpuFrameOutput { counters, pass_times: Some(pass_times), ..Default::default() }),

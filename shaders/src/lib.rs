@@ -17,17 +17,20 @@ pub const CLUSTER_CULL: &str = include_str!("../cluster_cull.wgsl");
 pub const PREPARE_TRIANGLES: &str = include_str!("../prepare_triangles.wgsl");
 /// Triangle culling: degenerate, back-facing, off-screen and small triangles; survivors compacted.
 pub const TRIANGLE_CULL: &str = include_str!("../triangle_cull.wgsl");
+/// Two-phase occlusion: the early phase's depth reduced to the HZB's level 0 and merged with the CPU's.
+pub const HZB_MERGE: &str = include_str!("../hzb_merge.wgsl");
 /// The shadow casters each sun cascade kept, depth only.
 pub const SHADOW: &str = include_str!("../shadow.wgsl");
 /// The draw: vertex pulling, flat shading with shadows, object ID and depth.
 pub const DRAW: &str = include_str!("../draw.wgsl");
 
 /// Each pass's name and source, in the order the passes run (without [`COMMON`], which each includes).
-pub const PASSES: [(&str, &str); 6] = [
+pub const PASSES: [(&str, &str); 7] = [
     ("hzb_build", HZB_BUILD),
     ("cluster_cull", CLUSTER_CULL),
     ("prepare_triangles", PREPARE_TRIANGLES),
     ("triangle_cull", TRIANGLE_CULL),
     ("shadow", SHADOW),
     ("draw", DRAW),
+    ("hzb_merge", HZB_MERGE),
 ];

@@ -37,6 +37,8 @@ pub(crate) struct ClusterCullBuffers<'a> {
     pub survivors: &'a wgpu::Buffer,
     /// Whole-cluster draws, where the triangle pass is skipped.
     pub draws: &'a wgpu::Buffer,
+    /// Two-phase occlusion's per-cluster visibility ([`super::two_phase`]), or a placeholder with one phase.
+    pub visibility: &'a wgpu::Buffer,
 }
 
 /// The cluster pass's pipeline.
@@ -82,6 +84,7 @@ impl ClusterCullPass {
                 (5, b.counters),
                 (6, b.survivors),
                 (7, b.draws),
+                (8, b.visibility),
             ],
         );
         let hzb_group =

@@ -72,6 +72,11 @@ impl RenderTargets {
         (self.width, self.height)
     }
 
+    /// The depth target (`Depth32Float`), which two-phase occlusion reads after its early draw.
+    pub(crate) fn depth_texture(&self) -> &wgpu::Texture {
+        &self.depth
+    }
+
     /// A view of the colour target (RGBA8), for showing it in a window.
     pub fn color_view(&self) -> wgpu::TextureView {
         self.color.create_view(&wgpu::TextureViewDescriptor::default())

@@ -7,13 +7,16 @@ use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage};
 use super::hzb::{Hzb, HzbLevel};
 use super::indirect::{DrawBuffers, cluster_draws, indirect_buffer};
 use super::interface::{
-    GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_SMALL_CLUSTER,
-    VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
+    GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE,
+    VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
 };
 use super::late_read::LateRead;
-use super::output::{COUNTER_BYTES, GpuCounters, GpuFrameOutput, PassTimer, TIMED_PASSES};
+use super::output::{
+    COUNTER_BYTES, GpuCounters, GpuFrameOutput, ONE_PHASE_PASSES, PassTimer, PhaseCounters, TIMED_PASSES,
+};
 use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
 use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
+use super::two_phase::TwoPhase;
 use super::view_cull::{CullPasses, PassGate, ViewCull, candidates, fits_binding, view_buffer};
 use super::{GpuContext, GpuError};
 use crate::bounds::BoundsStore;
@@ -45,6 +48,11 @@ pub struct GpuCullSettings {
     pub triangle_frustum: bool,
     /// Small-triangle test, eq. 19.4 (conservative: only triangles that cover no pixel centre).
     pub small_triangles: bool,
+    /// Two-phase occlusion ([`super::two_phase`], conservative): the camera's clusters visible last frame are
+    /// drawn first, and the rest tested against the depth they drew merged with the CPU occluder buffer (the
+    /// CPU buffer only where `cluster_hzb`). A frame split into batches, or drawn from another camera than it
+    /// culls for, runs in one phase.
+    pub two_phase: bool,
 }
 
 impl Default for GpuCullSettings {
@@ -57,6 +65,7 @@ impl Default for GpuCullSettings {
             triangle_backface: true,
             triangle_frustum: true,
             small_triangles: true,
+            two_phase: false,
         }
     }
 }
@@ -83,6 +92,8 @@ struct BatchFrame {
     first: bool,
     /// Its counters come back a frame late ([`ReadBack::Late`]).
     late: bool,
+    /// It runs in two phases ([`GpuCullSettings::two_phase`], and [`TwoPhase::begin_frame`] done).
+    two_phase: bool,
 }
 
 /// Which GPU passes a frame may skip where they cannot pay off. Insert it as a resource of the world to have
@@ -209,6 +220,12 @@ pub struct GpuCuller {
     counters_pending: bool,
     /// The instances the last frame culled.
     last_instances: u32,
+    /// Two-phase occlusion's state, once a frame has asked for it.
+    two_phase: Option<TwoPhase>,
+    /// The last frame ran in two phases.
+    last_two_phase: bool,
+    /// Its phases' counters, where it did.
+    last_phases: Option<PhaseCounters>,
 }
 
 impl GpuCuller {
@@ -256,6 +273,9 @@ impl GpuCuller {
             late: None,
             counters_pending: false,
             last_instances: 0,
+            two_phase: None,
+            last_two_phase: false,
+            last_phases: None,
         }
     }
 
@@ -297,6 +317,14 @@ impl GpuCuller {
         self.camera.draws(&self.scene, self.last_gate.skip_triangles)
     }
 
+    /// The buffers of the last frame's late phase, where it ran in two ([`GpuCullSettings::two_phase`]): a
+    /// renderer of its own draws them after [`GpuCuller::draw_buffers`] (the early phase), into the same depth.
+    /// `None` after a frame of one phase.
+    pub fn late_draw_buffers(&self) -> Option<DrawBuffers<'_>> {
+        let state = self.two_phase.as_ref().filter(|_| self.last_two_phase)?;
+        state.late.draws(&self.scene, self.last_gate.skip_triangles)
+    }
+
     /// The view for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
     pub fn view_for(&self, camera: &Camera, settings: &GpuCullSettings, visible_count: u32) -> GpuView {
         let (width, height) = self.targets.size();
@@ -333,7 +361,8 @@ impl GpuCuller {
             near: camera.near,
             depth_from_negative_one: u32::from(camera.depth == DepthConvention::NegativeOneToOne),
             focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
-            _pad: [0; 2],
+            frame: 0,
+            _pad: 0,
         }
     }
 
@@ -379,16 +408,20 @@ impl GpuCuller {
             return Err(GpuError::SlotOutOfRange { slot, instances: instances.len() });
         }
         let (candidate_clusters, _) = candidates(&self.scene, visible);
-        let gate = self.camera.gate(&self.gating, candidate_clusters as usize);
+        let mut gate = self.camera.gate(&self.gating, candidate_clusters as usize);
         let batches = self.batches(context, visible);
-        let late = self.read_back == ReadBack::Late && batches.len() == 1;
+        let two_phase =
+            settings.two_phase && batches.len() == 1 && draw_camera == camera && self.begin_two_phase(context);
+        // The cluster pass splits the phases: it always runs.
+        gate.skip_clusters &= !two_phase;
+        let late = self.read_back == ReadBack::Late && batches.len() == 1 && !two_phase;
         if !late && let Some(pending) = self.late.as_mut() {
             pending.forget(context)?;
         }
         let mut total: Option<GpuFrameOutput> = None;
         for (i, batch) in batches.into_iter().enumerate() {
             let (first, cascades) = (i == 0, cascades.take());
-            let frame = BatchFrame { gate, first, late };
+            let frame = BatchFrame { gate, first, late, two_phase };
             let output =
                 self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, frame, cascades)?;
             total = Some(match total {
@@ -401,6 +434,14 @@ impl GpuCuller {
             self.camera.record_benefit(&self.gating, gate, &total.counters);
         }
         Ok(total)
+    }
+
+    /// Starts a frame of two phases: the state made or brought up to date with the scene and the CPU pyramid.
+    /// `false` where the visibility does not fit a storage binding: the frame runs in one phase.
+    fn begin_two_phase(&mut self, context: &GpuContext) -> bool {
+        let limit = self.binding_limit(context);
+        let state = self.two_phase.get_or_insert_with(|| TwoPhase::new(context, &self.hzb));
+        state.begin_frame(context, &self.scene, &self.hzb, limit)
     }
 
     /// Sets which GPU passes a frame may skip (the default [`GpuGating`] until set). New settings start the
@@ -462,18 +503,24 @@ impl GpuCuller {
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
-        BatchFrame { gate, first, late }: BatchFrame,
+        BatchFrame { gate, first, late, two_phase }: BatchFrame,
         cascades: Option<&[Cascade<'_>]>,
     ) -> Result<GpuFrameOutput, GpuError> {
         let mut view = self.view_for(camera, settings, visible.len() as u32);
         if gate.skip_triangles {
             view.flags |= VIEW_DRAW_CLUSTERS;
         }
+        let frame_candidates = candidates(&self.scene, visible);
+        if let Some(state) = self.two_phase.as_mut().filter(|_| two_phase) {
+            view.flags |= VIEW_PHASE_EARLY;
+            view.frame = state.frame;
+            state.late.fit(context, visible.len(), frame_candidates);
+        }
         self.last_view = view;
         context.queue.write_buffer(&self.camera.view, 0, bytemuck::bytes_of(&view));
         let draw_view = if draw_camera == camera { view } else { self.view_for(draw_camera, settings, 0) };
         context.queue.write_buffer(&self.draw_view, 0, bytemuck::bytes_of(&draw_view));
-        self.camera.fit(context, visible.len(), candidates(&self.scene, visible));
+        self.camera.fit(context, visible.len(), frame_candidates);
         let mut encoder = context.device.create_command_encoder(&Default::default());
         let timer = self.timer.as_ref();
         if first {
@@ -489,8 +536,13 @@ impl GpuCuller {
             let origin = draw_camera.position;
             self.shadows.record(context, &mut encoder, &self.scene, Some(&culling), cascades, origin);
         }
-        let (scene, hzb) = (&self.scene, &self.hzb.buffer);
-        self.camera.record(context, &mut encoder, scene, &self.passes, hzb, visible, gate, timer);
+        let state = self.two_phase.as_ref().filter(|_| two_phase);
+        let against = match state {
+            Some(state) => state.early_against(&self.hzb),
+            None => self.passes.one_phase(&self.hzb.buffer),
+        };
+        let scene = &self.scene;
+        self.camera.record(context, &mut encoder, scene, &self.passes, against, visible, gate, (timer, 1));
         let draws = self.camera.draws(scene, gate.skip_triangles).expect("fit above");
         self.record_draw(
             context,
@@ -500,20 +552,25 @@ impl GpuCuller {
             first,
             timer.map(|t| t.render(3)),
         );
+        if let Some(state) = state {
+            self.record_late_phase(context, &mut encoder, state, (camera, view, settings), visible, gate);
+        }
+        let timed = if two_phase { TIMED_PASSES } else { ONE_PHASE_PASSES };
         if let Some(timer) = timer {
-            encoder.resolve_query_set(&timer.queries, 0..2 * TIMED_PASSES, &timer.resolve, 0);
+            timer.resolve(&mut encoder, timed);
         }
         self.last_gate = gate;
         self.last_instances = visible.len() as u32;
+        self.last_two_phase = two_phase;
         if late {
             return self.submit_late(context, encoder, gate);
         }
         let start = Instant::now();
         context.queue.submit([encoder.finish()]);
-        let counters = self.read_counters(context)?;
+        let (counters, phases) = self.read_counters(context)?;
         let wall_time = start.elapsed();
-        (self.last_counters, self.counters_pending) = (counters, false);
-        let pass_times = timer.map(|t| t.read(context)).transpose()?;
+        (self.last_counters, self.last_phases, self.counters_pending) = (counters, phases, false);
+        let pass_times = timer.map(|t| t.read(context, timed)).transpose()?;
         let light_views = match cascades {
             Some(_) => self.shadows.read_counters(context, &self.gating)?,
             None => Vec::new(),
@@ -526,13 +583,57 @@ impl GpuCuller {
             triangle_pass_skipped: gate.skip_triangles,
             light_views,
             counters_late: false,
+            phases,
         })
     }
 
-    /// The last submitted frame's counters, waiting for the GPU.
-    fn read_counters(&self, context: &GpuContext) -> Result<GpuCounters, GpuError> {
-        let bytes = context.read_buffer(&self.camera.counters, COUNTER_BYTES)?;
-        Ok(GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes)))
+    /// Records two-phase occlusion after the early phase's draw from `camera` (whose early view was `view`):
+    /// the merge of its depth with the CPU pyramid, the late phase's culling of `visible` and its draw over
+    /// the early image (timed as passes 4 to 7).
+    fn record_late_phase(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        state: &TwoPhase,
+        (camera, mut view, settings): (&Camera, GpuView, &GpuCullSettings),
+        visible: &[u32],
+        gate: PassGate,
+    ) {
+        let timer = self.timer.as_ref();
+        let depth = self.targets.depth_texture();
+        state.record_merge(
+            context,
+            encoder,
+            depth,
+            (&self.hzb, settings.cluster_hzb),
+            camera,
+            timer.map(|t| t.compute(4)),
+        );
+        // The merged pyramid is laid out as the CPU's: only the phase changes, and the HZB test is always on.
+        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE | VIEW_HZB;
+        context.queue.write_buffer(&state.late.view, 0, bytemuck::bytes_of(&view));
+        let against = state.late_against();
+        state.late.record(context, encoder, &self.scene, &self.passes, against, visible, gate, (timer, 5));
+        let draws = state.late.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");
+        self.record_draw(context, encoder, camera.depth, DrawSource::Culled(draws), false, timer.map(|t| t.render(7)));
+    }
+
+    /// The last submitted frame's counters, waiting for the GPU: the camera's, and where the frame ran in two
+    /// phases, both phases' added up and each on its own.
+    fn read_counters(&self, context: &GpuContext) -> Result<(GpuCounters, Option<PhaseCounters>), GpuError> {
+        let read = |view: &ViewCull| -> Result<GpuCounters, GpuError> {
+            let bytes = context.read_buffer(&view.counters, COUNTER_BYTES)?;
+            Ok(GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes)))
+        };
+        let early = read(&self.camera)?;
+        match self.two_phase.as_ref().filter(|_| self.last_two_phase) {
+            None => Ok((early, None)),
+            Some(state) => {
+                let late = read(&state.late)?;
+                let total = GpuCounters { instances: self.last_instances, ..early.plus(&late) };
+                Ok((total, Some(PhaseCounters { early, late })))
+            }
+        }
     }
 
     /// Submits a frame's work with a copy of its counters, and returns the previous frame's ([`ReadBack::Late`]),
@@ -567,6 +668,7 @@ impl GpuCuller {
             triangle_pass_skipped: gate.skip_triangles,
             light_views: Vec::new(),
             counters_late: true,
+            phases: None,
         })
     }
 
@@ -577,14 +679,35 @@ impl GpuCuller {
     /// # Errors
     /// [`GpuError::Lost`] when the device is lost.
     pub fn read_survivors(&self, context: &GpuContext) -> Result<Survivors, GpuError> {
-        let (Some(frame), mut counters) = (self.camera.frame.as_ref(), self.last_counters) else {
-            return Ok(Default::default());
-        };
+        let (mut counters, mut phases) = (self.last_counters, self.last_phases);
         if self.counters_pending {
             // Read a frame late: this frame's counters, which say how much of the buffers to read, are read now.
-            counters = self.read_counters(context)?;
+            (counters, phases) = self.read_counters(context)?;
         }
-        let clusters = if counters.clusters_out > 0 {
+        let (mut clusters, mut indices) = match (phases, self.two_phase.as_ref()) {
+            (Some(phases), Some(state)) => {
+                let early = self.survivors_of(context, &self.camera, phases.early)?;
+                let late = self.survivors_of(context, &state.late, phases.late)?;
+                ([early.0, late.0].concat(), [early.1, late.1].concat())
+            }
+            _ => self.survivors_of(context, &self.camera, counters)?,
+        };
+        clusters.shrink_to_fit();
+        indices.shrink_to_fit();
+        Ok((clusters, indices))
+    }
+
+    /// [`GpuCuller::read_survivors`] of one view whose last frame counted `counters`.
+    fn survivors_of(
+        &self,
+        context: &GpuContext,
+        view: &ViewCull,
+        counters: GpuCounters,
+    ) -> Result<Survivors, GpuError> {
+        let Some(frame) = view.frame.as_ref() else {
+            return Ok(Default::default());
+        };
+        let clusters: Vec<(u32, u32)> = if counters.clusters_out > 0 {
             let bytes = context.read_buffer(&frame.survivors, 8 * u64::from(counters.clusters_out))?;
             bytemuck::cast_slice::<u8, [u32; 2]>(&bytes).iter().map(|&[i, c]| (i, c)).collect()
         } else {

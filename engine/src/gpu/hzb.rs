@@ -4,7 +4,8 @@
 //! pyramid as the CPU's [`crate::depth::DepthPyramid`], value for value.
 //!
 //! Only what the CPU buffer proves hidden is culled: the HZB is as conservative as the mode it was rasterized
-//! in (conservative by default). Last frame's depth is not used.
+//! in (conservative by default). Two-phase occlusion ([`super::two_phase`]) builds a second pyramid of the same
+//! layout, its level 0 merged from this one's and the depth the frame's early phase drew.
 
 use super::GpuContext;
 use crate::depth::DepthBuffer;
@@ -103,6 +104,16 @@ impl Hzb {
         } else {
             encoder.clear_buffer(&self.buffer, 0, Some(u64::from(base.width * base.height) * 4));
         }
+        self.build_levels(encoder, timestamps);
+    }
+
+    /// Records the passes that build every level above 0 from level 0 as it will be when they run, with
+    /// `timestamps` written at the pass's start and end if given.
+    pub fn build_levels(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("hzb build"),
             timestamp_writes: timestamps,

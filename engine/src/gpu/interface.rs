@@ -25,6 +25,12 @@ pub const VIEW_TRIANGLE_FRUSTUM: u32 = 32;
 /// View flag: the triangle pass is skipped; the cluster pass writes each surviving cluster's draw, over its
 /// uncompacted triangles in the cluster index buffer.
 pub const VIEW_DRAW_CLUSTERS: u32 = 64;
+/// View flag: the early phase of two-phase occlusion; only clusters visible last frame
+/// ([`GpuView::frame`] minus one in the cluster visibility buffer) are tested and drawn.
+pub const VIEW_PHASE_EARLY: u32 = 128;
+/// View flag: the late phase of two-phase occlusion; every cluster is tested (against the HZB merged from the
+/// early phase's depth), its visibility recorded for the next frame, and only those not drawn early are kept.
+pub const VIEW_PHASE_LATE: u32 = 256;
 
 /// Set in [`super::scene::GpuInstance::flags`] when the transform is invertible and does not mirror: the cone
 /// test, run in mesh space with the camera brought there, is then valid (which side of a plane a point lies on
@@ -64,6 +70,8 @@ pub mod counter {
     pub const DRAWS: u32 = 12;
     /// Next free index of the compacted index buffer.
     pub const INDEX_CURSOR: u32 = 13;
+    /// Clusters the late phase of two-phase occlusion kept that the early phase had drawn (not drawn again).
+    pub const CLUSTERS_DRAWN_EARLY: u32 = 14;
     /// Slots in the buffer (a multiple of 4, room to spare).
     pub const COUNTER_COUNT: u32 = 16;
 }
@@ -74,6 +82,9 @@ pub const CONE_SLACK: f32 = 1e-3;
 pub const RECT_MARGIN: f32 = 1e-3;
 /// HZB relative depth margin: covers the f32 rounding of `1/w`.
 pub const DEPTH_MARGIN: f32 = 1e-5;
+/// Relative step a depth-buffer value is moved farther before two-phase occlusion turns it into `1/w`: four
+/// f32 ulps, so that the value's rounding never brings the depth it stands for nearer.
+pub const DEPTH_ULPS: f32 = 4.8e-7;
 /// Small-cluster test (lossy): a bounding sphere under this many pixels across is culled.
 pub const SMALL_CLUSTER_PIXELS: f32 = 1.0;
 /// Pixels a vertex may move when the rasterizer snaps it to its sub-pixel grid (1/256 on common hardware):
@@ -148,8 +159,10 @@ pub struct GpuView {
     pub depth_from_negative_one: u32,
     /// Pixels per unit at unit distance, vertically.
     pub focal_pixels: f32,
+    /// The frame number of two-phase occlusion (the late phase marks the clusters it finds visible with it).
+    pub frame: u32,
     /// Padding.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
 
 impl GpuView {
@@ -176,6 +189,8 @@ pub fn wgsl_prelude() -> String {
         ("VIEW_SMALL_TRIANGLE", VIEW_SMALL_TRIANGLE),
         ("VIEW_TRIANGLE_FRUSTUM", VIEW_TRIANGLE_FRUSTUM),
         ("VIEW_DRAW_CLUSTERS", VIEW_DRAW_CLUSTERS),
+        ("VIEW_PHASE_EARLY", VIEW_PHASE_EARLY),
+        ("VIEW_PHASE_LATE", VIEW_PHASE_LATE),
         ("INSTANCE_CONE_SAFE", INSTANCE_CONE_SAFE),
         ("MAX_HZB_LEVELS", MAX_HZB_LEVELS as u32),
         ("MAX_CASCADES", MAX_CASCADES as u32),
@@ -193,6 +208,7 @@ pub fn wgsl_prelude() -> String {
         ("TRIANGLES_OUT", TRIANGLES_OUT),
         ("DRAWS", DRAWS),
         ("INDEX_CURSOR", INDEX_CURSOR),
+        ("CLUSTERS_DRAWN_EARLY", CLUSTERS_DRAWN_EARLY),
         ("COUNTER_COUNT", COUNTER_COUNT),
         ("KEEP", KEEP),
         ("CLUSTER_WORKGROUP_SIZE", CLUSTER_WORKGROUP_SIZE),
@@ -203,6 +219,7 @@ pub fn wgsl_prelude() -> String {
         ("CONE_SLACK", CONE_SLACK),
         ("RECT_MARGIN", RECT_MARGIN),
         ("DEPTH_MARGIN", DEPTH_MARGIN),
+        ("DEPTH_ULPS", DEPTH_ULPS),
         ("SMALL_CLUSTER_PIXELS", SMALL_CLUSTER_PIXELS),
         ("SNAP", SNAP),
     ];
@@ -292,8 +309,8 @@ mod tests {
                     ("near", offset_of!(GpuView, near)),
                     ("depth_from_negative_one", offset_of!(GpuView, depth_from_negative_one)),
                     ("focal_pixels", offset_of!(GpuView, focal_pixels)),
-                    ("_pad1", offset_of!(GpuView, _pad)),
-                    ("_pad2", offset_of!(GpuView, _pad) + 4),
+                    ("frame", offset_of!(GpuView, frame)),
+                    ("_pad", offset_of!(GpuView, _pad)),
                 ],
             ),
             (

@@ -8,6 +8,8 @@
 //! 5. [`triangle_cull`]: degenerate, back-facing, off-screen and small triangles removed, survivors compacted
 //!    into an index buffer with one indirect draw per cluster;
 //! 6. [`draw`]: `multi_draw_indexed_indirect_count` into colour, object-ID and depth targets, read back.
+//! 7. `two_phase` (opt-in, [`GpuCullSettings::two_phase`]): the passes above draw only what was visible last
+//!    frame; that depth, merged with the CPU's HZB, culls the rest in a second round of steps 4 to 6.
 //!
 //! Every view of a frame is culled by the same passes into buffers of its own (`view_cull`): the camera, and
 //! each sun cascade whose [`shadow`] map the draw samples, all in one submission.
@@ -52,12 +54,13 @@ pub mod output;
 pub mod scene;
 pub mod shadow;
 pub mod triangle_cull;
+mod two_phase;
 mod view_cull;
 
 pub use debug_draw::DebugDraw;
 pub use frame::{GpuCullSettings, GpuCuller, GpuGating, ReadBack, Survivors};
 pub use indirect::DrawBuffers;
-pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes};
+pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes, PhaseCounters};
 
 use thiserror::Error;
 
@@ -96,9 +99,10 @@ pub enum GpuError {
     },
 }
 
-/// Most storage buffers one pass binds in one shader stage: the cluster pass and the triangle pass each bind
-/// nine, the view included. [`GpuContext::new`] refuses an adapter that allows fewer.
-pub const STORAGE_BUFFERS_PER_STAGE: u32 = 9;
+/// Most storage buffers one pass binds in one shader stage: the cluster pass binds ten (the view, the HZB and
+/// two-phase occlusion's visibility included), the triangle pass nine. [`GpuContext::new`] refuses an adapter
+/// that allows fewer.
+pub const STORAGE_BUFFERS_PER_STAGE: u32 = 10;
 
 /// A device and queue opened without a window, with the features the pipeline uses.
 pub struct GpuContext {

@@ -38,6 +38,9 @@ pub struct GpuCounters {
     pub triangles_out: u32,
     /// Indirect draws issued (clusters with surviving triangles), all in one multi-draw.
     pub draws: u32,
+    /// Clusters the late phase of two-phase occlusion kept that its early phase had already drawn (0 in a
+    /// frame of one phase).
+    pub clusters_drawn_early: u32,
 }
 
 /// Bytes of the counter buffer.
@@ -63,11 +66,12 @@ impl GpuCounters {
             triangles_small: slot(TRIANGLES_SMALL),
             triangles_out: slot(TRIANGLES_OUT),
             draws: slot(DRAWS),
+            clusters_drawn_early: slot(CLUSTERS_DRAWN_EARLY),
         }
     }
 
-    /// Every counter, `instances` first, then in the order of the counter slots.
-    fn to_array(self) -> [u32; 14] {
+    /// Every counter, in the order of the fields.
+    fn to_array(self) -> [u32; 15] {
         [
             self.instances,
             self.clusters_in,
@@ -83,15 +87,23 @@ impl GpuCounters {
             self.triangles_small,
             self.triangles_out,
             self.draws,
+            self.clusters_drawn_early,
         ]
     }
 
     /// The inverse of [`GpuCounters::to_array`].
-    fn from_array(c: [u32; 14]) -> Self {
-        let [instances, counters @ ..] = c;
+    fn from_array(c: [u32; 15]) -> Self {
+        let [instances, counters @ .., drawn_early] = c;
         let mut slots = [0; counter::COUNTER_COUNT as usize];
         slots[..counters.len()].copy_from_slice(&counters);
+        slots[counter::CLUSTERS_DRAWN_EARLY as usize] = drawn_early;
         Self::from_slots(instances, &slots)
+    }
+
+    /// Both counters added up, field by field.
+    pub fn plus(&self, other: &GpuCounters) -> GpuCounters {
+        let (a, b) = (self.to_array(), other.to_array());
+        GpuCounters::from_array(std::array::from_fn(|i| a[i] + b[i]))
     }
 
     /// How many clusters `verdict` accounts for.
@@ -128,6 +140,15 @@ pub struct GpuPassTimes {
     pub triangles: Duration,
     /// The draw.
     pub draw: Duration,
+    /// Two-phase occlusion's late phase (zero in a frame of one phase): the early phase's depth reduced and
+    /// merged with the CPU's HZB.
+    pub merge: Duration,
+    /// See `merge`: the late cluster pass.
+    pub late_clusters: Duration,
+    /// See `merge`: the late triangle pass.
+    pub late_triangles: Duration,
+    /// See `merge`: the late draw.
+    pub late_draw: Duration,
 }
 
 impl GpuPassTimes {
@@ -142,6 +163,10 @@ impl GpuPassTimes {
             clusters: sum(|t| t.clusters),
             triangles: sum(|t| t.triangles),
             draw: sum(|t| t.draw),
+            merge: sum(|t| t.merge),
+            late_clusters: sum(|t| t.late_clusters),
+            late_triangles: sum(|t| t.late_triangles),
+            late_draw: sum(|t| t.late_draw),
         })
     }
 }
@@ -156,7 +181,18 @@ impl std::fmt::Display for GpuPassTimes {
             us(self.clusters),
             us(self.triangles),
             us(self.draw)
-        )
+        )?;
+        if self.merge > Duration::ZERO {
+            write!(
+                f,
+                "; late phase: merge {:.1} us, clusters {:.1} us, triangles {:.1} us, draw {:.1} us",
+                us(self.merge),
+                us(self.late_clusters),
+                us(self.late_triangles),
+                us(self.late_draw)
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -168,8 +204,11 @@ pub(crate) struct PassTimer {
     period: f64,
 }
 
-/// Passes timed, two timestamps each.
-pub(crate) const TIMED_PASSES: u32 = 4;
+/// Passes timed, two timestamps each: the HZB build, clusters, triangles, draw, then two-phase occlusion's
+/// merge and late clusters, triangles and draw.
+pub(crate) const TIMED_PASSES: u32 = 8;
+/// The passes of a frame of one phase: the first four.
+pub(crate) const ONE_PHASE_PASSES: u32 = 4;
 
 impl PassTimer {
     pub(crate) fn new(context: &GpuContext) -> Option<Self> {
@@ -208,13 +247,29 @@ impl PassTimer {
         }
     }
 
-    pub(crate) fn read(&self, context: &GpuContext) -> Result<GpuPassTimes, GpuError> {
-        let bytes = context.read_buffer(&self.resolve, self.resolve.size())?;
+    /// Resolves the timestamps of the first `passes` passes into the resolve buffer.
+    pub(crate) fn resolve(&self, encoder: &mut wgpu::CommandEncoder, passes: u32) {
+        encoder.resolve_query_set(&self.queries, 0..2 * passes, &self.resolve, 0);
+    }
+
+    /// The times of the first `passes` passes (the others zero), once resolved.
+    pub(crate) fn read(&self, context: &GpuContext, passes: u32) -> Result<GpuPassTimes, GpuError> {
+        let bytes = context.read_buffer(&self.resolve, 16 * u64::from(passes))?;
         let ticks: &[u64] = bytemuck::cast_slice(&bytes);
-        let span = |pass: usize| {
-            Duration::from_nanos((ticks[2 * pass + 1].saturating_sub(ticks[2 * pass]) as f64 * self.period) as u64)
+        let span = |pass: usize| match ticks.get(2 * pass..2 * pass + 2) {
+            Some(&[start, end]) => Duration::from_nanos((end.saturating_sub(start) as f64 * self.period) as u64),
+            _ => Duration::ZERO,
         };
-        Ok(GpuPassTimes { hzb: span(0), clusters: span(1), triangles: span(2), draw: span(3) })
+        Ok(GpuPassTimes {
+            hzb: span(0),
+            clusters: span(1),
+            triangles: span(2),
+            draw: span(3),
+            merge: span(4),
+            late_clusters: span(5),
+            late_triangles: span(6),
+            late_draw: span(7),
+        })
     }
 }
 
@@ -240,18 +295,34 @@ pub struct GpuFrameOutput {
     /// `counters` are the previous frame's ([`super::ReadBack::Late`]; zero on the first such frame), and
     /// `wall_time` ran from submitting this frame until they were back.
     pub counters_late: bool,
+    /// Each phase's counters, where the frame ran in two ([`super::GpuCullSettings::two_phase`]); `counters`
+    /// then adds both up (a cluster drawn early is tested, and counted, in both).
+    pub phases: Option<PhaseCounters>,
+}
+
+/// The counters of a frame's two phases of occlusion culling ([`super::GpuCullSettings::two_phase`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PhaseCounters {
+    /// The early phase: the clusters visible last frame, tested against the CPU's HZB and drawn.
+    pub early: GpuCounters,
+    /// The late phase: every cluster tested against the merged HZB; `clusters_out` and what follows count
+    /// only those drawn late, `clusters_drawn_early` those it kept that the early phase had drawn.
+    pub late: GpuCounters,
 }
 
 impl GpuFrameOutput {
     /// Both outputs added up: counters, pass times and wall time (the batches of one frame).
     pub fn plus(&self, other: &GpuFrameOutput) -> GpuFrameOutput {
-        let (a, b) = (self.counters.to_array(), other.counters.to_array());
-        let counters = GpuCounters::from_array(std::array::from_fn(|i| a[i] + b[i]));
+        let counters = self.counters.plus(&other.counters);
         let pass_times = self.pass_times.zip(other.pass_times).map(|(a, b)| GpuPassTimes {
             hzb: a.hzb + b.hzb,
             clusters: a.clusters + b.clusters,
             triangles: a.triangles + b.triangles,
             draw: a.draw + b.draw,
+            merge: a.merge + b.merge,
+            late_clusters: a.late_clusters + b.late_clusters,
+            late_triangles: a.late_triangles + b.late_triangles,
+            late_draw: a.late_draw + b.late_draw,
         });
         GpuFrameOutput {
             counters,
@@ -262,6 +333,7 @@ impl GpuFrameOutput {
             // Only a frame's first batch draws the shadow maps.
             light_views: if self.light_views.is_empty() { &other.light_views } else { &self.light_views }.clone(),
             counters_late: self.counters_late || other.counters_late,
+            phases: self.phases.or(other.phases),
         }
     }
 }

@@ -97,6 +97,8 @@ pub struct GpuScene {
     instance_data: Vec<GpuInstance>,
     /// Instances written by the last [`GpuScene::write_instances`].
     pub instances_written_last_update: usize,
+    /// Changes whenever the instance count or an instance's mesh changes: the layout of per-cluster data.
+    mesh_generation: u64,
     /// The cluster library the buffers hold.
     pub library: ClusterLibrary,
 }
@@ -138,6 +140,7 @@ impl GpuScene {
             instances: instances_buffer,
             instance_data: instances,
             instances_written_last_update: 0,
+            mesh_generation: 0,
             library,
         }
     }
@@ -145,6 +148,12 @@ impl GpuScene {
     /// The instances, indexed by store slot.
     pub fn instances(&self) -> &[GpuInstance] {
         &self.instance_data
+    }
+
+    /// A number that changes whenever the instance count or an instance's mesh changes, and so the layout of
+    /// data kept per cluster of every instance (two-phase occlusion's visibility).
+    pub(crate) fn mesh_generation(&self) -> u64 {
+        self.mesh_generation
     }
 
     /// Brings the GPU instances up to date with a store of `count` objects of which only `written` slots
@@ -159,6 +168,9 @@ impl GpuScene {
         instance_of: impl Fn(u32) -> GpuInstance,
     ) {
         let capacity = self.instances.size() as usize / std::mem::size_of::<GpuInstance>();
+        if count != self.instance_data.len() {
+            self.mesh_generation += 1;
+        }
         if count > capacity {
             // Only the instance buffer grows; the mesh buffers stay as they are.
             self.instance_data = (0..count as u32).map(&instance_of).collect();
@@ -175,7 +187,11 @@ impl GpuScene {
                 end += 1;
             }
             for slot in start..end {
-                self.instance_data[slot] = instance_of(slot as u32);
+                let instance = instance_of(slot as u32);
+                if instance.mesh != self.instance_data[slot].mesh {
+                    self.mesh_generation += 1;
+                }
+                self.instance_data[slot] = instance;
             }
             let offset = (start * std::mem::size_of::<GpuInstance>()) as u64;
             context.queue.write_buffer(&self.instances, offset, bytemuck::cast_slice(&self.instance_data[start..end]));

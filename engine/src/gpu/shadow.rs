@@ -172,7 +172,8 @@ impl ShadowMaps {
                     light.flags |= VIEW_DRAW_CLUSTERS;
                 }
                 view.fit(context, cascade.casters.len(), (clusters, triangles));
-                view.record(context, encoder, scene, culling.passes, culling.hzb, cascade.casters, gate, None);
+                let against = culling.passes.one_phase(culling.hzb);
+                view.record(context, encoder, scene, culling.passes, against, cascade.casters, gate, (None, 0));
                 let offset = index as u64 * COUNTER_BYTES;
                 encoder.copy_buffer_to_buffer(&view.counters, 0, &self.counters, offset, COUNTER_BYTES);
                 self.runs.push(CascadeRun::Culled { instances, gate });

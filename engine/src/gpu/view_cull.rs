@@ -16,13 +16,34 @@ use crate::culler::BenefitGate;
 pub(crate) struct CullPasses {
     cluster: ClusterCullPass,
     triangle: TriangleCullPass,
+    /// The visibility binding of a view culled in one phase, never read.
+    no_visibility: wgpu::Buffer,
 }
 
 impl CullPasses {
     /// Compiles both passes.
     pub fn new(context: &GpuContext) -> Self {
-        Self { cluster: ClusterCullPass::new(context), triangle: TriangleCullPass::new(context) }
+        Self {
+            cluster: ClusterCullPass::new(context),
+            triangle: TriangleCullPass::new(context),
+            no_visibility: storage_buffer(context, "no visibility", 16, wgpu::BufferUsages::empty()),
+        }
     }
+
+    /// What a view culled in one phase tests against: `hzb`.
+    pub fn one_phase<'a>(&'a self, hzb: &'a wgpu::Buffer) -> Against<'a> {
+        Against { hzb, visibility: &self.no_visibility }
+    }
+}
+
+/// What a view's cluster pass tests against: an HZB, and two-phase occlusion's visibility
+/// ([`super::two_phase`]) where the view's flags name a phase.
+#[derive(Clone, Copy)]
+pub(crate) struct Against<'a> {
+    /// The HZB levels.
+    pub hzb: &'a wgpu::Buffer,
+    /// The per-cluster visibility.
+    pub visibility: &'a wgpu::Buffer,
 }
 
 /// Which passes one view skips this frame.
@@ -177,8 +198,8 @@ impl ViewCull {
 
     /// Records the view's culling of the instances at `visible` into `encoder`: their upload, the counters
     /// cleared (or, with `gate.skip_clusters`, every candidate cluster written in place of the cluster pass),
-    /// the cluster pass against `hzb` and the triangle pass, each timed by `timer`'s passes 1 and 2 if given.
-    /// The view's uniform must be written, and its buffers [`ViewCull::fit`] to `visible`.
+    /// the cluster pass `against` an HZB and the triangle pass, each timed by `timer`'s passes `timed` and
+    /// `timed + 1` if given. The view's uniform must be written, and its buffers [`ViewCull::fit`] to `visible`.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -186,10 +207,10 @@ impl ViewCull {
         encoder: &mut wgpu::CommandEncoder,
         scene: &GpuScene,
         passes: &CullPasses,
-        hzb: &wgpu::Buffer,
+        against: Against<'_>,
         visible: &[u32],
         gate: PassGate,
-        timer: Option<&PassTimer>,
+        (timer, timed): (Option<&PassTimer>, u32),
     ) {
         let frame = self.frame.as_ref().expect("ViewCull::fit before ViewCull::record");
         if !visible.is_empty() {
@@ -215,10 +236,11 @@ impl ViewCull {
             meshes: &scene.meshes,
             clusters: &scene.clusters,
             visible: &frame.visible,
-            hzb,
+            hzb: against.hzb,
             counters: &self.counters,
             survivors: &frame.survivors,
             draws: &frame.draw_args,
+            visibility: against.visibility,
         };
         let instance_count = visible.len() as u32;
         let skip_clusters = gate.skip_clusters;
@@ -228,7 +250,7 @@ impl ViewCull {
             &cluster_buffers,
             instance_count,
             skip_clusters,
-            timer.map(|t| t.compute(1)),
+            timer.map(|t| t.compute(timed)),
         );
         let triangle_buffers = TriangleCullBuffers {
             view: &self.view,
@@ -242,7 +264,8 @@ impl ViewCull {
             draw_indices: &frame.draw_indices,
             draws: &frame.draw_args,
         };
-        passes.triangle.record(context, encoder, &triangle_buffers, gate.skip_triangles, timer.map(|t| t.compute(2)));
+        let timestamps = timer.map(|t| t.compute(timed + 1));
+        passes.triangle.record(context, encoder, &triangle_buffers, gate.skip_triangles, timestamps);
     }
 
     /// The draws the view's last culled frame wrote, over `scene`'s buffers; `None` before its first frame.
