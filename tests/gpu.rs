@@ -748,3 +748,30 @@ fn two_phase_draws_the_unculled_image_through_cuts_resizes_and_spawns() {
         assert!(phases.iter().map(|p| p.late.clusters_hzb).sum::<u32>() > 0, "occluders {occluders}");
     }
 }
+
+/// Two-phase occlusion draws exactly the unculled image on the shared third-party scenes, which have no artist
+/// occluders (truck_town's sixty objects, zdm2's one mesh, where only clusters can be culled), over their
+/// orbits with a cut to the far side; on the frames that follow the orbit the early phase draws most of it.
+#[test]
+fn two_phase_draws_the_unculled_image_on_the_shared_scenes() {
+    let Some(context) = context_for_tests() else { return };
+    for name in ["zdm2/zdm2.glb", "truck_town/town_model.gltf"] {
+        let Some(loaded) = cullet_test_support::shared_scene(name) else { return };
+        let scene = loaded.scene;
+        let path = scene.orbit_path();
+        let aspect = WIDTH as f32 / HEIGHT as f32;
+        let far_side = path.camera_at(0.5 * path.duration(), aspect);
+        let mut flight = Flight::new(path, aspect, 120, OcclusionSettings::default(), |world| {
+            scene.spawn(world);
+        });
+        let mut culler = GpuCuller::for_world(&context, &flight.world, &scene.meshes, (WIDTH, HEIGHT));
+        let phases = fly_two_phase(&context, (&mut flight, &mut culler), 8, &[(4, far_side)], |_, _, _| {});
+        for (frame, phases) in phases.iter().enumerate() {
+            println!("{name}, frame {frame}: {phases:?}");
+        }
+        for frame in [2, 3, 6, 7] {
+            let (early, late) = (phases[frame].early, phases[frame].late);
+            assert!(early.triangles_out > 4 * late.triangles_out, "{name}, frame {frame}");
+        }
+    }
+}

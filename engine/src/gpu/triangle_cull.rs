@@ -1,5 +1,6 @@
 //! Triangle culling (`triangle_cull.wgsl`, after `prepare_triangles.wgsl` sizes its dispatch): one workgroup per surviving cluster, one thread per
-//! triangle. In order: degenerate (zero area in mesh space, so in any view); any vertex at `w <= 0` keeps the
+//! triangle. In order: degenerate (two corners at one position, so no area in any view; three distinct
+//! collinear corners are kept, as rounding in the transform can open them into a sliver); any vertex at `w <= 0` keeps the
 //! triangle (screen tests need all three in front of the eye); back-facing (clearly clockwise on screen, by
 //! more than the rasterizer's vertex snapping could change); outside the viewport; and small (eq. 19.4: its
 //! pixel bounding box holds no pixel centre, with the snapping margin). Each test only removes triangles that
@@ -105,7 +106,7 @@ impl TriangleCullPass {
 pub enum TriangleVerdict {
     /// May cover a sample: drawn.
     Keep,
-    /// Zero area in mesh space.
+    /// Two corners at one position: no area in any view.
     Degenerate,
     /// Faces away from the camera.
     Backface,
@@ -119,7 +120,7 @@ pub enum TriangleVerdict {
 /// that compare the GPU with it.
 #[doc(hidden)]
 pub fn cull_triangle(view: &GpuView, instance: &GpuInstance, p: [Vec3; 3]) -> TriangleVerdict {
-    if (p[1] - p[0]).cross(p[2] - p[0]) == Vec3::ZERO {
+    if p[0] == p[1] || p[1] == p[2] || p[2] == p[0] {
         return TriangleVerdict::Degenerate;
     }
     let camera = Vec3::from_slice(&view.camera[..3]);
