@@ -4,12 +4,14 @@
 //! `CULLET_REQUIRE_GPU` is set.
 
 use cullet::Camera;
+use cullet::camera::DepthConvention;
 use cullet::depth::{DepthBuffer, DepthPyramid};
 use cullet::gpu::cluster_cull::{ClusterVerdict, cull_cluster};
 use cullet::gpu::hzb::Hzb;
-use cullet::gpu::interface::GpuView;
+use cullet::gpu::interface::{GpuView, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE};
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
+use cullet::gpu::two_phase::merge_level0;
 use cullet::gpu::{GpuContext, GpuError, STORAGE_BUFFERS_PER_STAGE};
 use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, ReadBack};
 use cullet::pipeline::CameraCuller;
@@ -773,5 +775,71 @@ fn two_phase_draws_the_unculled_image_on_the_shared_scenes() {
             let (early, late) = (phases[frame].early, phases[frame].late);
             assert!(early.triangles_out > 4 * late.triangles_out, "{name}, frame {frame}");
         }
+    }
+}
+
+/// Two-phase occlusion's passes against their CPU twins on still cameras, by the third frame, when the late phase
+/// draws nothing and the image's depth is the early phase's: the merged pyramid's level 0 is the CPU merge of
+/// that depth with the CPU pyramid's level 0, and the late phase's cluster counters are the CPU cluster test
+/// of every candidate against the merged pyramid (up to decisions that a 1e-3 nudge of the camera flips); in
+/// every depth convention, and drawing the unculled image.
+#[test]
+fn two_phase_passes_match_their_cpu_twins() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 3000);
+    setup.culler.set_gating(GpuGating::fixed());
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    let conventions = [DepthConvention::Reversed, DepthConvention::Standard, DepthConvention::NegativeOneToOne];
+    let stills = conventions.iter().flat_map(|&depth| {
+        cameras(setup.half)
+            .into_iter()
+            .map(move |(name, camera)| (format!("{name}, {depth:?}"), Camera { depth, ..camera }))
+    });
+    for (name, camera) in stills.collect::<Vec<_>>() {
+        let (output, visible, _) = (0..3).map(|_| setup.run(&context, camera, &settings)).last().unwrap();
+        let phases = output.phases.expect("two phases");
+        assert_eq!(phases.late.draws, 0, "{name}: a still camera draws everything early by its third frame");
+        // The merge.
+        let image = setup.culler.read_image(&context).unwrap();
+        let merged = setup.culler.merged_hzb().expect("a merged pyramid");
+        let levels = merged.read(&context).unwrap();
+        let cpu_level0 = &setup.culler.hzb().read(&context).unwrap()[0];
+        let expected = merge_level0(
+            (&image.depth, image.width, image.height),
+            Some(cpu_level0),
+            (merged.levels[0], merged.screen_size),
+            &camera,
+        );
+        let differing = expected.iter().zip(&levels[0]).filter(|(a, b)| (*a - *b).abs() > 1e-6 * a.abs()).count();
+        assert_eq!(differing, 0, "{name}: merged texels differ from the CPU twin's");
+        assert!(levels[0].iter().zip(cpu_level0).all(|(m, c)| m >= c), "{name}: merged farther than the CPU's");
+        // The late phase's cluster tests.
+        let mut view = *setup.culler.last_view();
+        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE | VIEW_HZB;
+        let hzb = levels.concat();
+        let (library, instances) = (&setup.culler.scene().library, setup.culler.scene().instances());
+        let mut counts: HashMap<ClusterVerdict, u32> = HashMap::new();
+        let mut unstable = 0;
+        for &slot in &visible {
+            let instance = &instances[slot as usize];
+            for cluster in library.clusters_of(instance.mesh) {
+                *counts.entry(cull_cluster(&view, &hzb, instance, cluster)).or_default() += 1;
+                unstable += usize::from(flips_when_nudged(&view, |v| cull_cluster(v, &hzb, instance, cluster)));
+            }
+        }
+        let late = phases.late;
+        let gpu = [
+            (ClusterVerdict::Keep, late.clusters_out + late.clusters_drawn_early),
+            (ClusterVerdict::Frustum, late.clusters_frustum),
+            (ClusterVerdict::Cone, late.clusters_cone),
+            (ClusterVerdict::Hzb, late.clusters_hzb),
+        ];
+        for (verdict, gpu) in gpu {
+            let cpu = counts.get(&verdict).copied().unwrap_or(0);
+            assert!(gpu.abs_diff(cpu) as usize <= unstable, "{name}: {verdict:?}: GPU {gpu}, CPU {cpu}");
+        }
+        println!("{name}: late phase {counts:?}, {unstable} unstable");
+        let (differing, _) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
+        assert_eq!(differing, 0, "{name}: two-phase culling changed {differing} pixels");
     }
 }

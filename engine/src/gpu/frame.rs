@@ -294,6 +294,11 @@ impl GpuCuller {
         &self.hzb
     }
 
+    /// The merged HZB of the last frame of two phases ([`GpuCullSettings::two_phase`]; `None` before one).
+    pub fn merged_hzb(&self) -> Option<&Hzb> {
+        self.two_phase.as_ref().map(|state| &state.hzb)
+    }
+
     /// The render targets the culler draws into.
     pub fn targets(&self) -> &RenderTargets {
         &self.targets

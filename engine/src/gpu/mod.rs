@@ -8,7 +8,7 @@
 //! 5. [`triangle_cull`]: degenerate, back-facing, off-screen and small triangles removed, survivors compacted
 //!    into an index buffer with one indirect draw per cluster;
 //! 6. [`draw`]: `multi_draw_indexed_indirect_count` into colour, object-ID and depth targets, read back.
-//! 7. `two_phase` (opt-in, [`GpuCullSettings::two_phase`]): the passes above draw only what was visible last
+//! 7. [`two_phase`] (opt-in, [`GpuCullSettings::two_phase`]): the passes above draw only what was visible last
 //!    frame; that depth, merged with the CPU's HZB, culls the rest in a second round of steps 4 to 6.
 //!
 //! Every view of a frame is culled by the same passes into buffers of its own (`view_cull`): the camera, and
@@ -54,7 +54,7 @@ pub mod output;
 pub mod scene;
 pub mod shadow;
 pub mod triangle_cull;
-mod two_phase;
+pub mod two_phase;
 mod view_cull;
 
 pub use debug_draw::DebugDraw;

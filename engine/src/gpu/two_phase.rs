@@ -222,3 +222,49 @@ impl TwoPhase {
         self.hzb.build_levels(encoder, None);
     }
 }
+
+/// The merge pass of `hzb_merge.wgsl` on the CPU: level 0 of the merged pyramid, laid out as `level`, from
+/// `depth` (a `width` x `height` depth image, rows from the top, in `camera`'s convention) and, where
+/// `cpu_level0` is given, the CPU pyramid's level 0; `screen_size` is the view's size in level-0 texels. For
+/// the tests that compare the GPU with it.
+#[doc(hidden)]
+pub fn merge_level0(
+    (depth, width, height): (&[f32], u32, u32),
+    cpu_level0: Option<&[f32]>,
+    (level, screen_size): (HzbLevel, [f32; 2]),
+    camera: &Camera,
+) -> Vec<f32> {
+    let (scale, offset) = camera.inv_w_from_depth();
+    let (scale, offset) = (scale as f32, offset as f32);
+    let empty = if camera.depth == DepthConvention::Reversed { 0.0 } else { 1.0 };
+    let inv_w_of = |value: f32| {
+        if value == empty {
+            return 0.0;
+        }
+        let farther = value + (empty - value).signum() * value.abs() * super::interface::DEPTH_ULPS;
+        (farther * scale + offset).max(0.0)
+    };
+    let per_texel = [width as f32 / screen_size[0], height as f32 / screen_size[1]];
+    let last = [width as i32 - 1, height as i32 - 1];
+    let range = |texel: u32, axis: usize| {
+        let lo = ((texel as f32 * per_texel[axis] - 0.5).floor() as i32).clamp(0, last[axis]);
+        let hi = (((texel + 1) as f32 * per_texel[axis] - 0.5).ceil() as i32).clamp(lo, last[axis]);
+        lo..=hi
+    };
+    let mut merged = Vec::with_capacity((level.width * level.height) as usize);
+    for y in 0..level.height {
+        for x in 0..level.width {
+            let mut farthest = f32::MAX;
+            for py in range(y, 1) {
+                for px in range(x, 0) {
+                    farthest = farthest.min(inv_w_of(depth[(py as u32 * width + px as u32) as usize]));
+                }
+            }
+            if let Some(cpu) = cpu_level0 {
+                farthest = farthest.max(cpu[(y * level.width + x) as usize]);
+            }
+            merged.push(farthest);
+        }
+    }
+    merged
+}
