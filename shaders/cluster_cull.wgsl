@@ -1,13 +1,13 @@
 // Cluster culling: one workgroup per instance the CPU stages kept; its threads walk the instance's clusters and
-// append the survivors of the frustum, normal-cone and HZB tests (and the opt-in, lossy small-cluster test)
+// append the survivors of the frustum (bounding sphere), normal-cone and HZB (the cluster's box) tests (and the opt-in, lossy small-cluster test)
 // to a compact list. Where the triangle pass is skipped (VIEW_DRAW_CLUSTERS), each survivor's draw is written
 // here instead, over the cluster's own indices. The engine's `cluster_cull::cull_cluster` is the same test on the CPU.
 //
-// Two-phase occlusion runs the pass twice a frame. The early phase (VIEW_PHASE_EARLY) tests only the clusters
-// visible last frame; the late phase (VIEW_PHASE_LATE), against the HZB merged from the early phase's depth,
-// tests every cluster, marks those it keeps with this frame's number, and appends only those not drawn early.
-// Its tests reject everything the early phase's do (the merged HZB is nowhere farther than the CPU's), so a
-// cluster visible last frame that it keeps was drawn early.
+// Two-phase occlusion runs the pass twice a frame, and keeps per cluster what happened to it last (frame f):
+// 2f visible to the late phase, 2f + 1 drawn by the early phase. The early phase (VIEW_PHASE_EARLY) tests
+// only the clusters visible last frame and marks those it keeps as drawn; the late phase (VIEW_PHASE_LATE)
+// tests every cluster against the HZB merged from the early phase's depth, marks those it keeps as visible,
+// and appends only those the early phase did not draw.
 
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 @group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
@@ -17,7 +17,7 @@
 @group(0) @binding(6) var<storage, read_write> survivors: array<vec2<u32>>;
 @group(0) @binding(7) var<storage, read_write> draws: array<DrawArgs>;
 // Two-phase occlusion's visibility: first, per instance, the index of its first cluster's entry; then, per
-// cluster of every instance, the last frame it was visible. Unused (a placeholder) with one phase.
+// cluster of every instance, its last mark (see above). Unused (a placeholder) with one phase.
 @group(0) @binding(8) var<storage, read_write> visibility: array<u32>;
 // The HZB is `hzb` of common.wgsl, group 1.
 
@@ -39,8 +39,11 @@ fn cull_cluster(instance: Instance, cluster: Cluster) -> u32 {
             return CLUSTERS_CONE;
         }
     }
-    if ((view.flags & VIEW_HZB) != 0u && hidden_by_hzb(center, radius)) {
-        return CLUSTERS_HZB;
+    if ((view.flags & VIEW_HZB) != 0u) {
+        let box = box_footprint(center, box_axes(instance, cluster.extent));
+        if (!box.reaches_near && (hidden_behind(box, false) || ((view.flags & VIEW_SECOND_HZB) != 0u && hidden_behind(box, true)))) {
+            return CLUSTERS_HZB;
+        }
     }
     if ((view.flags & VIEW_SMALL_CLUSTER) != 0u) {
         let clip = view.clip_from_relative * vec4<f32>(center, 1.0);
@@ -66,20 +69,28 @@ fn main(invocation: Invocation) {
     }
     let mesh = meshes[instance.mesh];
     let phase = view.flags & (VIEW_PHASE_EARLY | VIEW_PHASE_LATE);
-    let first_entry = select(0u, visibility[instance_index], phase != 0u);
+    var first_entry = 0u;
+    if (phase != 0u) {
+        first_entry = visibility[instance_index];
+    }
     for (var c = thread; c < mesh.cluster_count; c += CLUSTER_WORKGROUP_SIZE) {
         let cluster_index = mesh.first_cluster + c;
-        let seen_last_frame = phase != 0u && visibility[first_entry + c] + 1u == view.frame;
-        if (phase == VIEW_PHASE_EARLY && !seen_last_frame) {
-            continue;
+        var mark = 0u;
+        if (phase != 0u) {
+            mark = visibility[first_entry + c];
+        }
+        if (phase == VIEW_PHASE_EARLY && mark != 2u * view.frame - 2u) {
+            continue; // Not visible last frame.
         }
         atomicAdd(&counters[CLUSTERS_IN], 1u);
         let cluster = clusters[cluster_index];
         let verdict = cull_cluster(instance, cluster);
         if (verdict == KEEP) {
-            if (phase == VIEW_PHASE_LATE) {
-                visibility[first_entry + c] = view.frame;
-                if (seen_last_frame) {
+            if (phase == VIEW_PHASE_EARLY) {
+                visibility[first_entry + c] = 2u * view.frame + 1u;
+            } else if (phase == VIEW_PHASE_LATE) {
+                visibility[first_entry + c] = 2u * view.frame;
+                if (mark == 2u * view.frame + 1u) {
                     atomicAdd(&counters[CLUSTERS_DRAWN_EARLY], 1u);
                     continue;
                 }

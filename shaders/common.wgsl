@@ -25,10 +25,9 @@ struct Cluster {
     cone_axis: vec3<f32>,
     // Offset of its first index in the cluster index buffer (three global vertex indices a triangle).
     first_index: u32,
+    // Half-size along each mesh axis of a box about `center` that holds the cluster (at most `radius`).
+    extent: vec3<f32>,
     triangle_count: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 struct MeshInfo {
@@ -64,9 +63,14 @@ struct View {
     depth_from_negative_one: u32,
     // Pixels per unit of size at unit view distance, vertically: the projection's y scale times half the height.
     focal_pixels: f32,
-    // Two-phase occlusion's frame number: clusters marked with `frame - 1` were visible last frame.
+    // Two-phase occlusion's frame number (see cluster_cull.wgsl).
     frame: u32,
     _pad: u32,
+    // A second pyramid in the same buffer, tested too with VIEW_SECOND_HZB, laid out as the first.
+    second_hzb_size: vec2<f32>,
+    second_hzb_level_count: u32,
+    _pad2: u32,
+    second_hzb_levels: array<HzbLevel, MAX_HZB_LEVELS>,
 }
 
 // The draw's shadows: each sun cascade's clip space (x, y in -1..1, z in 0..1 from the sun) from the draw
@@ -96,6 +100,13 @@ fn relative_point(instance: Instance, p: vec3<f32>, camera: vec3<f32>) -> vec3<f
         dot(instance.row1.xyz, p) + (instance.row1.w - camera.y),
         dot(instance.row2.xyz, p) + (instance.row2.w - camera.z),
     );
+}
+
+// The half-axes, camera-relative, of the instance's image of the mesh-space box with half-size `extent` along
+// the mesh axes: the matrix's columns scaled by it.
+fn box_axes(instance: Instance, extent: vec3<f32>) -> mat3x3<f32> {
+    let rotation = transpose(mat3x3<f32>(instance.row0.xyz, instance.row1.xyz, instance.row2.xyz));
+    return mat3x3<f32>(rotation[0] * extent.x, rotation[1] * extent.y, rotation[2] * extent.z);
 }
 
 // The camera in the instance's mesh space: the inverse of the 3x3 part (rows a, b, c; its inverse has
@@ -141,42 +152,73 @@ fn hzb_texel(level: HzbLevel, x: u32, y: u32) -> f32 {
     return hzb[level.offset + min(y, level.height - 1u) * level.width + min(x, level.width - 1u)];
 }
 
-// Whether the box `center ± extent` (camera-relative) lies wholly behind the HZB; see eq. 19.5. The engine's
-// `cluster_cull::hidden_by_hzb` is the same test on the CPU.
-fn hidden_by_hzb(center: vec3<f32>, extent: f32) -> bool {
-    var lo = vec2<f32>(3.4e38);
-    var hi = vec2<f32>(-3.4e38);
-    var nearest = 0.0;
+// Where a box lies on screen: its corners' extent in fractions of the view (x right, y down, 0 to 1 across
+// it) and the nearest corner's 1/w; `reaches_near` where a corner is at or before the near plane (such a box is
+// never hidden).
+struct Footprint {
+    lo: vec2<f32>,
+    hi: vec2<f32>,
+    nearest: f32,
+    reaches_near: bool,
+}
+
+// The footprint of the box `center + axes * s` for s in [-1, 1]^3 (camera-relative; the columns of `axes` are
+// its half-axes).
+fn box_footprint(center: vec3<f32>, axes: mat3x3<f32>) -> Footprint {
+    var box = Footprint(vec2<f32>(3.4e38), vec2<f32>(-3.4e38), 0.0, false);
     for (var corner = 0u; corner < 8u; corner++) {
         let sign = vec3<f32>(
             select(-1.0, 1.0, (corner & 1u) != 0u),
             select(-1.0, 1.0, (corner & 2u) != 0u),
             select(-1.0, 1.0, (corner & 4u) != 0u),
         );
-        let clip = view.clip_from_relative * vec4<f32>(center + sign * extent, 1.0);
+        let clip = view.clip_from_relative * vec4<f32>(center + axes * sign, 1.0);
         if (clip.w <= view.near) {
-            return false; // Reaches the near plane: visible.
+            box.reaches_near = true;
+            return box;
         }
         let inv_w = 1.0 / clip.w;
         // Texel rows count from the top: y flipped.
-        let screen = pixels_from_ndc(vec2<f32>(clip.x * inv_w, -(clip.y * inv_w)), view.hzb_size);
-        lo = min(lo, screen);
-        hi = max(hi, screen);
-        nearest = max(nearest, inv_w);
+        let screen = pixels_from_ndc(vec2<f32>(clip.x * inv_w, -(clip.y * inv_w)), vec2<f32>(1.0));
+        box.lo = min(box.lo, screen);
+        box.hi = max(box.hi, screen);
+        box.nearest = max(box.nearest, inv_w);
     }
-    // The last texel, which may reach past the view (`hzb_size` is then a fraction less than the level's size).
-    let size = vec2<f32>(f32(view.hzb_levels[0].width - 1u), f32(view.hzb_levels[0].height - 1u));
-    let lo_texel = vec2<u32>(clamp(floor(lo - RECT_MARGIN), vec2<f32>(0.0), size));
-    let hi_texel = vec2<u32>(clamp(floor(hi + RECT_MARGIN), vec2<f32>(0.0), size));
+    return box;
+}
+
+// Level `index` of the view's first pyramid, or of its second.
+fn hzb_level(second: bool, index: u32) -> HzbLevel {
+    if (second) {
+        return view.second_hzb_levels[index];
+    }
+    return view.hzb_levels[index];
+}
+
+// Whether `box` lies wholly behind the view's first pyramid (or `second`); see eq. 19.5. The engine's
+// `cluster_cull::hidden_behind` is the same test on the CPU.
+fn hidden_behind(box: Footprint, second: bool) -> bool {
+    // The view's size in level-0 texels, and the last texel, which may reach past the view (the size is then
+    // a fraction less than the level's).
+    let size = select(view.hzb_size, view.second_hzb_size, second);
+    let level_count = select(view.hzb_level_count, view.second_hzb_level_count, second);
+    let base = hzb_level(second, 0u);
+    let top = vec2<f32>(f32(base.width - 1u), f32(base.height - 1u));
+    let lo_texel = vec2<u32>(clamp(floor(box.lo * size - RECT_MARGIN), vec2<f32>(0.0), top));
+    let hi_texel = vec2<u32>(clamp(floor(box.hi * size + RECT_MARGIN), vec2<f32>(0.0), top));
     let span = max(hi_texel.x - lo_texel.x, hi_texel.y - lo_texel.y) + 1u;
-    // Eq. 19.5: the lowest level where the rectangle spans at most 2x2 texels.
-    let level_index = min(firstLeadingBit(max(span, 1u) * 2u - 1u), view.hzb_level_count - 1u);
-    let level = view.hzb_levels[level_index];
-    let a = lo_texel >> vec2<u32>(level_index);
-    let b = hi_texel >> vec2<u32>(level_index);
-    let farthest = min(
-        min(hzb_texel(level, a.x, a.y), hzb_texel(level, b.x, a.y)),
-        min(hzb_texel(level, a.x, b.y), hzb_texel(level, b.x, b.y)),
-    );
-    return nearest * (1.0 + DEPTH_MARGIN) < farthest;
+    // One level finer than eq. 19.5's (where the rectangle spans at most 2x2 texels): at most 4x4 texels, each
+    // a quarter of the area, so the bound is tighter for the same rectangle.
+    let level_index = min(firstLeadingBit(max(span, 1u) * 2u - 1u), level_count - 1u);
+    let finer = select(level_index - 1u, 0u, level_index == 0u);
+    let level = hzb_level(second, finer);
+    let a = lo_texel >> vec2<u32>(finer);
+    let b = hi_texel >> vec2<u32>(finer);
+    var farthest = 3.4e38;
+    for (var y = a.y; y <= b.y; y++) {
+        for (var x = a.x; x <= b.x; x++) {
+            farthest = min(farthest, hzb_texel(level, x, y));
+        }
+    }
+    return box.nearest * (1.0 + DEPTH_MARGIN) < farthest;
 }

@@ -8,7 +8,7 @@ use cullet::camera::DepthConvention;
 use cullet::depth::{DepthBuffer, DepthPyramid};
 use cullet::gpu::cluster_cull::{ClusterVerdict, cull_cluster};
 use cullet::gpu::hzb::Hzb;
-use cullet::gpu::interface::{GpuView, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE};
+use cullet::gpu::interface::{GpuView, VIEW_HZB, VIEW_PHASE_LATE, VIEW_SECOND_HZB};
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::two_phase::merge_level0;
@@ -742,10 +742,11 @@ fn two_phase_draws_the_unculled_image_through_cuts_resizes_and_spawns() {
         for (frame, phases) in phases.iter().enumerate() {
             println!("occluders {occluders}, frame {frame}: {phases:?}");
         }
-        // Frames after a frame on the path, and those after a despawn and a spawn.
-        for frame in [1, 2, 7, 8, 11, 12] {
+        // Frames after a frame on the path draw most early; those after a despawn (whose emptied slots are refilled
+        // by other objects, which lose their visibility) and a spawn still draw more early than late.
+        for (frame, share) in [(1, 4), (2, 4), (7, 1), (8, 1), (11, 4), (12, 4)] {
             let (early, late) = (phases[frame].early, phases[frame].late);
-            assert!(early.triangles_out > 4 * late.triangles_out, "occluders {occluders}, frame {frame}");
+            assert!(early.triangles_out > share * late.triangles_out, "occluders {occluders}, frame {frame}");
         }
         assert!(phases.iter().map(|p| p.late.clusters_hzb).sum::<u32>() > 0, "occluders {occluders}");
     }
@@ -778,8 +779,8 @@ fn two_phase_draws_the_unculled_image_on_the_shared_scenes() {
     }
 }
 
-/// Two-phase occlusion's passes against their CPU twins on still cameras, by the third frame, when the late phase
-/// draws nothing and the image's depth is the early phase's: the merged pyramid's level 0 is the CPU merge of
+/// Two-phase occlusion's passes against their CPU twins on still cameras, once the late phase draws nothing
+/// and the image's depth is the early phase's: the merged pyramid's level 0 is the CPU merge of
 /// that depth with the CPU pyramid's level 0, and the late phase's cluster counters are the CPU cluster test
 /// of every candidate against the merged pyramid (up to decisions that a 1e-3 nudge of the camera flips); in
 /// every depth convention, and drawing the unculled image.
@@ -796,35 +797,51 @@ fn two_phase_passes_match_their_cpu_twins() {
             .map(move |(name, camera)| (format!("{name}, {depth:?}"), Camera { depth, ..camera }))
     });
     for (name, camera) in stills.collect::<Vec<_>>() {
-        let (output, visible, _) = (0..3).map(|_| setup.run(&context, camera, &settings)).last().unwrap();
+        // A still camera draws everything early within a few frames (what the first frame's late phase drew,
+        // and then what that hid of the first frame's early draws, settle).
+        let late_draws = |output: &GpuFrameOutput| {
+            let p = output.phases.expect("two phases");
+            println!(
+                "{name}: early {} clusters, {} draws; late {} clusters, {} draws, hzb {}, drawn early {}",
+                p.early.clusters_out,
+                p.early.draws,
+                p.late.clusters_out,
+                p.late.draws,
+                p.late.clusters_hzb,
+                p.late.clusters_drawn_early
+            );
+            p.late.draws
+        };
+        let settled =
+            (0..6).map(|_| setup.run(&context, camera, &settings)).find(|(output, ..)| late_draws(output) == 0);
+        let Some((output, visible, _)) = settled else { panic!("{name}: the late phase drew in every frame") };
         let phases = output.phases.expect("two phases");
-        assert_eq!(phases.late.draws, 0, "{name}: a still camera draws everything early by its third frame");
         // The merge.
         let image = setup.culler.read_image(&context).unwrap();
         let merged = setup.culler.merged_hzb().expect("a merged pyramid");
         let levels = merged.read(&context).unwrap();
-        let cpu_level0 = &setup.culler.hzb().read(&context).unwrap()[0];
-        let expected = merge_level0(
-            (&image.depth, image.width, image.height),
-            Some(cpu_level0),
-            (merged.levels[0], merged.screen_size),
-            &camera,
-        );
+        let cpu = setup.culler.hzb();
+        let cpu_level0 = &cpu.read(&context).unwrap()[0];
+        let depth = (image.depth.as_slice(), image.width, image.height);
+        let expected = merge_level0(depth, Some((cpu_level0, cpu.levels[0], cpu.screen_size)), &camera);
         let differing = expected.iter().zip(&levels[0]).filter(|(a, b)| (*a - *b).abs() > 1e-6 * a.abs()).count();
         assert_eq!(differing, 0, "{name}: merged texels differ from the CPU twin's");
-        assert!(levels[0].iter().zip(cpu_level0).all(|(m, c)| m >= c), "{name}: merged farther than the CPU's");
-        // The late phase's cluster tests.
-        let mut view = *setup.culler.last_view();
-        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE | VIEW_HZB;
-        let hzb = levels.concat();
+        // The late phase's cluster tests, against the merged pyramid and the CPU's copied after it.
+        let view = *setup.culler.last_late_view().expect("a late phase");
+        assert_eq!(
+            view.flags & (VIEW_PHASE_LATE | VIEW_HZB | VIEW_SECOND_HZB),
+            VIEW_PHASE_LATE | VIEW_HZB | VIEW_SECOND_HZB
+        );
+        let bytes = context.read_buffer(&merged.buffer, merged.buffer.size()).unwrap();
+        let hzb: &[f32] = bytemuck::cast_slice(&bytes);
         let (library, instances) = (&setup.culler.scene().library, setup.culler.scene().instances());
         let mut counts: HashMap<ClusterVerdict, u32> = HashMap::new();
         let mut unstable = 0;
         for &slot in &visible {
             let instance = &instances[slot as usize];
             for cluster in library.clusters_of(instance.mesh) {
-                *counts.entry(cull_cluster(&view, &hzb, instance, cluster)).or_default() += 1;
-                unstable += usize::from(flips_when_nudged(&view, |v| cull_cluster(v, &hzb, instance, cluster)));
+                *counts.entry(cull_cluster(&view, hzb, instance, cluster)).or_default() += 1;
+                unstable += usize::from(flips_when_nudged(&view, |v| cull_cluster(v, hzb, instance, cluster)));
             }
         }
         let late = phases.late;

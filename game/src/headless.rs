@@ -155,7 +155,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         let kept_sets = own.as_ref().map(|culled| (culled.stages[0].1, culled.kept()));
         let mut gpu_output: Option<GpuFrameOutput> = None;
         if let Some((context, culler)) = gpu.as_mut() {
-            let settings = GpuCullSettings::default();
+            let settings = GpuCullSettings { two_phase: args.two_phase, ..GpuCullSettings::default() };
             let output = match kept_sets {
                 Some((_, kept)) => {
                     let visible: Vec<u32> = kept.iter().map(|slot| slot as u32).collect();

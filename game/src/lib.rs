@@ -128,6 +128,11 @@ struct Args {
     /// Frames between screenshots.
     #[arg(long, default_value_t = 30)]
     every: u32,
+    /// Two-phase GPU occlusion: draw first what was visible last frame, then cull the rest against that depth
+    /// merged with the software occlusion buffer (conservative). The GPU summary and the HUD show each phase.
+    /// Also the HUD's checkbox and key 5.
+    #[arg(long)]
+    two_phase: bool,
     /// Read each frame's GPU counters back at the next frame, so that no frame waits for its own GPU work: the
     /// CPU stages of a frame run while the GPU works on the one before (headless). The GPU columns of --stats
     /// and the GPU summary are then each the previous frame's, and pass times are not read.

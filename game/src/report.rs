@@ -48,6 +48,20 @@ pub fn print_gpu_summary(frames: &[GpuFrameOutput]) {
     if let Some(times) = GpuPassTimes::mean(frames) {
         println!("GPU time per pass (mean): {times}");
     }
+    let phases: Vec<_> = frames.iter().filter_map(|o| o.phases).collect();
+    if !phases.is_empty() {
+        let m = phases.len() as f64;
+        let mean = |f: fn(&cullet::gpu::PhaseCounters) -> u32| phases.iter().map(|p| f64::from(f(p))).sum::<f64>() / m;
+        println!(
+            "two-phase occlusion ({} frames): triangles drawn early {:.0}, late {:.0}; the merged HZB hid {:.0} of \
+             {:.0} clusters a frame",
+            phases.len(),
+            mean(|p| p.early.triangles_out),
+            mean(|p| p.late.triangles_out),
+            mean(|p| p.late.clusters_hzb),
+            mean(|p| p.late.clusters_in)
+        );
+    }
     let shadow_frames: Vec<&GpuCounters> = frames.iter().flat_map(|o| &o.light_views).collect();
     if !shadow_frames.is_empty() {
         let total = |f: fn(&GpuCounters) -> u32| shadow_frames.iter().map(|c| f64::from(f(c))).sum::<f64>() / n;

@@ -12,10 +12,10 @@ use super::clusters::GpuCluster;
 use super::indirect::cluster_draws;
 use super::interface::{
     CONE_SLACK, DEPTH_MARGIN, GpuView, INSTANCE_CONE_SAFE, RECT_MARGIN, SMALL_CLUSTER_PIXELS, VIEW_CONE, VIEW_HZB,
-    VIEW_SMALL_CLUSTER, counter, workgroup_grid,
+    VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, counter, workgroup_grid,
 };
 use super::scene::{GpuInstance, GpuScene};
-use glam::{Vec2, Vec3, Vec4};
+use glam::{Mat3, Vec2, Vec3, Vec4};
 
 /// The buffers the cluster pass reads and writes.
 pub(crate) struct ClusterCullBuffers<'a> {
@@ -161,7 +161,8 @@ pub enum ClusterVerdict {
     Small,
 }
 
-/// The GPU's cluster test on the CPU. `hzb` holds the pyramid's texels, levels as in `view.hzb_levels`.
+/// The GPU's cluster test on the CPU. `hzb` holds the pyramids' texels, levels as in `view.hzb_levels` (and
+/// `view.second_hzb_levels`).
 /// For the tests that compare the GPU with it.
 #[doc(hidden)]
 pub fn cull_cluster(view: &GpuView, hzb: &[f32], instance: &GpuInstance, cluster: &GpuCluster) -> ClusterVerdict {
@@ -182,7 +183,11 @@ pub fn cull_cluster(view: &GpuView, hzb: &[f32], instance: &GpuInstance, cluster
             return ClusterVerdict::Cone;
         }
     }
-    if view.flags & VIEW_HZB != 0 && hidden_by_hzb(view, hzb, center, radius) {
+    if view.flags & VIEW_HZB != 0
+        && let Some(footprint) = box_footprint(view, center, instance.box_axes(Vec3::from(cluster.extent)))
+        && (hidden_behind(view, hzb, &footprint, false)
+            || (view.flags & VIEW_SECOND_HZB != 0 && hidden_behind(view, hzb, &footprint, true)))
+    {
         return ClusterVerdict::Hzb;
     }
     if view.flags & VIEW_SMALL_CLUSTER != 0 {
@@ -195,37 +200,58 @@ pub fn cull_cluster(view: &GpuView, hzb: &[f32], instance: &GpuInstance, cluster
     ClusterVerdict::Keep
 }
 
-/// The HZB test of `common.wgsl`'s `hidden_by_hzb` on the CPU.
-fn hidden_by_hzb(view: &GpuView, hzb: &[f32], center: Vec3, extent: f32) -> bool {
+/// `common.wgsl`'s `Footprint`: a box's extent on screen in fractions of the view, y down, and its nearest
+/// `1/w`.
+struct Footprint {
+    lo: Vec2,
+    hi: Vec2,
+    nearest: f32,
+}
+
+/// `common.wgsl`'s `box_footprint` on the CPU: `None` where the box reaches the near plane.
+fn box_footprint(view: &GpuView, center: Vec3, axes: Mat3) -> Option<Footprint> {
     let matrix = view.clip_from_relative();
-    let size = Vec2::from(view.hzb_size);
-    let (mut lo, mut hi, mut nearest) = (Vec2::splat(3.4e38), Vec2::splat(-3.4e38), 0.0f32);
+    let mut box_ = Footprint { lo: Vec2::splat(3.4e38), hi: Vec2::splat(-3.4e38), nearest: 0.0 };
     for corner in 0..8 {
         let sign = Vec3::new(
             if corner & 1 != 0 { 1.0 } else { -1.0 },
             if corner & 2 != 0 { 1.0 } else { -1.0 },
             if corner & 4 != 0 { 1.0 } else { -1.0 },
         );
-        let clip = matrix * (center + sign * extent).extend(1.0);
+        let clip = matrix * (center + axes * sign).extend(1.0);
         if clip.w <= view.near {
-            return false;
+            return None;
         }
         let inv_w = 1.0 / clip.w;
-        let screen = Vec2::new((clip.x * inv_w * 0.5 + 0.5) * size.x, (0.5 - clip.y * inv_w * 0.5) * size.y);
-        lo = lo.min(screen);
-        hi = hi.max(screen);
-        nearest = nearest.max(inv_w);
+        let screen = Vec2::new(clip.x * inv_w * 0.5 + 0.5, -(clip.y * inv_w) * 0.5 + 0.5);
+        box_.lo = box_.lo.min(screen);
+        box_.hi = box_.hi.max(screen);
+        box_.nearest = box_.nearest.max(inv_w);
     }
+    Some(box_)
+}
+
+/// `common.wgsl`'s `hidden_behind` on the CPU: whether `footprint` lies behind the view's first pyramid (or
+/// `second`), whose texels are in `hzb`.
+fn hidden_behind(view: &GpuView, hzb: &[f32], footprint: &Footprint, second: bool) -> bool {
+    let (size, level_count, levels) = match second {
+        false => (view.hzb_size, view.hzb_level_count, &view.hzb_levels),
+        true => (view.second_hzb_size, view.second_hzb_level_count, &view.second_hzb_levels),
+    };
+    let size = Vec2::from(size);
     // The last texel, which may reach past the view (`size` is then a fraction less than the level's size).
-    let top = Vec2::new(view.hzb_levels[0].width as f32, view.hzb_levels[0].height as f32) - Vec2::ONE;
-    let lo_texel = (lo - RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
-    let hi_texel = (hi + RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
+    let top = Vec2::new(levels[0].width as f32, levels[0].height as f32) - Vec2::ONE;
+    let lo_texel = (footprint.lo * size - RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
+    let hi_texel = (footprint.hi * size + RECT_MARGIN).floor().clamp(Vec2::ZERO, top).as_uvec2();
     let span = (hi_texel.x - lo_texel.x).max(hi_texel.y - lo_texel.y) + 1;
-    let level_index = (31 - (span.max(1) * 2 - 1).leading_zeros()).min(view.hzb_level_count - 1);
-    let level = view.hzb_levels[level_index as usize];
+    // One level finer than eq. 19.5's: at most 4x4 texels.
+    let level_index = (31 - (span.max(1) * 2 - 1).leading_zeros()).min(level_count - 1);
+    let finer = level_index.saturating_sub(1);
+    let level = levels[finer as usize];
     let texel =
         |x: u32, y: u32| hzb[(level.offset + y.min(level.height - 1) * level.width + x.min(level.width - 1)) as usize];
-    let (a, b) = (lo_texel >> level_index, hi_texel >> level_index);
-    let farthest = texel(a.x, a.y).min(texel(b.x, a.y)).min(texel(a.x, b.y).min(texel(b.x, b.y)));
-    nearest * (1.0 + DEPTH_MARGIN) < farthest
+    let (a, b) = (lo_texel >> finer, hi_texel >> finer);
+    let texels = (a.y..=b.y).flat_map(|y| (a.x..=b.x).map(move |x| (x, y)));
+    let farthest = texels.fold(f32::MAX, |farthest, (x, y)| farthest.min(texel(x, y)));
+    footprint.nearest * (1.0 + DEPTH_MARGIN) < farthest
 }

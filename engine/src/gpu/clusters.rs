@@ -32,10 +32,11 @@ pub struct GpuCluster {
     pub cone_axis: [f32; 3],
     /// First index of its triangles in the index buffer.
     pub first_index: u32,
+    /// Half-size along each mesh axis of a box about `center` that holds the cluster (each at most `radius`):
+    /// the box the HZB test projects, tighter than the sphere's for a flat or long cluster.
+    pub extent: [f32; 3],
     /// Number of triangles.
     pub triangle_count: u32,
-    /// Padding to 64 bytes.
-    pub _pad: [u32; 3],
 }
 
 /// Where a mesh's clusters are (`MeshInfo` in the shaders).
@@ -95,6 +96,11 @@ impl ClusterLibrary {
                 );
                 for meshlet in meshlets.iter() {
                     let bounds = meshopt::compute_meshlet_bounds(meshlet, &adapter);
+                    let center = Vec3::from(bounds.center);
+                    let extent = meshlet
+                        .vertices
+                        .iter()
+                        .fold(Vec3::ZERO, |extent, &v| extent.max((mesh.positions[v as usize] - center).abs()));
                     let first_index = library.indices.len() as u32;
                     library
                         .indices
@@ -106,8 +112,8 @@ impl ClusterLibrary {
                         cone_cutoff: bounds.cone_cutoff,
                         cone_axis: bounds.cone_axis,
                         first_index,
+                        extent: extent.min(Vec3::splat(bounds.radius)).to_array(),
                         triangle_count: (meshlet.triangles.len() / 3) as u32,
-                        _pad: [0; 3],
                     });
                 }
             }

@@ -8,7 +8,7 @@ use super::hzb::{Hzb, HzbLevel};
 use super::indirect::{DrawBuffers, cluster_draws, indirect_buffer};
 use super::interface::{
     GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE,
-    VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
+    VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
 };
 use super::late_read::LateRead;
 use super::output::{
@@ -226,6 +226,8 @@ pub struct GpuCuller {
     last_two_phase: bool,
     /// Its phases' counters, where it did.
     last_phases: Option<PhaseCounters>,
+    /// The late phase's view of the last frame of two phases.
+    last_late_view: Option<GpuView>,
 }
 
 impl GpuCuller {
@@ -276,6 +278,7 @@ impl GpuCuller {
             two_phase: None,
             last_two_phase: false,
             last_phases: None,
+            last_late_view: None,
         }
     }
 
@@ -292,6 +295,11 @@ impl GpuCuller {
     /// The HZB of the last frame.
     pub fn hzb(&self) -> &Hzb {
         &self.hzb
+    }
+
+    /// The late phase's view of the last frame of two phases (for the CPU twins in tests).
+    pub fn last_late_view(&self) -> Option<&GpuView> {
+        self.last_late_view.as_ref()
     }
 
     /// The merged HZB of the last frame of two phases ([`GpuCullSettings::two_phase`]; `None` before one).
@@ -368,6 +376,10 @@ impl GpuCuller {
             focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
             frame: 0,
             _pad: 0,
+            second_hzb_size: [0.0; 2],
+            second_hzb_level_count: 0,
+            _pad2: 0,
+            second_hzb_levels: [HzbLevel::default(); MAX_HZB_LEVELS],
         }
     }
 
@@ -444,9 +456,9 @@ impl GpuCuller {
     /// Starts a frame of two phases: the state made or brought up to date with the scene and the CPU pyramid.
     /// `false` where the visibility does not fit a storage binding: the frame runs in one phase.
     fn begin_two_phase(&mut self, context: &GpuContext) -> bool {
-        let limit = self.binding_limit(context);
-        let state = self.two_phase.get_or_insert_with(|| TwoPhase::new(context, &self.hzb));
-        state.begin_frame(context, &self.scene, &self.hzb, limit)
+        let (limit, target) = (self.binding_limit(context), self.targets.size());
+        let state = self.two_phase.get_or_insert_with(|| TwoPhase::new(context, target, &self.hzb));
+        state.begin_frame(context, &self.scene, (target, &self.hzb), limit)
     }
 
     /// Sets which GPU passes a frame may skip (the default [`GpuGating`] until set). New settings start the
@@ -558,7 +570,10 @@ impl GpuCuller {
             timer.map(|t| t.render(3)),
         );
         if let Some(state) = state {
-            self.record_late_phase(context, &mut encoder, state, (camera, view, settings), visible, gate);
+            let late_view = self.late_view(state, view, settings);
+            let late = (camera, &late_view, settings.cluster_hzb);
+            self.record_late_phase(context, &mut encoder, state, late, visible, gate);
+            self.last_late_view = Some(late_view);
         }
         let timed = if two_phase { TIMED_PASSES } else { ONE_PHASE_PASSES };
         if let Some(timer) = timer {
@@ -592,31 +607,40 @@ impl GpuCuller {
         })
     }
 
-    /// Records two-phase occlusion after the early phase's draw from `camera` (whose early view was `view`):
-    /// the merge of its depth with the CPU pyramid, the late phase's culling of `visible` and its draw over
-    /// the early image (timed as passes 4 to 7).
+    /// The late phase's view from the early phase's `view` with `settings`: the HZB test always on, against
+    /// the merged pyramid, and where the early phase tested the CPU's, against it too (so that the late phase
+    /// culls everything the early phase does).
+    fn late_view(&self, state: &TwoPhase, mut view: GpuView, settings: &GpuCullSettings) -> GpuView {
+        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE | VIEW_HZB;
+        if settings.cluster_hzb {
+            view.flags |= VIEW_SECOND_HZB;
+        }
+        (view.second_hzb_size, view.second_hzb_level_count) = (view.hzb_size, view.hzb_level_count);
+        view.second_hzb_levels[..self.hzb.levels.len()].copy_from_slice(&state.second_levels(&self.hzb));
+        let merged = &state.hzb;
+        view.hzb_size = merged.screen_size;
+        view.hzb_levels = [HzbLevel::default(); MAX_HZB_LEVELS];
+        view.hzb_levels[..merged.levels.len()].copy_from_slice(&merged.levels);
+        view.hzb_level_count = merged.levels.len() as u32;
+        view
+    }
+
+    /// Records two-phase occlusion after the early phase's draw from `camera`: the merge of its depth with the
+    /// CPU pyramid, the late phase's culling of `visible` with `late_view` and its draw over the early image
+    /// (timed as passes 4 to 7).
     fn record_late_phase(
         &self,
         context: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         state: &TwoPhase,
-        (camera, mut view, settings): (&Camera, GpuView, &GpuCullSettings),
+        (camera, late_view, with_cpu): (&Camera, &GpuView, bool),
         visible: &[u32],
         gate: PassGate,
     ) {
         let timer = self.timer.as_ref();
         let depth = self.targets.depth_texture();
-        state.record_merge(
-            context,
-            encoder,
-            depth,
-            (&self.hzb, settings.cluster_hzb),
-            camera,
-            timer.map(|t| t.compute(4)),
-        );
-        // The merged pyramid is laid out as the CPU's: only the phase changes, and the HZB test is always on.
-        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE | VIEW_HZB;
-        context.queue.write_buffer(&state.late.view, 0, bytemuck::bytes_of(&view));
+        state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(4)));
+        context.queue.write_buffer(&state.late.view, 0, bytemuck::bytes_of(late_view));
         let against = state.late_against();
         state.late.record(context, encoder, &self.scene, &self.passes, against, visible, gate, (timer, 5));
         let draws = state.late.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");

@@ -46,12 +46,18 @@ impl Hzb {
     /// A pyramid for buffers of `width` x `height` (an empty buffer gives a 1x1 pyramid holding 0: nothing
     /// hidden).
     pub fn new(context: &GpuContext, width: u32, height: u32) -> Self {
+        Self::with_room(context, width, height, 0)
+    }
+
+    /// [`Hzb::new`] with room for `extra` more texels after the levels in its buffer (another pyramid copied
+    /// there, which a test reads from the same binding).
+    pub fn with_room(context: &GpuContext, width: u32, height: u32, extra: u32) -> Self {
         let device = &context.device;
         let levels = hzb_levels(width, height);
         let texels: u32 = levels.iter().map(|l| l.width * l.height).sum();
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hzb"),
-            size: u64::from(texels) * 4,
+            size: u64::from(texels + extra) * 4,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
@@ -70,6 +76,11 @@ impl Hzb {
             .collect();
         let screen_size = [levels[0].width as f32, levels[0].height as f32];
         Self { buffer, levels, screen_size, pipeline, level_bind_groups }
+    }
+
+    /// Texels in all levels.
+    pub fn texels(&self) -> u32 {
+        self.levels.iter().map(|l| l.width * l.height).sum()
     }
 
     /// Whether this pyramid fits buffers of `width` x `height`.
@@ -130,7 +141,7 @@ impl Hzb {
     /// # Errors
     /// [`super::GpuError::Lost`] when the device is lost.
     pub fn read(&self, context: &GpuContext) -> Result<Vec<Vec<f32>>, super::GpuError> {
-        let bytes = context.read_buffer(&self.buffer, self.buffer.size())?;
+        let bytes = context.read_buffer(&self.buffer, u64::from(self.texels()) * 4)?;
         let texels: &[f32] = bytemuck::cast_slice(&bytes);
         Ok(self
             .levels

@@ -31,6 +31,9 @@ pub const VIEW_PHASE_EARLY: u32 = 128;
 /// View flag: the late phase of two-phase occlusion; every cluster is tested (against the HZB merged from the
 /// early phase's depth), its visibility recorded for the next frame, and only those not drawn early are kept.
 pub const VIEW_PHASE_LATE: u32 = 256;
+/// View flag: the HZB test also tests against the second pyramid ([`GpuView::second_hzb_levels`]); a cluster
+/// behind either is hidden. Two-phase occlusion's late phase tests the merged pyramid and the CPU's.
+pub const VIEW_SECOND_HZB: u32 = 512;
 
 /// Set in [`super::scene::GpuInstance::flags`] when the transform is invertible and does not mirror: the cone
 /// test, run in mesh space with the camera brought there, is then valid (which side of a plane a point lies on
@@ -163,6 +166,14 @@ pub struct GpuView {
     pub frame: u32,
     /// Padding.
     pub _pad: u32,
+    /// The second pyramid's level-0 size in texels, as `hzb_size` (with [`VIEW_SECOND_HZB`]).
+    pub second_hzb_size: [f32; 2],
+    /// Its number of levels.
+    pub second_hzb_level_count: u32,
+    /// Padding.
+    pub _pad2: u32,
+    /// Its level sizes and offsets, in the same buffer as the first's.
+    pub second_hzb_levels: [HzbLevel; MAX_HZB_LEVELS],
 }
 
 impl GpuView {
@@ -191,6 +202,7 @@ pub fn wgsl_prelude() -> String {
         ("VIEW_DRAW_CLUSTERS", VIEW_DRAW_CLUSTERS),
         ("VIEW_PHASE_EARLY", VIEW_PHASE_EARLY),
         ("VIEW_PHASE_LATE", VIEW_PHASE_LATE),
+        ("VIEW_SECOND_HZB", VIEW_SECOND_HZB),
         ("INSTANCE_CONE_SAFE", INSTANCE_CONE_SAFE),
         ("MAX_HZB_LEVELS", MAX_HZB_LEVELS as u32),
         ("MAX_CASCADES", MAX_CASCADES as u32),
@@ -311,6 +323,10 @@ mod tests {
                     ("focal_pixels", offset_of!(GpuView, focal_pixels)),
                     ("frame", offset_of!(GpuView, frame)),
                     ("_pad", offset_of!(GpuView, _pad)),
+                    ("second_hzb_size", offset_of!(GpuView, second_hzb_size)),
+                    ("second_hzb_level_count", offset_of!(GpuView, second_hzb_level_count)),
+                    ("_pad2", offset_of!(GpuView, _pad2)),
+                    ("second_hzb_levels", offset_of!(GpuView, second_hzb_levels)),
                 ],
             ),
             (
@@ -336,10 +352,8 @@ mod tests {
                     ("cone_cutoff", offset_of!(GpuCluster, cone_cutoff)),
                     ("cone_axis", offset_of!(GpuCluster, cone_axis)),
                     ("first_index", offset_of!(GpuCluster, first_index)),
+                    ("extent", offset_of!(GpuCluster, extent)),
                     ("triangle_count", offset_of!(GpuCluster, triangle_count)),
-                    ("_pad0", offset_of!(GpuCluster, _pad)),
-                    ("_pad1", offset_of!(GpuCluster, _pad) + 4),
-                    ("_pad2", offset_of!(GpuCluster, _pad) + 8),
                 ],
             ),
             (

@@ -73,6 +73,14 @@ impl GpuInstance {
         Vec3::new(row(&self.rows[0], camera.x), row(&self.rows[1], camera.y), row(&self.rows[2], camera.z))
     }
 
+    /// The half-axes (columns), camera-relative, of the image of the mesh-space box with half-size `extent`
+    /// along the mesh axes: the matrix's columns scaled by it (`box_axes` in `common.wgsl`).
+    pub fn box_axes(&self, extent: Vec3) -> glam::Mat3 {
+        let [a, b, c] = self.rows.map(|r| Vec3::new(r[0], r[1], r[2]));
+        let matrix = glam::Mat3::from_cols(a, b, c).transpose();
+        glam::Mat3::from_cols(matrix.x_axis * extent.x, matrix.y_axis * extent.y, matrix.z_axis * extent.z)
+    }
+
     /// The camera in mesh space, computed as the shaders do (`camera_in_mesh_space`).
     pub fn camera_in_mesh_space(&self, camera: Vec3) -> Vec3 {
         let [a, b, c] = self.rows.map(|r| Vec3::new(r[0], r[1], r[2]));

@@ -3,12 +3,12 @@
 //!
 //! 1. **Early phase**: the camera's cluster pass tests only the clusters visible last frame (against the CPU's
 //!    HZB, as a frame of one phase does); the triangle pass and the draw follow.
-//! 2. **Merge** (`hzb_merge.wgsl`): the depth the early phase drew, reduced to the CPU pyramid's level 0 (each
-//!    texel the farthest depth of the pixels whose centres it covers), merged texel by texel with the CPU's
-//!    (the nearer of the two farthest depths: each bounds what lies behind it), then reduced level by level.
+//! 2. **Merge** (`hzb_merge.wgsl`): a pyramid whose level 0 has a texel per pixel of the depth the early
+//!    phase drew, each the nearer of two farthest depths, that pixel's and the CPU pyramid's at the pixel's
+//!    centre (each bounds what lies behind it there), reduced level by level.
 //! 3. **Late phase**: every candidate cluster tested against the merged pyramid; the ones kept are marked
-//!    visible for the next frame, and those the early phase did not draw go through the triangle pass and are
-//!    drawn over the early image.
+//!    visible for the next frame, and those the early phase did not draw (it marks what it draws) go through
+//!    the triangle pass and are drawn over the early image.
 //!
 //! Conservative whatever last frame saw: every candidate the early phase did not draw is tested by the late
 //! phase against depth drawn this frame, from this frame's camera, and against the CPU's conservative buffer.
@@ -28,7 +28,8 @@ use wgpu::util::DeviceExt;
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct GpuMerge {
     level: HzbLevel,
-    screen_size: [f32; 2],
+    cpu_level: HzbLevel,
+    cpu_screen_size: [f32; 2],
     inv_w_scale: f32,
     inv_w_offset: f32,
     empty_depth: f32,
@@ -41,24 +42,26 @@ struct GpuMerge {
 pub(crate) struct TwoPhase {
     /// The late phase's view, counters and per-frame buffers.
     pub late: ViewCull,
-    /// The merged pyramid, laid out as the CPU's.
+    /// The merged pyramid, a level-0 texel per pixel of the render target; the CPU's is copied after it in its
+    /// buffer, for the late phase to test against both.
     pub hzb: Hzb,
     merge: wgpu::ComputePipeline,
     merge_uniform: wgpu::Buffer,
-    /// Per instance the index of its first cluster's entry, then per cluster of every instance the last
-    /// frame it was visible (`cluster_cull.wgsl`).
+    /// Per instance the index of its first cluster's entry, then per cluster of every instance its last mark:
+    /// `2f` visible to frame `f`'s late phase, `2f + 1` drawn by its early phase (`cluster_cull.wgsl`).
     visibility: wgpu::Buffer,
     /// The scene's mesh generation the visibility is laid out for.
     layout: Option<u64>,
     /// The mesh of each instance when the visibility was laid out, and its first cluster's entry.
     laid_out: Vec<(u32, u32)>,
-    /// This frame's number: 2 on the first, so that a zeroed entry never reads as visible last frame.
+    /// This frame's number: 2 on the first, so that a zeroed entry never reads as visible last frame. (At 60
+    /// frames a second the marks run out after two years.)
     pub frame: u32,
 }
 
 impl TwoPhase {
-    /// The state for a CPU pyramid laid out as `cpu`.
-    pub fn new(context: &GpuContext, cpu: &Hzb) -> Self {
+    /// The state for `target` (width, height) render targets and the CPU pyramid `cpu`.
+    pub fn new(context: &GpuContext, target: (u32, u32), cpu: &Hzb) -> Self {
         let merge_uniform = context.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hzb merge"),
             size: std::mem::size_of::<GpuMerge>() as u64,
@@ -67,7 +70,7 @@ impl TwoPhase {
         });
         Self {
             late: ViewCull::new(context, "late view"),
-            hzb: Hzb::new(context, cpu.levels[0].width, cpu.levels[0].height),
+            hzb: Hzb::with_room(context, target.0, target.1, cpu.texels()),
             merge: context.compute_pipeline("hzb merge", cullet_shaders::HZB_MERGE),
             merge_uniform,
             visibility: context.device.create_buffer(&wgpu::BufferDescriptor {
@@ -82,16 +85,21 @@ impl TwoPhase {
         }
     }
 
-    /// Starts a frame over `scene` with the CPU pyramid `cpu`: the merged pyramid follows the CPU's layout,
-    /// the visibility the scene's (laid out anew, every cluster unseen, when an instance's mesh or their count
-    /// changed). Returns `false`, and the frame should run in one phase, when the visibility would not fit a
-    /// storage binding of `binding_limit` bytes.
-    pub fn begin_frame(&mut self, context: &GpuContext, scene: &GpuScene, cpu: &Hzb, binding_limit: u64) -> bool {
-        let base = cpu.levels[0];
-        if !self.hzb.fits(base.width, base.height) {
-            self.hzb = Hzb::new(context, base.width, base.height);
+    /// Starts a frame over `scene` drawn into `target` (width, height) render targets: the merged pyramid
+    /// follows the targets' size, the visibility the scene's instances (laid out anew when an instance's mesh
+    /// or their count changed). Returns `false`, and the frame should run in one phase, when the visibility
+    /// would not fit a storage binding of `binding_limit` bytes.
+    pub fn begin_frame(
+        &mut self,
+        context: &GpuContext,
+        scene: &GpuScene,
+        (target, cpu): ((u32, u32), &Hzb),
+        binding_limit: u64,
+    ) -> bool {
+        let room = self.hzb.buffer.size() / 4 - u64::from(self.hzb.texels());
+        if !self.hzb.fits(target.0, target.1) || room < u64::from(cpu.texels()) {
+            self.hzb = Hzb::with_room(context, target.0, target.1, cpu.texels());
         }
-        self.hzb.screen_size = cpu.screen_size;
         let generation = scene.mesh_generation();
         if self.layout != Some(generation) {
             if !self.lay_out(context, scene, binding_limit) {
@@ -162,6 +170,12 @@ impl TwoPhase {
         true
     }
 
+    /// The CPU pyramid `cpu`'s levels as copied after the merged pyramid's in its buffer.
+    pub fn second_levels(&self, cpu: &Hzb) -> Vec<HzbLevel> {
+        let shift = self.hzb.texels();
+        cpu.levels.iter().map(|level| HzbLevel { offset: level.offset + shift, ..*level }).collect()
+    }
+
     /// What the late phase tests against: the merged pyramid and the visibility.
     pub fn late_against(&self) -> Against<'_> {
         Against { hzb: &self.hzb.buffer, visibility: &self.visibility }
@@ -172,9 +186,10 @@ impl TwoPhase {
         Against { hzb: &cpu.buffer, visibility: &self.visibility }
     }
 
-    /// Records the merge of `depth` (the early phase's, drawn from `camera`) with the CPU pyramid `cpu` (only
-    /// where `with_cpu`) into the merged pyramid's level 0, timed by `timestamps` if given, then the passes that
-    /// build its other levels.
+    /// Records the merge of `depth` (the early phase's, drawn from `camera`, of the merged pyramid's level-0
+    /// size) with the CPU pyramid `cpu` (only where `with_cpu`) into the merged pyramid's level 0, timed by
+    /// `timestamps` if given, then the passes that build its other levels; and the CPU pyramid copied after it
+    /// ([`TwoPhase::second_levels`]).
     pub fn record_merge(
         &self,
         context: &GpuContext,
@@ -188,7 +203,8 @@ impl TwoPhase {
         let level = self.hzb.levels[0];
         let uniform = GpuMerge {
             level,
-            screen_size: self.hzb.screen_size,
+            cpu_level: cpu.levels[0],
+            cpu_screen_size: cpu.screen_size,
             inv_w_scale: scale as f32,
             inv_w_offset: offset as f32,
             empty_depth: if camera.depth == DepthConvention::Reversed { 0.0 } else { 1.0 },
@@ -196,6 +212,8 @@ impl TwoPhase {
             _pad: [0; 2],
         };
         context.queue.write_buffer(&self.merge_uniform, 0, bytemuck::bytes_of(&uniform));
+        let cpu_bytes = u64::from(cpu.texels()) * 4;
+        encoder.copy_buffer_to_buffer(&cpu.buffer, 0, &self.hzb.buffer, u64::from(self.hzb.texels()) * 4, cpu_bytes);
         let depth_view = depth
             .create_view(&wgpu::TextureViewDescriptor { aspect: wgpu::TextureAspect::DepthOnly, ..Default::default() });
         let frame_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -223,17 +241,17 @@ impl TwoPhase {
     }
 }
 
-/// The merge pass of `hzb_merge.wgsl` on the CPU: level 0 of the merged pyramid, laid out as `level`, from
-/// `depth` (a `width` x `height` depth image, rows from the top, in `camera`'s convention) and, where
-/// `cpu_level0` is given, the CPU pyramid's level 0; `screen_size` is the view's size in level-0 texels. For
-/// the tests that compare the GPU with it.
+/// The merge pass of `hzb_merge.wgsl` on the CPU: level 0 of the merged pyramid from `depth` (a `width` x
+/// `height` depth image, rows from the top, in `camera`'s convention) and, where given, the CPU pyramid's
+/// level 0 (`cpu_level0`, laid out as `cpu_level`, the view `cpu_screen_size` of its texels). For the tests
+/// that compare the GPU with it.
 #[doc(hidden)]
 pub fn merge_level0(
     (depth, width, height): (&[f32], u32, u32),
-    cpu_level0: Option<&[f32]>,
-    (level, screen_size): (HzbLevel, [f32; 2]),
+    cpu: Option<(&[f32], HzbLevel, [f32; 2])>,
     camera: &Camera,
 ) -> Vec<f32> {
+    use super::interface::{DEPTH_ULPS, RECT_MARGIN};
     let (scale, offset) = camera.inv_w_from_depth();
     let (scale, offset) = (scale as f32, offset as f32);
     let empty = if camera.depth == DepthConvention::Reversed { 0.0 } else { 1.0 };
@@ -241,27 +259,22 @@ pub fn merge_level0(
         if value == empty {
             return 0.0;
         }
-        let farther = value + (empty - value).signum() * value.abs() * super::interface::DEPTH_ULPS;
+        let farther = value + (empty - value).signum() * value.abs() * DEPTH_ULPS;
         (farther * scale + offset).max(0.0)
     };
-    let per_texel = [width as f32 / screen_size[0], height as f32 / screen_size[1]];
-    let last = [width as i32 - 1, height as i32 - 1];
-    let range = |texel: u32, axis: usize| {
-        let lo = ((texel as f32 * per_texel[axis] - 0.5).floor() as i32).clamp(0, last[axis]);
-        let hi = (((texel + 1) as f32 * per_texel[axis] - 0.5).ceil() as i32).clamp(lo, last[axis]);
-        lo..=hi
-    };
-    let mut merged = Vec::with_capacity((level.width * level.height) as usize);
-    for y in 0..level.height {
-        for x in 0..level.width {
-            let mut farthest = f32::MAX;
-            for py in range(y, 1) {
-                for px in range(x, 0) {
-                    farthest = farthest.min(inv_w_of(depth[(py as u32 * width + px as u32) as usize]));
-                }
-            }
-            if let Some(cpu) = cpu_level0 {
-                farthest = farthest.max(cpu[(y * level.width + x) as usize]);
+    let mut merged = Vec::with_capacity(depth.len());
+    for y in 0..height {
+        for x in 0..width {
+            let mut farthest = inv_w_of(depth[(y * width + x) as usize]);
+            if let Some((texels, level, screen)) = cpu {
+                let centre = (glam::Vec2::new(x as f32, y as f32) + 0.5) / glam::Vec2::new(width as f32, height as f32)
+                    * glam::Vec2::from(screen);
+                let lo = (centre - RECT_MARGIN).floor().max(glam::Vec2::ZERO).as_uvec2();
+                let hi = (centre + RECT_MARGIN).floor().max(glam::Vec2::ZERO).as_uvec2();
+                let texel =
+                    |x: u32, y: u32| texels[(y.min(level.height - 1) * level.width + x.min(level.width - 1)) as usize];
+                let cpu = texel(lo.x, lo.y).min(texel(hi.x, lo.y)).min(texel(lo.x, hi.y).min(texel(hi.x, hi.y)));
+                farthest = farthest.max(cpu);
             }
             merged.push(farthest);
         }

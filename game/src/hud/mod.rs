@@ -28,6 +28,7 @@ F   freeze culling at the current camera: fly around to see what was culled
 1   frustum culling on/off          2   occlusion culling on/off
 3   GPU cluster culling (normal cones, HZB) on/off
 4   GPU triangle culling on/off
+5   two-phase GPU occlusion (last frame's visible first, the rest against their depth) on/off
 V   cycle the view: shaded / tinted by the stage that culled each object / occlusion buffer / its pyramid
 [ ] pyramid level down / up
 H   heads-up display on/off         F1  this help          Esc  quit";
@@ -446,6 +447,15 @@ fn stage_table(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame) {
         let triangles = format!("{} of {}", counters.triangles_out, counters.triangles_in);
         rows.push(stage_row(TRIANGLES_COLOUR, "GPU triangles", triangles, pass(|t| t.triangles)));
         rows.push(stage_row(DRAW_COLOUR, "draw", format!("{} draws", counters.draws), pass(|t| t.draw)));
+        if let Some(phases) = gpu.phases {
+            let late = phases.late;
+            let split = format!(
+                "{} tris early, {} late; merged HZB hid {} of {} clusters",
+                phases.early.triangles_out, late.triangles_out, late.clusters_hzb, late.clusters_in
+            );
+            let late_time = pass(|t| t.merge + t.late_clusters + t.late_triangles + t.late_draw);
+            rows.push(stage_row(HZB_COLOUR, "two phases", split, late_time));
+        }
         if !gpu.light_views.is_empty() {
             let sum = |f: fn(&GpuCounters) -> u32| gpu.light_views.iter().map(f).sum::<u32>();
             let shadows = format!(
@@ -596,6 +606,7 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
         if ui.checkbox(&mut triangles, "GPU triangle culling (4)").changed() {
             controls.set_triangles(triangles);
         }
+        ui.checkbox(&mut controls.gpu.two_phase, "two-phase occlusion (5)");
     });
     ui.checkbox(&mut controls.frozen, "freeze culling (F)");
     let occlusion = &mut controls.occlusion;
