@@ -9,14 +9,21 @@
 //! against the triangle pass skipped (its cost against the draw time it saves, and the share of triangles it
 //! must remove to pay); and on cities of 10 to 100 000 objects, the cluster pass against none (the candidate
 //! clusters under which it cannot pay).
+//!
+//! `CULLET_GPU_TWO_PHASE=1` adds one phase against two ([`GpuCullSettings::two_phase`]) with the software
+//! occluders on and off, on the city and on truck_town and zdm2 from `../shared/scenes` (automatic occluders
+//! where on: they have no artist ones): triangles and draws a frame, what each phase drew, and GPU time.
 use cullet::CameraPath;
 use cullet::culler::OcclusionSettings;
 use cullet::gpu::cluster_cull::ClusterVerdict;
 use cullet::gpu::triangle_cull::TriangleVerdict;
 use cullet::gpu::{GpuContext, GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, GpuPassTimes};
+use cullet::pipeline::CameraCuller;
 use cullet::scene::Scene;
+use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
+use cullet::scene::gltf_import::load_gltf;
 use std::time::Duration;
 
 fn env_or(name: &str, default: usize) -> usize {
@@ -44,27 +51,118 @@ fn city(objects: usize) -> (Scene, CameraPath) {
 /// the outputs of every frame, and the mesh library's clusters and triangles.
 fn fly(
     context: &GpuContext,
-    (scene, path): &(Scene, CameraPath),
+    scene: &(Scene, CameraPath),
     frames: u32,
     size: (u32, u32),
     gating: GpuGating,
 ) -> (Vec<GpuFrameOutput>, (usize, usize)) {
+    let (outputs, library, _) =
+        fly_with(context, scene, frames, size, (gating, GpuCullSettings::default(), OcclusionSettings::default()));
+    (outputs, library)
+}
+
+/// [`fly`] with GPU `settings` and CPU `occlusion` settings; also the triangles of the frustum stage's
+/// survivors, each frame (what every later test removes from).
+fn fly_with(
+    context: &GpuContext,
+    (scene, path): &(Scene, CameraPath),
+    frames: u32,
+    size: (u32, u32),
+    (gating, settings, occlusion): (GpuGating, GpuCullSettings, OcclusionSettings),
+) -> (Vec<GpuFrameOutput>, (usize, usize), Vec<f64>) {
     let aspect = size.0 as f32 / size.1 as f32;
-    let mut flight = Flight::new(path.clone(), aspect, frames, OcclusionSettings::default(), |world| {
+    let mut flight = Flight::new(path.clone(), aspect, frames, occlusion, |world| {
         scene.spawn(world);
     });
     let mut culler = GpuCuller::for_world(context, &flight.world, &scene.meshes, size);
     culler.set_gating(gating);
     let library = &culler.scene().library;
     let library = (library.clusters.len(), library.indices.len() / 3);
-    let settings = GpuCullSettings::default();
+    let mut in_frustum = Vec::new();
     let outputs = (0..frames)
         .map(|frame| {
             flight.run_frame(frame);
+            let gpu_scene = culler.scene();
+            let frustum = flight.world.resource::<CameraCuller>().frustum_visible();
+            let triangles = frustum.iter().flat_map(|slot| {
+                gpu_scene.library.clusters_of(gpu_scene.instances()[slot].mesh).iter().map(|c| c.triangle_count)
+            });
+            in_frustum.push(triangles.map(f64::from).sum());
             culler.run_world(context, &mut flight.world, &settings).expect("GPU frame")
         })
         .collect();
-    (outputs, library)
+    (outputs, library, in_frustum)
+}
+
+/// One phase against two, software occluders on and off, on `scene` (`name`): per frame, the triangles drawn
+/// and the share of the frustum's survivors' triangles removed, draws, the triangles each phase drew, and
+/// GPU time (timestamps where the adapter has them).
+fn two_phase_rows(context: &GpuContext, name: &str, scene: &(Scene, CameraPath), frames: u32, size: (u32, u32)) {
+    for occluders in [true, false] {
+        for two_phase in [false, true] {
+            let occlusion = OcclusionSettings { enabled: occluders, ..OcclusionSettings::default() };
+            let settings = GpuCullSettings { two_phase, ..GpuCullSettings::default() };
+            // Every pass every frame: the gates would decide differently for the two (fewer candidates leave the
+            // triangle pass less to remove), which is not what the table compares.
+            let (outputs, _, in_frustum) =
+                fly_with(context, scene, frames, size, (GpuGating::fixed(), settings, occlusion));
+            let drawn = mean_of(&outputs, |o| f64::from(o.counters.triangles_out));
+            let removed = 100.0 * (1.0 - drawn / (in_frustum.iter().sum::<f64>() / frames as f64).max(1.0));
+            let phase = |f: fn(&cullet::gpu::PhaseCounters) -> u32| {
+                mean_of(&outputs, |o| o.phases.map_or(0.0, |p| f64::from(f(&p))))
+            };
+            let gpu = GpuPassTimes::mean(&outputs).map_or(String::from("-"), |t| {
+                let total = t.hzb + t.clusters + t.triangles + t.draw;
+                format!("{:.0}", us(total + t.merge + t.late_clusters + t.late_triangles + t.late_draw))
+            });
+            println!(
+                "{name:<11} {:>9} {:>6} {drawn:>10.0} {removed:>8.1}% {:>7.0} {:>10.0} {:>10.0} {:>9.0} {gpu:>10} {:>9.0}",
+                if occluders { "on" } else { "off" },
+                if two_phase { "two" } else { "one" },
+                mean_of(&outputs, |o| f64::from(o.counters.draws)),
+                phase(|p| p.early.triangles_out),
+                phase(|p| p.late.triangles_out),
+                phase(|p| p.late.clusters_hzb),
+                mean_of(&outputs, |o| us(o.wall_time)),
+            );
+        }
+    }
+}
+
+/// The scenes of the two-phase table: the city, and the shared third-party scenes present, with automatic
+/// occluders.
+fn two_phase_table(context: &GpuContext, city: &(Scene, CameraPath), objects: usize, frames: u32, size: (u32, u32)) {
+    println!(
+        "\none phase against two, {frames} frames at {}x{}, every pass every frame (per frame; removed: of the \
+         frustum's survivors' triangles; GPU: every pass, timestamps)",
+        size.0, size.1
+    );
+    println!(
+        "{:<11} {:>9} {:>6} {:>10} {:>9} {:>7} {:>10} {:>10} {:>9} {:>10} {:>9}",
+        "scene",
+        "occluders",
+        "phases",
+        "triangles",
+        "removed",
+        "draws",
+        "early tris",
+        "late tris",
+        "late HZB",
+        "GPU us",
+        "wall us"
+    );
+    two_phase_rows(context, &format!("city:{objects}"), city, frames, size);
+    let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
+    for (name, file) in [("truck_town", "truck_town/town_model.gltf"), ("zdm2", "zdm2/zdm2.glb")] {
+        match load_gltf(&shared.join(file)) {
+            Ok(mut loaded) => {
+                add_auto_occluders(&mut loaded.scene, &AutoOccluderSettings::default());
+                let path = loaded.scene.orbit_path();
+                two_phase_rows(context, name, &(loaded.scene, path), frames, size);
+            }
+            Err(error) => println!("SKIPPED {name}: {error}"),
+        }
+    }
 }
 
 fn mean_of(outputs: &[GpuFrameOutput], f: impl Fn(&GpuFrameOutput) -> f64) -> f64 {
@@ -200,6 +298,11 @@ fn main() {
     let scene = city(objects);
     for size in resolutions() {
         report(&context, &scene, objects, frames, size);
+    }
+    if env_or("CULLET_GPU_TWO_PHASE", 0) != 0 {
+        for size in resolutions() {
+            two_phase_table(&context, &scene, objects, frames, size);
+        }
     }
     if env_or("CULLET_GPU_GATES", 0) == 0 {
         return;

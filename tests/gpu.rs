@@ -860,3 +860,27 @@ fn two_phase_passes_match_their_cpu_twins() {
         assert_eq!(differing, 0, "{name}: two-phase culling changed {differing} pixels");
     }
 }
+
+/// Two-phase occlusion that hides less than its share (the camera looking straight down on the city hides
+/// little, and the share asked is all) runs in one phase after `low_benefit_frames` frames of two, is
+/// re-probed after `reprobe_every` (the first frame of two phases after frames of one has nothing marked and is
+/// not counted), and every frame draws the unculled image.
+#[test]
+fn two_phase_under_its_benefit_is_gated_off_and_reprobed() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 3000);
+    let gating =
+        GpuGating { low_benefit_frames: 3, reprobe_every: 4, min_two_phase_benefit: 1.0, ..GpuGating::default() };
+    setup.culler.set_gating(gating);
+    let (_, down) = cameras(setup.half).into_iter().find(|(name, _)| *name == "down").expect("a camera looking down");
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    let mut in_two_phases = Vec::new();
+    for frame in 0..14 {
+        let (output, ..) = setup.run(&context, down, &settings);
+        in_two_phases.push(output.phases.is_some());
+        let (differing, _) = pixels_differing_from_unculled(&context, &mut setup.culler, &down);
+        assert_eq!(differing, 0, "frame {frame}");
+    }
+    let expected = [true, true, true, true, false, false, false, false, true, true, true, true, false, false];
+    assert_eq!(in_two_phases, expected);
+}

@@ -1,6 +1,8 @@
-//! A renderer's use of the GPU culler: cull a frame of the built-in city, then draw the survivors from a
-//! render pass of your own with one `multi_draw_indexed_indirect_count` over the culler's outputs (compacted
-//! indices, indirect arguments, draw count), and compare with drawing everything.
+//! A renderer's use of the GPU culler: cull two frames of the built-in city in two phases (two-phase
+//! occlusion: what the first frame saw is drawn first, and the rest culled against that depth), then draw the
+//! survivors of both phases from a render pass of your own, each with one `multi_draw_indexed_indirect_count`
+//! over the culler's outputs (compacted indices, indirect arguments, draw count), and compare with the
+//! culler's own image.
 //!
 //! Your shader starts with the engine's declarations (`cullet::gpu::shader_source`): the `Instance` struct,
 //! the `view` (a read-only storage buffer) at group 0 binding 0 and `relative_point`. Each indirect draw's
@@ -44,10 +46,19 @@ fn main() -> Result<(), GpuError> {
     world.insert_resource(camera);
     let context = GpuContext::new()?;
     let mut culler = GpuCuller::for_world(&context, &world, &city.scene.meshes, SIZE);
-    schedule.run(&mut world);
-    world.clear_trackers();
-    let frame = culler.run_world(&context, &mut world, &GpuCullSettings::default())?;
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    let mut frame = None;
+    for step in [0.0, 0.5] {
+        // The second frame half a metre further on: most of it was visible in the first.
+        world.insert_resource(Camera { position: camera.position + camera.forward.normalize() * step, ..camera });
+        schedule.run(&mut world);
+        world.clear_trackers();
+        frame = Some(culler.run_world(&context, &mut world, &settings)?);
+    }
+    let frame = frame.expect("two frames ran");
+    // The early phase's draws, then the late phase's, into the same depth.
     let buffers = culler.draw_buffers().expect("a frame ran");
+    let late_buffers = culler.late_draw_buffers().expect("a frame of two phases ran");
 
     // Your own pipeline over the culler's buffers.
     let device = &context.device;
@@ -127,15 +138,18 @@ fn main() -> Result<(), GpuError> {
         });
         pass.set_pipeline(&pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
-        // The positions as vertex buffer, the compacted indices, and one multi-draw-indirect-count over the
-        // culler's arguments and draw count.
+        // Per phase: the positions as vertex buffer, the compacted indices, and one multi-draw-indirect-count
+        // over the culler's arguments and draw count.
         buffers.record(&context, &mut pass);
+        late_buffers.record(&context, &mut pass);
     }
     context.queue.submit([encoder.finish()]);
 
     // Read the image back and count the pixels the survivors cover.
     let covered = covered_pixels(&context, &color)?;
     let c = frame.counters;
+    let phases = frame.phases.expect("two phases");
+    println!("two phases: {} triangles drawn early, {} late", phases.early.triangles_out, phases.late.triangles_out);
     println!(
         "{} objects; the CPU kept {}, the GPU kept {} of {} clusters and {} of {} triangles in {} draws",
         world.resource::<BoundsStore>().len(),

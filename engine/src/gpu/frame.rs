@@ -27,7 +27,7 @@ use crate::frustum::LightSource;
 use crate::mesh::Mesh;
 use crate::pipeline::{CameraCuller, LightViewVisible, LightViews, LightViewsVisible};
 
-use crate::culler::OcclusionSettings;
+use crate::culler::{BenefitGate, OcclusionSettings};
 use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
 use glam::Vec4;
@@ -51,7 +51,8 @@ pub struct GpuCullSettings {
     /// Two-phase occlusion ([`super::two_phase`], conservative): the camera's clusters visible last frame are
     /// drawn first, and the rest tested against the depth they drew merged with the CPU occluder buffer (the
     /// CPU buffer only where `cluster_hzb`). A frame split into batches, or drawn from another camera than it
-    /// culls for, runs in one phase.
+    /// culls for, runs in one phase, as do frames while it hides too little
+    /// ([`GpuGating::min_two_phase_benefit`]).
     pub two_phase: bool,
 }
 
@@ -120,6 +121,11 @@ pub struct GpuGating {
     /// transforms every triangle, about the work the hardware's vertex stage and culling do on it, so it pays
     /// only when it removes a good share. 0 never skips.
     pub min_triangle_benefit: f32,
+    /// The least fraction of the clusters two-phase occlusion's late phase tests that its merged HZB must
+    /// hide ([`GpuCullSettings::two_phase`]); below it (see the type's docs) frames run in one phase. The late
+    /// phase and the merge cost about a second cluster pass and a pass over the depth, and they pay only where
+    /// the frame's own depth hides what the CPU buffer does not. 0 never skips.
+    pub min_two_phase_benefit: f32,
     /// Frames in a row under its share before a pass is skipped.
     pub low_benefit_frames: u32,
     /// Frames a pass stays skipped before it runs again to re-probe.
@@ -127,13 +133,14 @@ pub struct GpuGating {
 }
 
 impl Default for GpuGating {
-    /// No cluster pass for 64 clusters or fewer; each pass skipped after 8 frames under 40% removed,
-    /// re-probed every 30 frames.
+    /// No cluster pass for 64 clusters or fewer; each pass skipped after 8 frames under 40% removed, two
+    /// phases after 8 frames under 5% of the late phase's clusters hidden; re-probed every 30 frames.
     fn default() -> Self {
         Self {
             tiny_scene_clusters: 64,
             min_cluster_benefit: 0.4,
             min_triangle_benefit: 0.4,
+            min_two_phase_benefit: 0.05,
             low_benefit_frames: 8,
             reprobe_every: 30,
         }
@@ -147,6 +154,7 @@ impl GpuGating {
             tiny_scene_clusters: 0,
             min_cluster_benefit: 0.0,
             min_triangle_benefit: 0.0,
+            min_two_phase_benefit: 0.0,
             low_benefit_frames: u32::MAX,
             reprobe_every: 0,
         }
@@ -228,6 +236,11 @@ pub struct GpuCuller {
     last_phases: Option<PhaseCounters>,
     /// The late phase's view of the last frame of two phases.
     last_late_view: Option<GpuView>,
+    /// When frames run in one phase for two-phase occlusion's hiding too little lately.
+    two_phase_gate: BenefitGate,
+    /// Frames of two phases in a row: the first after frames of one has nothing marked to draw early, and
+    /// says nothing of what two phases remove.
+    two_phase_run: u32,
 }
 
 impl GpuCuller {
@@ -279,6 +292,8 @@ impl GpuCuller {
             last_two_phase: false,
             last_phases: None,
             last_late_view: None,
+            two_phase_gate: BenefitGate::default(),
+            two_phase_run: 0,
         }
     }
 
@@ -427,8 +442,13 @@ impl GpuCuller {
         let (candidate_clusters, _) = candidates(&self.scene, visible);
         let mut gate = self.camera.gate(&self.gating, candidate_clusters as usize);
         let batches = self.batches(context, visible);
-        let two_phase =
-            settings.two_phase && batches.len() == 1 && draw_camera == camera && self.begin_two_phase(context);
+        let gated = settings.two_phase && self.two_phase_gate.skip_this_frame();
+        let two_phase = settings.two_phase
+            && !gated
+            && batches.len() == 1
+            && draw_camera == camera
+            && self.begin_two_phase(context);
+        self.two_phase_run = if two_phase { self.two_phase_run + 1 } else { 0 };
         // The cluster pass splits the phases: it always runs.
         gate.skip_clusters &= !two_phase;
         let late = self.read_back == ReadBack::Late && batches.len() == 1 && !two_phase;
@@ -450,6 +470,11 @@ impl GpuCuller {
         if !late {
             self.camera.record_benefit(&self.gating, gate, &total.counters);
         }
+        if let Some(phases) = total.phases.filter(|_| self.two_phase_run >= 2) {
+            let g = &self.gating;
+            let (hidden, tested) = (phases.late.clusters_hzb as usize, phases.late.clusters_in as usize);
+            self.two_phase_gate.record(hidden, tested, g.min_two_phase_benefit, g.low_benefit_frames, g.reprobe_every);
+        }
         Ok(total)
     }
 
@@ -468,6 +493,7 @@ impl GpuCuller {
             self.gating = gating;
             self.camera.reset_gate();
             self.shadows.reset_gates();
+            self.two_phase_gate = BenefitGate::default();
         }
     }
 
