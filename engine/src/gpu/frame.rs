@@ -558,6 +558,7 @@ impl GpuCuller {
             view.flags |= VIEW_PHASE_EARLY;
             view.frame = state.frame;
             state.late.fit(context, visible.len(), frame_candidates);
+            view = state.against_merged(view, &self.hzb);
         }
         self.last_view = view;
         context.queue.write_buffer(&self.camera.view, 0, bytemuck::bytes_of(&view));
@@ -581,7 +582,7 @@ impl GpuCuller {
         }
         let state = self.two_phase.as_ref().filter(|_| two_phase);
         let against = match state {
-            Some(state) => state.early_against(&self.hzb),
+            Some(state) => state.against(),
             None => self.passes.one_phase(&self.hzb.buffer),
         };
         let scene = &self.scene;
@@ -596,7 +597,7 @@ impl GpuCuller {
             timer.map(|t| t.render(3)),
         );
         if let Some(state) = state {
-            let late_view = self.late_view(state, view, settings);
+            let late_view = Self::late_view(view, settings);
             let late = (camera, &late_view, settings.cluster_hzb);
             self.record_late_phase(context, &mut encoder, state, late, visible, gate);
             self.last_late_view = Some(late_view);
@@ -633,21 +634,13 @@ impl GpuCuller {
         })
     }
 
-    /// The late phase's view from the early phase's `view` with `settings`: the HZB test always on, against
-    /// the merged pyramid, and where the early phase tested the CPU's, against it too (so that the late phase
-    /// culls everything the early phase does).
-    fn late_view(&self, state: &TwoPhase, mut view: GpuView, settings: &GpuCullSettings) -> GpuView {
-        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE | VIEW_HZB;
-        if settings.cluster_hzb {
-            view.flags |= VIEW_SECOND_HZB;
+    /// The late phase's view from the early phase's `view` (which tested against the merged pyramid), with
+    /// `settings`: the second pyramid, the CPU's, only where the frame tests against it.
+    fn late_view(mut view: GpuView, settings: &GpuCullSettings) -> GpuView {
+        view.flags = (view.flags & !VIEW_PHASE_EARLY) | VIEW_PHASE_LATE;
+        if !settings.cluster_hzb {
+            view.flags &= !VIEW_SECOND_HZB;
         }
-        (view.second_hzb_size, view.second_hzb_level_count) = (view.hzb_size, view.hzb_level_count);
-        view.second_hzb_levels[..self.hzb.levels.len()].copy_from_slice(&state.second_levels(&self.hzb));
-        let merged = &state.hzb;
-        view.hzb_size = merged.screen_size;
-        view.hzb_levels = [HzbLevel::default(); MAX_HZB_LEVELS];
-        view.hzb_levels[..merged.levels.len()].copy_from_slice(&merged.levels);
-        view.hzb_level_count = merged.levels.len() as u32;
         view
     }
 
@@ -667,7 +660,7 @@ impl GpuCuller {
         let depth = self.targets.depth_texture();
         state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(4)));
         context.queue.write_buffer(&state.late.view, 0, bytemuck::bytes_of(late_view));
-        let against = state.late_against();
+        let against = state.against();
         state.late.record(context, encoder, &self.scene, &self.passes, against, visible, gate, (timer, 5));
         let draws = state.late.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");
         self.record_draw(context, encoder, camera.depth, DrawSource::Culled(draws), false, timer.map(|t| t.render(7)));

@@ -1,14 +1,15 @@
 //! Two-phase occlusion (Haar and Aaltonen; seed 000 §19.7), from the frame's own depth merged with the CPU
 //! occluder buffer, for the camera's view:
 //!
-//! 1. **Early phase**: the camera's cluster pass tests only the clusters visible last frame (against the CPU's
-//!    HZB, as a frame of one phase does); the triangle pass and the draw follow.
+//! 1. **Early phase**: the camera's cluster pass tests only the clusters visible last frame, against the
+//!    pyramids as the last frame left them (this frame's view of last frame's depth: a guess, as whatever it
+//!    wrongly culls the late phase draws), and marks what it keeps; the triangle pass and the draw follow.
 //! 2. **Merge** (`hzb_merge.wgsl`): a pyramid whose level 0 has a texel per pixel of the depth the early
 //!    phase drew, each the nearer of two farthest depths, that pixel's and the CPU pyramid's at the pixel's
 //!    centre (each bounds what lies behind it there), reduced level by level.
-//! 3. **Late phase**: every candidate cluster tested against the merged pyramid; the ones kept are marked
-//!    visible for the next frame, and those the early phase did not draw (it marks what it draws) go through
-//!    the triangle pass and are drawn over the early image.
+//! 3. **Late phase**: every candidate cluster tested against the merged pyramid and the CPU's (copied after it
+//!    in its buffer); the ones kept are marked visible for the next frame, and those the early phase did not
+//!    draw go through the triangle pass and are drawn over the early image.
 //!
 //! Conservative whatever last frame saw: every candidate the early phase did not draw is tested by the late
 //! phase against depth drawn this frame, from this frame's camera, and against the CPU's conservative buffer.
@@ -17,6 +18,7 @@
 
 use super::GpuContext;
 use super::hzb::{Hzb, HzbLevel};
+use super::interface::{GpuView, VIEW_HZB, VIEW_SECOND_HZB};
 use super::scene::GpuScene;
 use super::view_cull::{Against, ViewCull};
 use crate::camera::{Camera, DepthConvention};
@@ -176,14 +178,24 @@ impl TwoPhase {
         cpu.levels.iter().map(|level| HzbLevel { offset: level.offset + shift, ..*level }).collect()
     }
 
-    /// What the late phase tests against: the merged pyramid and the visibility.
-    pub fn late_against(&self) -> Against<'_> {
-        Against { hzb: &self.hzb.buffer, visibility: &self.visibility }
+    /// `view` made to test against the merged pyramid and the CPU pyramid `cpu` copied after it: the early
+    /// phase finds them as the last frame left them (a guess at what this frame hides: what it wrongly
+    /// skips, the late phase draws), the late phase as this frame's merge made them.
+    pub fn against_merged(&self, mut view: GpuView, cpu: &Hzb) -> GpuView {
+        view.flags |= VIEW_HZB | VIEW_SECOND_HZB;
+        (view.second_hzb_size, view.second_hzb_level_count) = (view.hzb_size, view.hzb_level_count);
+        view.second_hzb_levels[..cpu.levels.len()].copy_from_slice(&self.second_levels(cpu));
+        let merged = &self.hzb;
+        view.hzb_size = merged.screen_size;
+        view.hzb_levels = [HzbLevel::default(); super::interface::MAX_HZB_LEVELS];
+        view.hzb_levels[..merged.levels.len()].copy_from_slice(&merged.levels);
+        view.hzb_level_count = merged.levels.len() as u32;
+        view
     }
 
-    /// What the early phase tests against: the CPU pyramid `cpu` and the visibility.
-    pub fn early_against<'a>(&'a self, cpu: &'a Hzb) -> Against<'a> {
-        Against { hzb: &cpu.buffer, visibility: &self.visibility }
+    /// What both phases test against: the merged pyramid (with the CPU's after it) and the visibility.
+    pub fn against(&self) -> Against<'_> {
+        Against { hzb: &self.hzb.buffer, visibility: &self.visibility }
     }
 
     /// Records the merge of `depth` (the early phase's, drawn from `camera`, of the merged pyramid's level-0
