@@ -884,3 +884,27 @@ fn two_phase_under_its_benefit_is_gated_off_and_reprobed() {
     let expected = [true, true, true, true, false, false, false, false, true, true, true, true, false, false];
     assert_eq!(in_two_phases, expected);
 }
+
+/// Two-phase occlusion's marks (`2f` and `2f + 1` for frame `f`) are cleared before they would wrap around, so
+/// that no stale mark reads as drawn early this frame: frames across the wrap draw the unculled image, the
+/// first after it all late.
+#[test]
+fn two_phase_marks_start_again_before_they_wrap() {
+    let Some(context) = context_for_tests() else { return };
+    let mut setup = setup(&context, 2000);
+    let camera = cameras(setup.half)[0].1;
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    setup.run(&context, camera, &settings);
+    setup.culler.set_two_phase_frame(u32::MAX / 2 - 4);
+    let mut early_draws = Vec::new();
+    for frame in 0..6 {
+        let (output, ..) = setup.run(&context, camera, &settings);
+        early_draws.push(output.phases.expect("two phases").early.draws);
+        let (differing, _) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
+        assert_eq!(differing, 0, "frame {frame}");
+    }
+    // The jump leaves no mark of the frame before: all late. Frames u32::MAX / 2 - 2 and - 1 draw early; then
+    // the marks are cleared and the count starts again, all late once more.
+    let drew_early: Vec<bool> = early_draws.iter().map(|&draws| draws > 0).collect();
+    assert_eq!(drew_early, [false, true, true, false, true, true], "{early_draws:?}");
+}

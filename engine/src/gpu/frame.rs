@@ -312,6 +312,14 @@ impl GpuCuller {
         &self.hzb
     }
 
+    /// Sets two-phase occlusion's frame count (see `two_phase.rs`): for the test of its wrapping around.
+    #[doc(hidden)]
+    pub fn set_two_phase_frame(&mut self, frame: u32) {
+        if let Some(state) = self.two_phase.as_mut() {
+            state.frame = frame;
+        }
+    }
+
     /// The late phase's view of the last frame of two phases (for the CPU twins in tests).
     pub fn last_late_view(&self) -> Option<&GpuView> {
         self.last_late_view.as_ref()

@@ -56,8 +56,9 @@ pub(crate) struct TwoPhase {
     layout: Option<u64>,
     /// The mesh of each instance when the visibility was laid out, and its first cluster's entry.
     laid_out: Vec<(u32, u32)>,
-    /// This frame's number: 2 on the first, so that a zeroed entry never reads as visible last frame. (At 60
-    /// frames a second the marks run out after two years.)
+    /// This frame's number: 2 on the first, so that a zeroed entry never reads as visible last frame. Before
+    /// the marks (`2f + 1`) would wrap, every mark is cleared and the count starts again: a stale mark read as
+    /// this frame's would keep a cluster from being drawn.
     pub frame: u32,
 }
 
@@ -101,6 +102,10 @@ impl TwoPhase {
         let room = self.hzb.buffer.size() / 4 - u64::from(self.hzb.texels());
         if !self.hzb.fits(target.0, target.1) || room < u64::from(cpu.texels()) {
             self.hzb = Hzb::with_room(context, target.0, target.1, cpu.texels());
+        }
+        if self.frame >= u32::MAX / 2 - 1 {
+            (self.layout, self.frame) = (None, 1);
+            self.laid_out.clear();
         }
         let generation = scene.mesh_generation();
         if self.layout != Some(generation) {
