@@ -67,6 +67,7 @@ fn hud(c: &mut Criterion) {
     let mut controls = Controls {
         frustum: FrustumSettings::default(),
         occlusion: OcclusionSettings::default(),
+        detail: Default::default(),
         gpu: GpuCullSettings::default(),
         frozen: false,
         view: View::Shaded,

@@ -2,6 +2,7 @@
 //! the pipeline every frame.
 
 use bevy_ecs::world::World;
+use cullet::detail::DetailSettings;
 use cullet::gpu::GpuCullSettings;
 use cullet::pipeline::FrustumSettings;
 
@@ -49,6 +50,8 @@ pub struct Controls {
     pub frustum: FrustumSettings,
     /// The occlusion stage's settings: on or off, buffer size, mode, occluder budget.
     pub occlusion: OcclusionSettings,
+    /// Detail culling (lossy): objects projecting under its pixels dropped.
+    pub detail: DetailSettings,
     /// Which GPU tests run.
     pub gpu: GpuCullSettings,
     /// Culling frozen at the camera of the frame it was frozen in.
@@ -65,6 +68,7 @@ impl Controls {
         Self {
             frustum: *world.resource::<FrustumSettings>(),
             occlusion: *world.resource::<OcclusionSettings>(),
+            detail: world.get_resource::<DetailSettings>().copied().unwrap_or_default(),
             gpu,
             frozen,
             view,
@@ -80,6 +84,9 @@ impl Controls {
         }
         if *world.resource::<OcclusionSettings>() != self.occlusion {
             world.insert_resource(self.occlusion);
+        }
+        if world.get_resource::<DetailSettings>().copied().unwrap_or_default() != self.detail {
+            world.insert_resource(self.detail);
         }
     }
 
@@ -143,6 +150,13 @@ mod tests {
         assert_eq!(after.after_frustum, after.objects);
         let state = flight.world.resource::<CameraCuller>();
         assert_eq!((state.depth().width(), state.depth().height()), (512, 288));
+        // Detail culling goes into the world, and off again.
+        controls.detail = DetailSettings { min_pixels: 2.0, viewport_height: 540 };
+        controls.apply(&mut flight.world);
+        assert_eq!(*flight.world.resource::<DetailSettings>(), controls.detail);
+        controls.detail.min_pixels = 0.0;
+        controls.apply(&mut flight.world);
+        assert!(!flight.world.resource::<DetailSettings>().enabled());
         // And the GPU switches go where the game reads them.
         controls.set_clusters(false);
         controls.set_triangles(false);

@@ -418,6 +418,10 @@ fn stage_table(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame) {
     rows.push(stage_row(BOUNDS_COLOUR, "bounds", updated, us(stats.bounds_time)));
     let kept = format!("{} of {}", stats.after_frustum, stats.objects);
     rows.push(stage_row(FRUSTUM_COLOUR, "frustum", kept, us(stats.frustum_time)));
+    if stats.detail_culled > 0 {
+        let dropped = format!("{} too small (lossy)", stats.detail_culled);
+        rows.push(stage_row(FRUSTUM_COLOUR, "detail", dropped, "in the frustum's".into()));
+    }
     if stats.light_views > 0 {
         // Before their occlusion, which has its own row.
         let casters = stats.light_view_casters + stats.light_view_occluded;
@@ -608,7 +612,19 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
         }
         ui.checkbox(&mut controls.gpu.two_phase, "two-phase occlusion (5)");
     });
-    ui.checkbox(&mut controls.frozen, "freeze culling (F)");
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut controls.frozen, "freeze culling (F)");
+        let detail = &mut controls.detail;
+        let mut on = detail.enabled();
+        if ui.checkbox(&mut on, "detail culling (lossy)").changed() {
+            detail.min_pixels = if on { 1.0 } else { 0.0 };
+        }
+        if on {
+            // Pixels of the frame the player sees.
+            detail.viewport_height = frame.viewport.1;
+            ui.add(egui::Slider::new(&mut detail.min_pixels, 0.25..=8.0).logarithmic(true).suffix(" px"));
+        }
+    });
     let occlusion = &mut controls.occlusion;
     let current = (occlusion.width, occlusion.height);
     egui::ComboBox::from_label("occlusion buffer").selected_text(format!("{}x{}", current.0, current.1)).show_ui(
