@@ -371,8 +371,6 @@ impl GpuCuller {
                 *slot = Vec4::from((plane.normal, plane.d)).to_array();
             }
         }
-        let mut hzb_levels = [HzbLevel::default(); MAX_HZB_LEVELS];
-        hzb_levels[..self.hzb.levels.len()].copy_from_slice(&self.hzb.levels);
         let flags = [
             (settings.cluster_cone, VIEW_CONE),
             (settings.cluster_hzb, VIEW_HZB),
@@ -390,7 +388,7 @@ impl GpuCuller {
             camera: camera.position.extend(0.0).to_array(),
             viewport: [width as f32, height as f32],
             hzb_size: self.hzb.screen_size,
-            hzb_levels,
+            hzb_levels: self.hzb.view_levels(0),
             hzb_level_count: self.hzb.levels.len() as u32,
             visible_count,
             flags,
@@ -740,17 +738,14 @@ impl GpuCuller {
             // Read a frame late: this frame's counters, which say how much of the buffers to read, are read now.
             (counters, phases) = self.read_counters(context)?;
         }
-        let (mut clusters, mut indices) = match (phases, self.two_phase.as_ref()) {
+        match (phases, self.two_phase.as_ref()) {
             (Some(phases), Some(state)) => {
                 let early = self.survivors_of(context, &self.camera, phases.early)?;
                 let late = self.survivors_of(context, &state.late, phases.late)?;
-                ([early.0, late.0].concat(), [early.1, late.1].concat())
+                Ok(([early.0, late.0].concat(), [early.1, late.1].concat()))
             }
-            _ => self.survivors_of(context, &self.camera, counters)?,
-        };
-        clusters.shrink_to_fit();
-        indices.shrink_to_fit();
-        Ok((clusters, indices))
+            _ => self.survivors_of(context, &self.camera, counters),
+        }
     }
 
     /// [`GpuCuller::read_survivors`] of one view whose last frame counted `counters`.

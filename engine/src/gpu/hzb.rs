@@ -4,8 +4,9 @@
 //! pyramid as the CPU's [`crate::depth::DepthPyramid`], value for value.
 //!
 //! Only what the CPU buffer proves hidden is culled: the HZB is as conservative as the mode it was rasterized
-//! in (conservative by default). Two-phase occlusion ([`super::two_phase`]) builds a second pyramid of the same
-//! layout, its level 0 merged from this one's and the depth the frame's early phase drew.
+//! in (conservative by default). Two-phase occlusion ([`super::two_phase`]) builds a second pyramid, a level-0
+//! texel per pixel of the depth the frame's early phase drew merged with this one, with this one copied after
+//! it in its buffer.
 
 use super::GpuContext;
 use crate::depth::DepthBuffer;
@@ -26,6 +27,11 @@ pub fn hzb_levels(width: u32, height: u32) -> Vec<HzbLevel> {
         });
     }
     levels
+}
+
+/// Texels in all of `levels`.
+fn texels_of(levels: &[HzbLevel]) -> u32 {
+    levels.iter().map(|l| l.width * l.height).sum()
 }
 
 /// The pyramid on the GPU, rebuilt from a CPU depth buffer each frame.
@@ -50,11 +56,11 @@ impl Hzb {
     }
 
     /// [`Hzb::new`] with room for `extra` more texels after the levels in its buffer (another pyramid copied
-    /// there, which a test reads from the same binding).
+    /// there, which the HZB test reads through the same binding).
     pub fn with_room(context: &GpuContext, width: u32, height: u32, extra: u32) -> Self {
         let device = &context.device;
         let levels = hzb_levels(width, height);
-        let texels: u32 = levels.iter().map(|l| l.width * l.height).sum();
+        let texels = texels_of(&levels);
         let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hzb"),
             size: u64::from(texels + extra) * 4,
@@ -80,7 +86,17 @@ impl Hzb {
 
     /// Texels in all levels.
     pub fn texels(&self) -> u32 {
-        self.levels.iter().map(|l| l.width * l.height).sum()
+        texels_of(&self.levels)
+    }
+
+    /// The levels as a [`super::interface::GpuView`] holds them, each offset moved `shift` texels on (for a
+    /// copy of the pyramid placed after another in one buffer).
+    pub fn view_levels(&self, shift: u32) -> [HzbLevel; MAX_HZB_LEVELS] {
+        let mut levels = [HzbLevel::default(); MAX_HZB_LEVELS];
+        for (slot, level) in levels.iter_mut().zip(&self.levels) {
+            *slot = HzbLevel { offset: level.offset + shift, ..*level };
+        }
+        levels
     }
 
     /// Whether this pyramid fits buffers of `width` x `height`.

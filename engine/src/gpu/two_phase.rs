@@ -177,23 +177,15 @@ impl TwoPhase {
         true
     }
 
-    /// The CPU pyramid `cpu`'s levels as copied after the merged pyramid's in its buffer.
-    pub fn second_levels(&self, cpu: &Hzb) -> Vec<HzbLevel> {
-        let shift = self.hzb.texels();
-        cpu.levels.iter().map(|level| HzbLevel { offset: level.offset + shift, ..*level }).collect()
-    }
-
     /// `view` made to test against the merged pyramid and the CPU pyramid `cpu` copied after it: the early
     /// phase finds them as the last frame left them (a guess at what this frame hides: what it wrongly
     /// skips, the late phase draws), the late phase as this frame's merge made them.
     pub fn against_merged(&self, mut view: GpuView, cpu: &Hzb) -> GpuView {
         view.flags |= VIEW_HZB | VIEW_SECOND_HZB;
         (view.second_hzb_size, view.second_hzb_level_count) = (view.hzb_size, view.hzb_level_count);
-        view.second_hzb_levels[..cpu.levels.len()].copy_from_slice(&self.second_levels(cpu));
+        view.second_hzb_levels = cpu.view_levels(self.hzb.texels());
         let merged = &self.hzb;
-        view.hzb_size = merged.screen_size;
-        view.hzb_levels = [HzbLevel::default(); super::interface::MAX_HZB_LEVELS];
-        view.hzb_levels[..merged.levels.len()].copy_from_slice(&merged.levels);
+        (view.hzb_size, view.hzb_levels) = (merged.screen_size, merged.view_levels(0));
         view.hzb_level_count = merged.levels.len() as u32;
         view
     }
@@ -206,7 +198,7 @@ impl TwoPhase {
     /// Records the merge of `depth` (the early phase's, drawn from `camera`, of the merged pyramid's level-0
     /// size) with the CPU pyramid `cpu` (only where `with_cpu`) into the merged pyramid's level 0, timed by
     /// `timestamps` if given, then the passes that build its other levels; and the CPU pyramid copied after it
-    /// ([`TwoPhase::second_levels`]).
+    /// ([`TwoPhase::against_merged`] says where).
     pub fn record_merge(
         &self,
         context: &GpuContext,
