@@ -177,3 +177,97 @@ fn detail_culling_drops_exactly_what_projects_under_its_threshold() {
     let camera = *flight.world.resource::<cullet::Camera>();
     assert_eq!(off.cull(&CullScene::new(&flight.world), &camera).stats.detail_culled, 0);
 }
+
+/// Flies `scene` along `path` over `frames` frames (640x360) with the query grid made for the flight's world,
+/// judging every frame. Returns each frame's false negatives (store slots), the metrics, and the objects the
+/// grid removed after the frustum; `None` without a GPU.
+fn fly_query_grid(
+    scene: &Scene,
+    path: cullet::CameraPath,
+    frames: u32,
+    settings: cullet::gpu::QueryGridSettings,
+    cut_at: Option<u32>,
+) -> Option<(Vec<Vec<usize>>, PathMetrics, usize)> {
+    use cullet::gpu::QueryGridCuller;
+    let context = cullet_test_support::context_for_tests()?;
+    let mut flight = Flight::for_cullers(path, 16.0 / 9.0, frames, |world| {
+        scene.spawn(world);
+    });
+    flight.schedule.run(&mut flight.world);
+    let mut culler = QueryGridCuller::new(&context, &flight.world, &scene.meshes, (640, 360), settings);
+    let judge = JudgeSettings {
+        reference: ReferenceSettings { width: 640, height: 360, ..ReferenceSettings::default() },
+        occlusion_ideal: false,
+    };
+    let (mut missed, mut metrics, mut occluded) = (Vec::new(), PathMetrics::default(), 0);
+    for frame in 0..frames {
+        // A cut: the path's frame from the far end instead.
+        let frame_on_path =
+            if cut_at.is_some_and(|cut| frame >= cut) { frames - 1 - (frame - cut_at.unwrap()) } else { frame };
+        let (_, culled) = flight.cull_frame(frame_on_path, &mut culler);
+        occluded += culled.stats.after_frustum - culled.stats.after_occlusion;
+        let camera = *flight.world.resource::<cullet::Camera>();
+        let judged = judge_culled(&flight.world, &camera, &culled, &scene.meshes, &judge).metrics;
+        assert!(culler.error().is_none(), "{:?}", culler.error());
+        missed.push(judged.false_negatives.iter().map(|f| f.object).collect());
+        metrics.add(&judged);
+    }
+    Some((missed, metrics, occluded))
+}
+
+/// The frames in which an object was missing in the frame before too.
+fn missing_two_frames_in_a_row(missed: &[Vec<usize>]) -> Vec<(usize, usize)> {
+    missed
+        .windows(2)
+        .enumerate()
+        .flat_map(|(frame, pair)| pair[1].iter().filter(|o| pair[0].contains(o)).map(move |&o| (frame + 1, o)))
+        .collect()
+}
+
+/// The query grid on the city's fly-through, cars moving: it culls, and an object coming into view is missing
+/// for at most the one frame its cell's query takes to come back, also with the cap far below the frustum's
+/// cells (starved cells are drawn). As the thesis has it (stale hidden results trusted), objects go missing
+/// for longer: printed, for the docs.
+#[test]
+fn the_query_grid_misses_an_object_for_at_most_one_frame() {
+    use cullet::gpu::QueryGridSettings;
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(5000));
+    let waiting = QueryGridSettings { wait_for_results: true, ..Default::default() };
+    for (name, settings) in [
+        ("default", waiting),
+        ("capped at 30", QueryGridSettings { query_cap: Some(30), ..waiting }),
+        ("as the thesis", QueryGridSettings { wait_for_results: true, ..QueryGridSettings::thesis() }),
+    ] {
+        let Some((missed, metrics, occluded)) = fly_query_grid(&city.scene, city.flythrough(), 40, settings, None)
+        else {
+            return;
+        };
+        let repeated = missing_two_frames_in_a_row(&missed);
+        println!(
+            "query grid {name}: {occluded} objects culled over 40 frames, {} missing two frames in a row; {metrics:?}",
+            repeated.len()
+        );
+        assert!(occluded > 0, "{name}: the query grid culled nothing");
+        if settings.draw_stale_hidden && settings.hidden_growth == 0 {
+            assert!(repeated.is_empty(), "{name}: missing two frames in a row (frame, object): {repeated:?}");
+        }
+    }
+}
+
+/// A still camera: after the first frame's queries come back, nothing visible is missing; and after a camera
+/// cut, the first frame loses nothing (every result is forgotten).
+#[test]
+fn the_query_grid_loses_nothing_once_settled_and_at_a_cut() {
+    use cullet::gpu::QueryGridSettings;
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(3000));
+    let settings = QueryGridSettings { wait_for_results: true, ..Default::default() };
+    let mut still = city.flythrough();
+    still.keys.truncate(1);
+    let Some((missed, _, occluded)) = fly_query_grid(&city.scene, still, 6, settings, None) else { return };
+    assert!(occluded > 0);
+    // Frame 0 draws every cell; the cars move, so a car may come into view later: only objects seen at rest.
+    assert!(missed[0].is_empty() && missed[1].is_empty(), "{missed:?}");
+    let cut = QueryGridSettings { cut_distance: Some(50.0), ..settings };
+    let Some((missed, _, _)) = fly_query_grid(&city.scene, city.flythrough(), 24, cut, Some(12)) else { return };
+    assert!(missed[12].is_empty(), "missing at the cut: {:?}", missed[12]);
+}

@@ -23,9 +23,11 @@ pub const HZB_MERGE: &str = include_str!("../hzb_merge.wgsl");
 pub const SHADOW: &str = include_str!("../shadow.wgsl");
 /// The draw: vertex pulling, flat shading with shadows, object ID and depth.
 pub const DRAW: &str = include_str!("../draw.wgsl");
+/// The query-grid culler's cell boxes, each inside an occlusion query of its own.
+pub const CELL_QUERY: &str = include_str!("../cell_query.wgsl");
 
 /// Each pass's name and source, in the order the passes run (without [`COMMON`], which each includes).
-pub const PASSES: [(&str, &str); 7] = [
+pub const PASSES: [(&str, &str); 8] = [
     ("hzb_build", HZB_BUILD),
     ("cluster_cull", CLUSTER_CULL),
     ("prepare_triangles", PREPARE_TRIANGLES),
@@ -33,4 +35,5 @@ pub const PASSES: [(&str, &str); 7] = [
     ("shadow", SHADOW),
     ("draw", DRAW),
     ("hzb_merge", HZB_MERGE),
+    ("cell_query", CELL_QUERY),
 ];

@@ -9,7 +9,8 @@
 //! same scenes, paths and frames: given the scene and a camera, a culler returns the store slots it keeps
 //! and its counts. [`StageCuller`] (the pipeline's stages with any [`ViewSettings`], frustum-only among them)
 //! is its first implementation; a culler that keeps state across frames keeps it in `self`.
-//! [`ShadowFrustaCuller`] culls with the occluders' shadow frusta instead of a depth buffer.
+//! [`ShadowFrustaCuller`] culls with the occluders' shadow frusta instead of a depth buffer;
+//! `cullet::gpu::QueryGridCuller` (feature `gpu`) with GPU occlusion queries over a uniform grid, a frame late.
 
 mod adaptive;
 mod settings;

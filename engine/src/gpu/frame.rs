@@ -4,10 +4,10 @@
 
 use super::clusters::ClusterLibrary;
 use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage};
-use super::hzb::{Hzb, HzbLevel};
+use super::hzb::Hzb;
 use super::indirect::{DrawBuffers, cluster_draws, indirect_buffer};
 use super::interface::{
-    GpuView, MAX_HZB_LEVELS, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE,
+    GpuView, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE,
     VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
 };
 use super::late_read::LateRead;
@@ -30,7 +30,6 @@ use crate::pipeline::{CameraCuller, LightViewVisible, LightViews, LightViewsVisi
 use crate::culler::{BenefitGate, OcclusionSettings};
 use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
-use glam::Vec4;
 use std::time::Instant;
 
 /// Which GPU tests run.
@@ -363,14 +362,6 @@ impl GpuCuller {
 
     /// The view for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
     pub fn view_for(&self, camera: &Camera, settings: &GpuCullSettings, visible_count: u32) -> GpuView {
-        let (width, height) = self.targets.size();
-        let matrix = camera.clip_from_relative_f64().as_mat4();
-        let mut planes = [[0.0, 0.0, 0.0, 1.0]; 6];
-        if let Ok(frustum) = camera.frustum() {
-            for (slot, plane) in planes.iter_mut().zip(frustum.planes()) {
-                *slot = Vec4::from((plane.normal, plane.d)).to_array();
-            }
-        }
         let flags = [
             (settings.cluster_cone, VIEW_CONE),
             (settings.cluster_hzb, VIEW_HZB),
@@ -383,24 +374,12 @@ impl GpuCuller {
         .filter(|(on, _)| *on)
         .fold(0, |flags, (_, bit)| flags | bit);
         GpuView {
-            clip_from_relative: matrix.to_cols_array_2d(),
-            planes,
-            camera: camera.position.extend(0.0).to_array(),
-            viewport: [width as f32, height as f32],
             hzb_size: self.hzb.screen_size,
             hzb_levels: self.hzb.view_levels(0),
             hzb_level_count: self.hzb.levels.len() as u32,
             visible_count,
             flags,
-            near: camera.near,
-            depth_from_negative_one: u32::from(camera.depth == DepthConvention::NegativeOneToOne),
-            focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
-            frame: 0,
-            _pad: 0,
-            second_hzb_size: [0.0; 2],
-            second_hzb_level_count: 0,
-            _pad2: 0,
-            second_hzb_levels: [HzbLevel::default(); MAX_HZB_LEVELS],
+            ..GpuView::of_camera(camera, self.targets.size())
         }
     }
 

@@ -177,6 +177,28 @@ pub struct GpuView {
 }
 
 impl GpuView {
+    /// The view of `camera` rendering into `viewport` (width, height) pixels, with no HZB, no flags and no
+    /// instances: what every pass that draws through a camera needs.
+    pub fn of_camera(camera: &crate::camera::Camera, viewport: (u32, u32)) -> Self {
+        let mut planes = [[0.0, 0.0, 0.0, 1.0]; 6];
+        if let Ok(frustum) = camera.frustum() {
+            for (slot, plane) in planes.iter_mut().zip(frustum.planes()) {
+                *slot = glam::Vec4::from((plane.normal, plane.d)).to_array();
+            }
+        }
+        let (width, height) = viewport;
+        GpuView {
+            clip_from_relative: camera.clip_from_relative_f64().as_mat4().to_cols_array_2d(),
+            planes,
+            camera: camera.position.extend(0.0).to_array(),
+            viewport: [width as f32, height as f32],
+            near: camera.near,
+            depth_from_negative_one: u32::from(camera.depth == crate::camera::DepthConvention::NegativeOneToOne),
+            focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
+            ..GpuView::zeroed()
+        }
+    }
+
     /// `clip_from_relative` as a matrix.
     pub fn clip_from_relative(&self) -> Mat4 {
         Mat4::from_cols_array_2d(&self.clip_from_relative)

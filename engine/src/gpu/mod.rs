@@ -11,6 +11,9 @@
 //! 7. [`two_phase`] (opt-in, [`GpuCullSettings::two_phase`]): the passes above draw only what was visible last
 //!    frame; that depth, merged with the CPU's HZB, culls the rest in a second round of steps 4 to 6.
 //!
+//! Beside the pipeline, [`query_grid`] is a culler of its own behind [`crate::culler::Culler`]: seed 001's
+//! hardware occlusion queries over a uniform grid of cells ([`cell_queries`]), their results a frame late.
+//!
 //! Every view of a frame is culled by the same passes into buffers of its own (`view_cull`): the camera, and
 //! each sun cascade whose [`shadow`] map the draw samples, all in one submission.
 //!
@@ -41,6 +44,7 @@
 //! # Ok::<(), GpuError>(())
 //! ```
 
+pub mod cell_queries;
 pub mod cluster_cull;
 pub mod clusters;
 pub mod debug_draw;
@@ -51,6 +55,7 @@ pub mod indirect;
 pub mod interface;
 mod late_read;
 pub mod output;
+pub mod query_grid;
 pub mod scene;
 pub mod shadow;
 pub mod triangle_cull;
@@ -61,6 +66,7 @@ pub use debug_draw::DebugDraw;
 pub use frame::{GpuCullSettings, GpuCuller, GpuGating, ReadBack, Survivors};
 pub use indirect::DrawBuffers;
 pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes, PhaseCounters};
+pub use query_grid::{QueryGridCuller, QueryGridSettings, QueryGridStats};
 
 use thiserror::Error;
 
@@ -104,7 +110,8 @@ pub enum GpuError {
 /// that allows fewer.
 pub const STORAGE_BUFFERS_PER_STAGE: u32 = 10;
 
-/// A device and queue opened without a window, with the features the pipeline uses.
+/// A device and queue opened without a window, with the features the pipeline uses. Clones share the device.
+#[derive(Clone)]
 pub struct GpuContext {
     /// The device.
     pub device: wgpu::Device,
