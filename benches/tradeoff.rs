@@ -10,16 +10,21 @@
 //! 1920x1080 frame (`OcclusionSettings::for_frame`) are timed against each other in alternating passes, on
 //! rayon's threads and on one (CPU time), into `target/tradeoff/paired.csv`.
 //!
-//! truck_town, nobody here's scene (with automatic occluders, around its orbit), is judged the same way with
+//! truck_town and zdm2, nobody here's scenes (with automatic occluders, around their orbits), are judged the same way with
 //! fewer configurations (frustum only, the default buffer at each budget, the masked buffers for the frame,
-//! the shadow frusta at each budget, MOC); its rows are in the same CSV (column `scene`), and no plot.
+//! the shadow frusta at each budget, MOC); their rows are in the same CSV (column `scene`), and no plot.
 //!
 //! Detail culling (`cullet::detail`, lossy) before the default buffer is a series at 1, 2 and 4 pixels.
+//!
+//! Where a GPU is found (lavapipe will do), hardware occlusion queries over a uniform grid
+//! (`cullet::gpu::QueryGridCuller`, lossy: a cell coming into view is drawn a frame late) are a series on
+//! every scene: the thesis's cap of 4000 queries a frame, no cap, a cap of 500, and the thesis's own settings.
+//! Its time is the CPU's (binning, traversal, recording); the GPU's depth pass and queries are not counted.
 //!
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_ONLY` (series names as in the CSV's
 //! `peer` column, comma-separated) runs only those with the default and frustum only; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
 //! `CULLET_TRADEOFF_FRAMES` (default 200) size the city's run, `CULLET_TRADEOFF_SCENE_FRAMES` (default 60)
-//! truck_town's, and `CULLET_TRADEOFF_SCENES` (default `city,truck_town`) chooses the scenes.
+//! each shared scene's, and `CULLET_TRADEOFF_SCENES` (default `city,truck_town,zdm2`) chooses the scenes.
 
 #[path = "moc/mod.rs"]
 mod moc;
@@ -29,6 +34,7 @@ use cullet::culler::{
     Culled, Culler, OcclusionSettings, ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
 };
 use cullet::detail::DetailSettings;
+use cullet::gpu::{GpuContext, QueryGridCuller, QueryGridSettings};
 use cullet::raster::RasterMode;
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
@@ -76,6 +82,45 @@ enum Series {
     /// The pipeline's stages with the row's settings, dropping the frustum's survivors that project under
     /// this many pixels of the frame judged (`cullet::detail`, lossy).
     Detail(u32),
+    /// Hardware occlusion queries over a uniform grid (`cullet::gpu::QueryGridCuller`, lossy), on the GPU the
+    /// bench finds, with the given query cap (`None`: none), or as the thesis has it.
+    QueryGrid(QueryGridVariant),
+}
+
+/// Which query grid a row is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum QueryGridVariant {
+    /// The engine's settings with this query cap (`None`: no cap).
+    Capped(Option<u32>),
+    /// `QueryGridSettings::thesis()`: hidden results last 2 frames and are trusted however old.
+    Thesis,
+}
+
+impl QueryGridVariant {
+    const ALL: [Self; 4] = [Self::Capped(Some(4000)), Self::Capped(None), Self::Capped(Some(500)), Self::Thesis];
+
+    /// Its settings; the judged pass waits for each frame's results, as a GPU that keeps up delivers them.
+    fn settings(self) -> QueryGridSettings {
+        let settings = match self {
+            Self::Capped(query_cap) => QueryGridSettings { query_cap, ..QueryGridSettings::default() },
+            Self::Thesis => QueryGridSettings::thesis(),
+        };
+        QueryGridSettings { wait_for_results: true, ..settings }
+    }
+
+    fn label(self) -> String {
+        match self {
+            Self::Capped(Some(cap)) => format!("query grid, cap {cap}"),
+            Self::Capped(None) => "query grid, no cap".into(),
+            Self::Thesis => "query grid as the thesis".into(),
+        }
+    }
+}
+
+/// The GPU the query grid runs on, opened once; `None` (and no query grid rows) without one.
+fn gpu() -> Option<&'static GpuContext> {
+    static CONTEXT: std::sync::OnceLock<Option<GpuContext>> = std::sync::OnceLock::new();
+    CONTEXT.get_or_init(|| GpuContext::new().map_err(|error| println!("SKIPPED the query grid: {error}")).ok()).as_ref()
 }
 
 impl Series {
@@ -85,13 +130,19 @@ impl Series {
             Self::Moc => "moc",
             Self::ShadowFrusta => "cullet-shadow-frusta",
             Self::Detail(_) => "cullet-detail",
+            Self::QueryGrid(_) => "cullet-query-grid",
         }
     }
 }
 
-/// The culler of a Cullet row.
-fn culler_for(series: Series, settings: OcclusionSettings) -> Box<dyn Culler> {
+/// The culler of a Cullet row, for `flight`'s world of `scene`.
+fn culler_for(series: Series, settings: OcclusionSettings, flight: &Flight, scene: &Scene) -> Box<dyn Culler> {
     match series {
+        Series::QueryGrid(variant) => {
+            let context = gpu().expect("query grid rows only where a GPU was found");
+            let viewport = settings.frame.unwrap_or((1920, 1080));
+            Box::new(QueryGridCuller::new(context, &flight.world, &scene.meshes, viewport, variant.settings()))
+        }
         Series::ShadowFrusta => {
             let triangle_budget = settings.triangle_budget;
             Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget, ..Default::default() }))
@@ -133,7 +184,7 @@ impl Row {
         match self.series {
             Series::Stages => self.settings.is_conservative_for(viewport),
             Series::ShadowFrusta => true,
-            Series::Moc | Series::Detail(_) => false,
+            Series::Moc | Series::Detail(_) | Series::QueryGrid(_) => false,
         }
     }
 
@@ -149,6 +200,7 @@ impl Row {
                 return format!("MOC {}x{} {}", s.width, s.height, s.triangle_budget);
             }
             Series::ShadowFrusta => return format!("shadow frusta {}", self.settings.triangle_budget),
+            Series::QueryGrid(variant) => return variant.label(),
             Series::Detail(pixels) => {
                 let s = &self.settings;
                 return format!(
@@ -221,7 +273,7 @@ fn main() {
     }
     let objects = env_or("CULLET_TRADEOFF_OBJECTS", 100_000);
     let frames = env_or("CULLET_TRADEOFF_FRAMES", 200) as u32;
-    let chosen = std::env::var("CULLET_TRADEOFF_SCENES").unwrap_or_else(|_| "city,truck_town".into());
+    let chosen = std::env::var("CULLET_TRADEOFF_SCENES").unwrap_or_else(|_| "city,truck_town,zdm2".into());
     let chosen: Vec<&str> = chosen.split(',').map(str::trim).collect();
     let reference = ReferenceSettings::default();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tradeoff");
@@ -252,20 +304,24 @@ fn main() {
         std::fs::write(dir.join("paired.csv"), paired_csv).unwrap();
     }
 
-    // Nobody here's scene: truck_town with automatic occluders (it has no artist ones), around its orbit.
-    let town_file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/truck_town/town_model.gltf");
-    if chosen.contains(&"truck_town") {
-        match load_gltf(&town_file) {
-            Ok(mut town) => {
-                add_auto_occluders(&mut town.scene, &AutoOccluderSettings::default());
+    // Nobody here's scenes: truck_town and zdm2 with automatic occluders (they have no artist ones), around
+    // their orbits.
+    for (name, file) in [("truck_town", "truck_town/town_model.gltf"), ("zdm2", "zdm2/zdm2.glb")] {
+        if !chosen.contains(&name) {
+            continue;
+        }
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes").join(file);
+        match load_gltf(&path) {
+            Ok(mut loaded) => {
+                add_auto_occluders(&mut loaded.scene, &AutoOccluderSettings::default());
                 let frames = env_or("CULLET_TRADEOFF_SCENE_FRAMES", 60) as u32;
-                let path = town.scene.orbit_path();
-                let judged = JudgedScene { name: "truck_town", scene: &town.scene, path, frames };
-                let mut town_rows = sweep(&judged, scene_configs(&reference), &reference);
-                mark_pareto_front(&mut town_rows, (reference.width, reference.height));
-                rows.extend(town_rows);
+                let path = loaded.scene.orbit_path();
+                let judged = JudgedScene { name, scene: &loaded.scene, path, frames };
+                let mut scene_rows = sweep(&judged, scene_configs(&reference), &reference);
+                mark_pareto_front(&mut scene_rows, (reference.width, reference.height));
+                rows.extend(scene_rows);
             }
-            Err(error) => println!("SKIPPED truck_town: {error}"),
+            Err(error) => println!("SKIPPED {name}: {error}"),
         }
     }
 
@@ -311,7 +367,18 @@ fn city_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings
     for pixels in DETAIL_PIXELS {
         configs.push((Series::Detail(pixels), OcclusionSettings { frame, ..OcclusionSettings::default() }));
     }
+    configs.extend(query_grid_configs(reference));
     configs
+}
+
+/// The query grid's rows, where a GPU is found: its cap at the thesis's 4000, none and 500, and as the thesis.
+fn query_grid_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings)> {
+    let frame = Some((reference.width, reference.height));
+    let variants = if gpu().is_some() { &QueryGridVariant::ALL[..] } else { &[] };
+    variants
+        .iter()
+        .map(|&v| (Series::QueryGrid(v), OcclusionSettings { frame, ..OcclusionSettings::default() }))
+        .collect()
 }
 
 /// A shared scene's configurations, fewer than the city's: frustum only, the default buffer at each budget,
@@ -332,6 +399,7 @@ fn scene_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSetting
     for triangle_budget in BUDGETS {
         configs.push((Series::ShadowFrusta, OcclusionSettings { triangle_budget, ..OcclusionSettings::default() }));
     }
+    configs.extend(query_grid_configs(reference));
     configs
 }
 
@@ -373,7 +441,7 @@ fn sweep(judged: &JudgedScene, configs: Vec<(Series, OcclusionSettings)>, refere
         let mut accuracy = PathMetrics::default();
         let run = &mut judged.culler_flight();
         let mut stages_culler = StageCuller::new("", ViewSettings { occlusion: settings, ..ViewSettings::default() });
-        let mut other = culler_for(series, settings);
+        let mut other = culler_for(series, settings, run, judged.scene);
         let budget_ideal = settings.enabled.then(|| ideal.contains_key(&settings.triangle_budget));
         let mut ideal_this_budget = Vec::new();
         for frame in 0..frames {
@@ -410,7 +478,9 @@ fn sweep(judged: &JudgedScene, configs: Vec<(Series, OcclusionSettings)>, refere
     let start = Instant::now();
     for round in 0..TIMED_ROUNDS {
         for row in rows.iter_mut() {
-            let (mut run, mut culler) = (judged.culler_flight(), culler_for(row.series, row.settings));
+            let run = judged.culler_flight();
+            let mut culler = culler_for(row.series, row.settings, &run, judged.scene);
+            let mut run = run;
             let pass: Vec<[Duration; 3]> = (0..frames)
                 .map(|frame| {
                     let (bounds_time, Culled { stats, .. }) = run.cull_frame(frame, culler.as_mut());
@@ -703,6 +773,16 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
             )?
             .label("occluder shadow frusta")
             .legend(move |(x, y)| Cross::new((x + 10, y), 7, frusta_color.stroke_width(3)));
+        let grid_color = RGBColor(140, 80, 20);
+        let square = |(x, y): (f64, f64)| Rectangle::new([(x, y), (x, y)], grid_color.stroke_width(10));
+        chart
+            .draw_series(
+                rows.iter()
+                    .filter(|r| matches!(r.series, Series::QueryGrid(_)))
+                    .map(|r| square((r.cull_us() / 1e3, value(r)))),
+            )?
+            .label("GPU query grid (lossy, CPU time only)")
+            .legend(move |(x, y)| Rectangle::new([(x + 5, y - 5), (x + 15, y + 5)], grid_color.filled()));
         chart.draw_series(
             rows.iter()
                 .filter(|r| !r.settings.enabled)

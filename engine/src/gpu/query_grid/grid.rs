@@ -8,8 +8,12 @@ use rayon::prelude::*;
 
 /// Most cells along one axis; a side that would need more is raised to fit.
 pub const MAX_CELLS_PER_AXIS: u32 = 256;
-/// The automatic side, in median object sizes (the largest side of an object's box).
+/// Most cells in all; a side that would need more is raised to fit.
+pub const MAX_CELLS: u32 = 1 << 21;
+/// The automatic side's start, in median object sizes (the largest side of an object's box).
 const AUTO_SIDE_IN_OBJECTS: f64 = 2.0;
+/// The automatic side grows until the non-empty cells number at most this share of the objects.
+const AUTO_CELLS_PER_OBJECT: f64 = 0.5;
 
 /// An object's cells: the inclusive ranges of cell coordinates its box overlaps.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -68,15 +72,17 @@ pub struct UniformGrid {
     /// Cells whose content box is out of date, and the list of them.
     dirty: Vec<bool>,
     dirty_cells: Vec<u32>,
-    /// Cells holding at least one object.
+    /// Cells holding at least one object, in no order, and each cell's place in that list (`u32::MAX` where
+    /// empty).
     non_empty: Vec<u32>,
-    non_empty_stale: bool,
+    non_empty_at: Vec<u32>,
 }
 
 impl UniformGrid {
     /// The grid over every object of `store`, with cells of `side` (world units; raised so that no axis has
-    /// more than [`MAX_CELLS_PER_AXIS`] cells), or, where `side` is `None` or not a positive finite number,
-    /// of twice the median object's size (the largest side of its box).
+    /// more than [`MAX_CELLS_PER_AXIS`] cells, and none more than [`MAX_CELLS`] in all), or, where `side` is
+    /// `None` or not a positive finite number, of twice the median object's size (the largest side of its
+    /// box), grown until there are at most half as many non-empty cells as objects.
     pub fn build(store: &BoundsStore, side: Option<f32>) -> Self {
         let bounds = (0..store.len())
             .into_par_iter()
@@ -84,11 +90,13 @@ impl UniformGrid {
             .reduce(|| CellBounds::EMPTY, CellBounds::union);
         let bounds = if bounds.is_empty() { CellBounds { min: DVec3::ZERO, max: DVec3::ONE } } else { bounds };
         let size = (bounds.max - bounds.min).max(DVec3::splat(1e-3));
+        let smallest = (size.max_element() / f64::from(MAX_CELLS_PER_AXIS))
+            .max((size.x * size.y * size.z / f64::from(MAX_CELLS)).cbrt());
         let side = match side.filter(|s| s.is_finite() && *s > 0.0) {
-            Some(side) => f64::from(side),
-            None => auto_side(store),
+            Some(side) => f64::from(side).max(smallest),
+            None => auto_side(store, bounds.min, size, smallest),
         };
-        let side = side.max(size.max_element() / f64::from(MAX_CELLS_PER_AXIS));
+        // Rounding the dimensions up may pass the total by a little: at most a cell more per axis.
         let dims = (size / side).ceil().as_uvec3().max(glam::UVec3::ONE).min(glam::UVec3::splat(MAX_CELLS_PER_AXIS));
         let cell_count = (dims.x * dims.y * dims.z) as usize;
         let mut grid = Self {
@@ -101,7 +109,7 @@ impl UniformGrid {
             dirty: vec![false; cell_count],
             dirty_cells: Vec::new(),
             non_empty: Vec::new(),
-            non_empty_stale: true,
+            non_empty_at: vec![u32::MAX; cell_count],
         };
         for slot in 0..store.len() {
             let span = grid.span_of(&store.get(slot).expect("slot below len"));
@@ -159,7 +167,6 @@ impl UniformGrid {
                 }
                 self.insert(slot, new);
                 self.spans[slot as usize] = new;
-                self.non_empty_stale = true;
             } else {
                 for cell in self.cells_of(new) {
                     self.mark_dirty(cell);
@@ -236,8 +243,22 @@ impl UniformGrid {
             self.content[cell as usize] = content;
             self.dirty[cell as usize] = false;
         }
-        if std::mem::take(&mut self.non_empty_stale) {
-            self.non_empty = (0..self.cells.len() as u32).filter(|&c| !self.cells[c as usize].is_empty()).collect();
+        for &cell in &dirty {
+            let at = self.non_empty_at[cell as usize];
+            match (self.cells[cell as usize].is_empty(), at == u32::MAX) {
+                (false, true) => {
+                    self.non_empty_at[cell as usize] = self.non_empty.len() as u32;
+                    self.non_empty.push(cell);
+                }
+                (true, false) => {
+                    self.non_empty.swap_remove(at as usize);
+                    if let Some(&moved) = self.non_empty.get(at as usize) {
+                        self.non_empty_at[moved as usize] = at;
+                    }
+                    self.non_empty_at[cell as usize] = u32::MAX;
+                }
+                _ => {}
+            }
         }
     }
 
@@ -255,18 +276,44 @@ impl UniformGrid {
     }
 }
 
-/// The automatic side for the objects of `store`: [`AUTO_SIDE_IN_OBJECTS`] times the median of their
-/// boxes' largest sides, so that a cell holds a few objects whatever the scene's scale (1 for none).
-fn auto_side(store: &BoundsStore) -> f64 {
+/// The automatic side for the objects of `store` in a grid from `origin` over `size`, at least `smallest`:
+/// [`AUTO_SIDE_IN_OBJECTS`] times the median of their boxes' largest sides, so that a cell holds a few objects
+/// whatever the scene's scale, then a quarter larger at a time until at most [`AUTO_CELLS_PER_OBJECT`] cells
+/// per object hold one: large objects (a ground, roads) would otherwise fill every cell of their layer, and
+/// each cell in view costs a query.
+fn auto_side(store: &BoundsStore, origin: DVec3, size: DVec3, smallest: f64) -> f64 {
     let soa = store.soa();
     let mut sizes: Vec<f32> =
         (0..store.len()).map(|slot| 2.0 * soa.extent_x[slot].max(soa.extent_y[slot]).max(soa.extent_z[slot])).collect();
     if sizes.is_empty() {
-        return 1.0;
+        return smallest.max(size.max_element());
     }
     let middle = sizes.len() / 2;
     let median = *sizes.select_nth_unstable_by(middle, f32::total_cmp).1;
-    (AUTO_SIDE_IN_OBJECTS * f64::from(median)).max(1e-3)
+    let mut side = (AUTO_SIDE_IN_OBJECTS * f64::from(median)).max(smallest);
+    let most = (store.len() as f64 * AUTO_CELLS_PER_OBJECT).max(1.0) as usize;
+    while side < size.max_element() && non_empty_cells(store, origin, side) > most {
+        side *= 1.25;
+    }
+    side
+}
+
+/// The number of cells of side `side` from `origin` that the objects of `store` overlap.
+fn non_empty_cells(store: &BoundsStore, origin: DVec3, side: f64) -> usize {
+    let mut cells = std::collections::HashSet::new();
+    for slot in 0..store.len() {
+        let bounds = CellBounds::of(&store.get(slot).expect("slot below len"));
+        let (min, max) = (((bounds.min - origin) / side).floor(), ((bounds.max - origin) / side).floor());
+        let (min, max) = (min.as_i64vec3(), max.as_i64vec3());
+        for z in min.z..=max.z {
+            for y in min.y..=max.y {
+                for x in min.x..=max.x {
+                    cells.insert((x, y, z));
+                }
+            }
+        }
+    }
+    cells.len()
 }
 
 /// The box of `bounds` camera-relative in `f32`, rounded outwards and grown by `margin` (world units).
