@@ -10,6 +10,7 @@ use cullet::culler::{CullScene, Culled, Culler, ShadowFrustaCuller, ShadowFrusta
 use cullet::depth::DepthBuffer;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput, ReadBack};
+use cullet::gpu::{QueryGridCuller, QueryGridSettings, QueryGridStats};
 use cullet::{BoundsStore, Camera};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressFinish, ProgressStyle};
 use std::io::IsTerminal;
@@ -29,6 +30,61 @@ fn progress_bar(args: &Args) -> ProgressBar {
         .with_message("flying the camera path")
         // Cleared when dropped too, as on an error: the message follows on a clean line.
         .with_finish(ProgressFinish::AndClear)
+}
+
+/// A culler other than the pipeline's stages, chosen with `--culler`.
+enum OwnCuller {
+    ShadowFrusta(ShadowFrustaCuller),
+    QueryGrid(Box<QueryGridCuller>),
+}
+
+impl OwnCuller {
+    fn culler(&mut self) -> &mut dyn Culler {
+        match self {
+            Self::ShadowFrusta(culler) => culler,
+            Self::QueryGrid(culler) => culler.as_mut(),
+        }
+    }
+}
+
+/// The query grid's work over the run.
+#[derive(Default)]
+struct QueryGridTotals {
+    frames: usize,
+    queries: usize,
+    cells_in_frustum: usize,
+    cells_drawn: usize,
+    starved: usize,
+    late: usize,
+}
+
+impl QueryGridTotals {
+    fn add(&mut self, stats: &QueryGridStats) {
+        self.frames += 1;
+        self.queries += stats.queries;
+        self.cells_in_frustum += stats.cells_in_frustum;
+        self.cells_drawn += stats.cells_drawn;
+        self.starved += stats.starved;
+        self.late += usize::from(stats.results_late);
+    }
+
+    /// One line a frame on average, where the query grid ran.
+    fn print(&self) {
+        if self.frames == 0 {
+            return;
+        }
+        let per_frame = |n: usize| n as f64 / self.frames as f64;
+        println!(
+            "query grid: {:.0} cells in view a frame, {:.0} drawn, {:.0} queries, {:.0} starved by the cap; \
+             results late in {} of {} frames",
+            per_frame(self.cells_in_frustum),
+            per_frame(self.cells_drawn),
+            per_frame(self.queries),
+            per_frame(self.starved),
+            self.late,
+            self.frames
+        );
+    }
 }
 
 /// Flies the camera path frame by frame without a window: a progress bar (or with `--verbose` a line per
@@ -79,18 +135,31 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         CullerChoice::ShadowFrusta => {
             let budget = args.occluder_budget.unwrap_or(ShadowFrustaSettings::default().triangle_budget);
             let settings = ShadowFrustaSettings { triangle_budget: budget, ..Default::default() };
-            let culler = ShadowFrustaCuller::new(settings);
-            println!("culler: {}", culler.name());
-            Some(culler)
+            Some(OwnCuller::ShadowFrusta(ShadowFrustaCuller::new(settings)))
+        }
+        CullerChoice::QueryGrid => {
+            let Some((context, _)) = gpu.as_ref() else {
+                return Err("--culler query-grid draws and queries on the GPU: it needs a GPU adapter".into());
+            };
+            let defaults = QueryGridSettings::default();
+            let query_cap = args.query_cap.map_or(defaults.query_cap, |cap| (cap > 0).then_some(cap));
+            let settings = QueryGridSettings { cell_size: args.cell_size, query_cap, ..defaults };
+            let culler = QueryGridCuller::new(context, &flight.world, &scene.meshes, (width, height), settings);
+            Some(OwnCuller::QueryGrid(Box::new(culler)))
         }
     };
+    if let Some(culler) = own_culler.as_mut() {
+        println!("culler: {}", culler.culler().name());
+    }
+    let own_is_conservative = own_culler.as_mut().is_none_or(|c| c.culler().is_conservative((width, height)));
+    let mut query_grid = QueryGridTotals::default();
     let progress = progress_bar(args);
     let frames_start = Instant::now();
     for frame in 0..args.headless_frames() {
         let mut stats = flight.run_frame(frame);
         let camera = *flight.world.resource::<Camera>();
         let own: Option<Culled> =
-            own_culler.as_mut().map(|culler| culler.cull(&CullScene::new(&flight.world), &camera));
+            own_culler.as_mut().map(|culler| culler.culler().cull(&CullScene::new(&flight.world), &camera));
         if let Some(culled) = &own {
             let own = &culled.stats;
             (stats.after_occlusion, stats.occluders, stats.occluder_triangles) =
@@ -101,7 +170,10 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         let mut frame_accuracy = None;
         if let Some(validation) = validation.as_mut() {
             let metrics = match &own {
-                Some(culled) => validation.judge_culled(&flight.world, &camera, culled, true, &scene.meshes),
+                Some(culled) => {
+                    let conservative = own_is_conservative;
+                    validation.judge_culled(&flight.world, &camera, culled, conservative, &scene.meshes)
+                }
                 None => validation.judge(&flight.world, &scene.meshes),
             };
             frame_accuracy = Some((
@@ -227,6 +299,9 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         }
         per_frame.push(stats);
         savings.push(saved);
+        if let Some(OwnCuller::QueryGrid(grid)) = &own_culler {
+            query_grid.add(&grid.stats());
+        }
         progress.inc(1);
     }
     progress.finish_and_clear();
@@ -240,6 +315,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         println!("per-frame statistics written to {}", file.display());
     }
     print_summary(&per_frame);
+    query_grid.print();
     println!(
         "{} frames in {:.2} s: {:.2} ms a frame, wall time (every stage{}, and all this run adds)",
         per_frame.len(),

@@ -147,12 +147,19 @@ struct Args {
     /// What the window shows at first (V cycles through them).
     #[arg(long, value_enum, default_value = "shaded")]
     view: hud::controls::View,
-    /// Which culler removes what is hidden after the frustum: the pipeline's occlusion stage (`stages`), or
-    /// the occluders' shadow frusta (`shadow-frusta`, headless only; `--occluder-budget` is its budget). The
-    /// frustum stage, the light views and the GPU passes run as with the stages, and --validate judges
-    /// the culler chosen.
+    /// Which culler removes what is hidden after the frustum: the pipeline's occlusion stage (`stages`),
+    /// the occluders' shadow frusta (`shadow-frusta`; `--occluder-budget` is its budget) or GPU occlusion
+    /// queries over a uniform grid (`query-grid`, lossy: what comes into view is drawn a frame late; needs a
+    /// GPU). Headless only. The frustum stage, the light views and the GPU passes run as with the stages,
+    /// and --validate judges the culler chosen.
     #[arg(long, value_enum, default_value = "stages")]
     culler: CullerChoice,
+    /// The query grid's cell side in world units (default: from the scene's object sizes).
+    #[arg(long)]
+    cell_size: Option<f32>,
+    /// The query grid's most queries a frame (default 4000, the thesis's; 0 for no cap).
+    #[arg(long)]
+    query_cap: Option<u32>,
 }
 
 /// The culler `--culler` chooses.
@@ -163,6 +170,8 @@ pub enum CullerChoice {
     Stages,
     /// The occluders' shadow frusta (`cullet::culler::ShadowFrustaCuller`).
     ShadowFrusta,
+    /// GPU occlusion queries over a uniform grid (`cullet::gpu::QueryGridCuller`).
+    QueryGrid,
 }
 
 impl Args {

@@ -110,6 +110,28 @@ fn the_shadow_frusta_culler_validates_with_zero_false_negatives() {
     }
 }
 
+/// The query grid runs in the game and is judged as the lossy culler it is: it culls behind the buildings,
+/// its false negatives are counted without failing the run, and the summary says what it queried.
+#[test]
+fn the_query_grid_culler_runs_and_is_judged_as_lossy() {
+    let gpu_required = std::env::var_os("CULLET_REQUIRE_GPU").is_some();
+    let probe = Command::new(env!("CARGO_BIN_EXE_cullet-game"))
+        .args(["--scene", "city:300", "--culler", "query-grid", "--headless", "--quiet", "--frames", "1"])
+        .output()
+        .expect("the game runs");
+    if !probe.status.success() && !gpu_required {
+        eprintln!("SKIPPED: the query grid needs a GPU adapter: {}", String::from_utf8_lossy(&probe.stdout));
+        return;
+    }
+    let args = ["--scene", "city:3000", "--culler", "query-grid"];
+    let (text, rows) = run_validated("query grid", &args, 24);
+    assert!(text.contains("culler: query grid") && text.contains("query grid: "), "{text}");
+    let culled =
+        rows.iter().any(|r| r["after_occlusion"].parse::<u32>().unwrap() < r["after_frustum"].parse().unwrap());
+    assert!(culled, "the query grid never culled anything:\n{text}");
+    assert!(text.contains("validation over 24 frames"), "{text}");
+}
+
 #[test]
 fn city_far_from_the_origin_validates_with_zero_false_negatives() {
     let args = ["--scene", "city:2000", "--world-offset", "1e7,0,-1e7", "--light-views"];

@@ -65,8 +65,9 @@ pub struct UniformGrid {
     dims: [u32; 3],
     /// Store slots per cell, cells numbered x fastest, then y, then z.
     cells: Vec<Vec<u32>>,
-    /// Each slot's cells.
+    /// Each slot's cells, and its box when binned.
     spans: Vec<Span>,
+    bounds: Vec<CellBounds>,
     /// Per cell, the union of its objects' boxes clipped to the cell (empty for an empty cell).
     content: Vec<CellBounds>,
     /// Cells whose content box is out of date, and the list of them.
@@ -105,6 +106,7 @@ impl UniformGrid {
             dims: dims.to_array(),
             cells: vec![Vec::new(); cell_count],
             spans: Vec::with_capacity(store.len()),
+            bounds: Vec::with_capacity(store.len()),
             content: vec![CellBounds::EMPTY; cell_count],
             dirty: vec![false; cell_count],
             dirty_cells: Vec::new(),
@@ -114,6 +116,7 @@ impl UniformGrid {
         for slot in 0..store.len() {
             let span = grid.span_of(&store.get(slot).expect("slot below len"));
             grid.spans.push(span);
+            grid.bounds.push(CellBounds::of(&store.get(slot).expect("slot below len")));
             grid.insert(slot as u32, span);
         }
         grid.refresh(store);
@@ -159,6 +162,7 @@ impl UniformGrid {
         }
         for &slot in slots {
             let Some(bounds) = store.get(slot as usize) else { continue };
+            self.bounds[slot as usize] = CellBounds::of(&bounds);
             let (old, new) = (self.spans[slot as usize], self.span_of(&bounds));
             if old != new {
                 for cell in self.cells_of(old) {
@@ -175,6 +179,20 @@ impl UniformGrid {
         }
         self.refresh(store);
         true
+    }
+
+    /// The slots whose boxes in `store` differ from those binned, where the caller does not know what moved;
+    /// `None` where `store` holds a different number of objects.
+    pub fn changed_slots(&self, store: &BoundsStore) -> Option<Vec<u32>> {
+        (store.len() == self.bounds.len()).then(|| {
+            (0..store.len() as u32)
+                .into_par_iter()
+                .filter(|&slot| {
+                    let now = CellBounds::of(&store.get(slot as usize).expect("slot below len"));
+                    now != self.bounds[slot as usize]
+                })
+                .collect()
+        })
     }
 
     /// The non-empty cells `frustum` may reach, each with the distance from `eye` to its content, nearest

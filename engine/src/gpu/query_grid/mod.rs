@@ -233,8 +233,8 @@ impl QueryGridCuller {
         self.error.as_ref()
     }
 
-    /// Brings the grid and the GPU's instances up to date with the store: only the moved objects where the
-    /// scene lists them and they stayed inside the grid, everything otherwise.
+    /// Brings the grid and the GPU's instances up to date with the store: only the objects that moved (listed
+    /// by the scene, or found by comparing their boxes), or everything where objects came or went.
     fn sync(&mut self, scene: &CullScene) {
         let store = scene.store();
         let now = (store.generation(), store.layout_generation());
@@ -245,16 +245,18 @@ impl QueryGridCuller {
         if unchanged {
             return;
         }
+        let same_layout = self.synced.is_some_and(|(_, layout)| layout == now.1);
         let updated = match (moves, &mut self.grid) {
-            (Some(moves), Some(grid)) if self.built_with == self.settings.cell_size => {
-                grid.update(store, &moves.slots).then_some(&moves.slots[..])
-            }
-            _ => None,
+            (_, Some(grid)) if self.built_with != self.settings.cell_size || !same_layout => None,
+            (Some(moves), Some(grid)) => grid.update(store, &moves.slots).then(|| moves.slots.clone()),
+            // What moved is not known: found by comparing every box with the one binned.
+            (None, Some(grid)) => grid.changed_slots(store).filter(|slots| grid.update(store, slots)),
+            (_, None) => None,
         };
         let world = scene.world;
         let gpu = self.queries.scene_mut();
         match updated {
-            Some(slots) => gpu.write_instances(&self.context, store.len(), slots, |slot| instance_of(world, slot)),
+            Some(slots) => gpu.write_instances(&self.context, store.len(), &slots, |slot| instance_of(world, slot)),
             None => {
                 let grid = UniformGrid::build(store, self.settings.cell_size);
                 self.results = vec![CellResult::Unknown; grid.cell_count()];
