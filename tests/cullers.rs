@@ -271,3 +271,38 @@ fn the_query_grid_loses_nothing_once_settled_and_at_a_cut() {
     let Some((missed, _, _)) = fly_query_grid(&city.scene, city.flythrough(), 24, cut, Some(12)) else { return };
     assert!(missed[12].is_empty(), "missing at the cut: {:?}", missed[12]);
 }
+
+/// The hierarchy (frustum and occlusion down a bounding volume hierarchy) loses nothing on the city's
+/// fly-through with cars moving (refitted each frame), and culls about what the linear arrays cull with the
+/// same occluders and pyramid.
+#[test]
+fn the_hierarchy_keeps_everything_visible_and_culls_as_the_stages_do() {
+    use cullet::culler::{HierarchyCuller, StageCuller, ViewSettings};
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(5000));
+    let mut hierarchy = HierarchyCuller::default();
+    let (metrics, occluded) = fly_and_judge(&city.scene, city.flythrough(), 40, &mut hierarchy);
+    let mut stages = StageCuller::new("stages", ViewSettings::default());
+    let (_, stages_occluded) = fly_and_judge(&city.scene, city.flythrough(), 40, &mut stages);
+    println!("hierarchy: {occluded} culled by occlusion (stages: {stages_occluded}); {metrics:?}");
+    assert!(hierarchy.is_conservative((640, 360)));
+    assert!(occluded as f64 >= 0.95 * stages_occluded as f64, "{occluded} against {stages_occluded}");
+    for case in cullet_truth::stress::cases() {
+        let path = cullet::CameraPath { fov_y_deg: 60.0, near: 0.1, far: None, keys: Vec::new() };
+        let mut flight = Flight::for_cullers(path, case.camera.aspect, 1, |world| {
+            case.scene.spawn(world);
+        });
+        flight.schedule.run(&mut flight.world);
+        let judge = JudgeSettings {
+            reference: ReferenceSettings { width: case.width, height: case.height, ..ReferenceSettings::default() },
+            occlusion_ideal: false,
+        };
+        let mut culler = HierarchyCuller::default();
+        let culled = culler.cull(&CullScene::new(&flight.world), &case.camera);
+        let judged = judge_culled(&flight.world, &case.camera, &culled, &case.scene.meshes, &judge).metrics;
+        assert!(judged.false_negatives.is_empty(), "{} {}: {:?}", case.sweep, case.value, judged.false_negatives);
+    }
+    let Some(mut town) = cullet_test_support::shared_scene("truck_town/town_model.gltf") else { return };
+    add_auto_occluders(&mut town.scene, &AutoOccluderSettings::default());
+    let path = town.scene.orbit_path();
+    fly_and_judge(&town.scene, path, 24, &mut HierarchyCuller::default());
+}

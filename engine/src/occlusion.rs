@@ -229,16 +229,27 @@ fn test_word_with_backend(
     }
 }
 
-/// Whether the box of group `group` (the slots of one bitset word) is hidden by the pyramid. Its centre and
-/// half extent are rounded so that the box they give contains the group's corners.
-fn group_occluded(store: &BoundsStore, view: &ScreenView, pyramid: &DepthPyramid, group: usize) -> bool {
-    let GroupBounds { min, max } = store.groups()[group];
+/// Whether `pyramid`, seen through `view`, hides the world box from `min` to `max` (its corners, which must
+/// be finite): its screen rectangle and nearest depth, rounded so that the test culls only what the pyramid
+/// provably hides, against the pyramid's texels as every object is tested. A box reaching the near plane is
+/// never hidden; nor is anything by an empty pyramid.
+pub fn box_occluded(view: &ScreenView, pyramid: &DepthPyramid, min: glam::Vec3, max: glam::Vec3) -> bool {
+    if pyramid.level_count() == 0 {
+        return false;
+    }
     let half = (max - min) * 0.5;
     let centre = min + half;
     let half = half + (centre.abs() + half) * (4.0 * f32::EPSILON);
     let relative = centre - view.origin;
     let [rect] = project(view, &relative.to_array().map(|v| [v]), &half.to_array().map(|v| [v]));
     rect_occluded(&rect, pyramid)
+}
+
+/// Whether the box of group `group` (the slots of one bitset word) is hidden by the pyramid. Its centre and
+/// half extent are rounded so that the box they give contains the group's corners.
+fn group_occluded(store: &BoundsStore, view: &ScreenView, pyramid: &DepthPyramid, group: usize) -> bool {
+    let GroupBounds { min, max } = store.groups()[group];
+    box_occluded(view, pyramid, min, max)
 }
 
 /// [`test_word`] with the AVX2 projection.

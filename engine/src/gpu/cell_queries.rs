@@ -3,7 +3,7 @@
 //! each queried cell's box inside an occlusion query of its own against that depth. The results are mapped
 //! when the GPU gets to them and read at a later frame, which never waits for its own queries.
 
-use super::indirect::{cluster_draws, indirect_buffer, position_vertex_state};
+use super::indirect::{indirect_buffer, object_draws, position_vertex_state};
 use super::interface::GpuView;
 use super::scene::GpuScene;
 use super::view_cull::view_buffer;
@@ -110,9 +110,9 @@ impl CellQueries {
         self.in_flight.is_some()
     }
 
-    /// Records and submits one frame through `camera`: the instances at `drawn` (store slots) to depth, then
-    /// one occlusion query per box of `boxes`, in order. The results come back through
-    /// [`CellQueries::take_results`].
+    /// Records and submits one frame through `camera`: the instances at `drawn` (store slots, ascending) to
+    /// depth, each whole mesh in one draw, then one occlusion query per box of `boxes`, in order. The results
+    /// come back through [`CellQueries::take_results`].
     ///
     /// # Errors
     /// [`GpuError::SlotOutOfRange`] for a slot of `drawn` that is not an instance of the scene (nothing is
@@ -143,7 +143,7 @@ impl CellQueries {
         let view = GpuView::of_camera(camera, self.size());
         context.queue.write_buffer(&self.view, 0, bytemuck::bytes_of(&view));
         let reversed = usize::from(camera.depth != DepthConvention::Reversed);
-        let draws = cluster_draws(&self.scene.library, self.scene.instances(), drawn.iter().copied());
+        let draws = object_draws(&self.scene.library, self.scene.instances(), drawn.iter().copied());
         let box_buffer = {
             use wgpu::util::DeviceExt;
             let contents: &[u8] = if boxes.is_empty() { &[0; 32] } else { bytemuck::cast_slice(boxes) };

@@ -94,3 +94,36 @@ pub fn cluster_draws(
         })
         .collect()
 }
+
+/// The draws of the whole meshes of the instances at `slots` (ascending), uncompacted: a mesh's clusters are
+/// one range of the index buffer, so each run of consecutive slots of one mesh is one instanced draw. For a
+/// depth pass that needs no culling below the object.
+pub fn object_draws(
+    library: &super::clusters::ClusterLibrary,
+    instances: &[super::scene::GpuInstance],
+    slots: impl IntoIterator<Item = u32>,
+) -> Vec<DrawIndexedIndirectArgs> {
+    let mut draws: Vec<DrawIndexedIndirectArgs> = Vec::new();
+    let mut last: Option<(u32, u32)> = None;
+    for slot in slots {
+        let mesh = instances[slot as usize].mesh;
+        let clusters = library.clusters_of(mesh);
+        let (Some(first), Some(end)) = (clusters.first(), clusters.last()) else { continue };
+        if let (Some((last_slot, last_mesh)), Some(draw)) = (last, draws.last_mut())
+            && last_slot + 1 == slot
+            && last_mesh == mesh
+        {
+            draw.instance_count += 1;
+        } else {
+            draws.push(DrawIndexedIndirectArgs {
+                index_count: end.first_index + 3 * end.triangle_count - first.first_index,
+                instance_count: 1,
+                first_index: first.first_index,
+                base_vertex: 0,
+                first_instance: slot,
+            });
+        }
+        last = Some((slot, mesh));
+    }
+    draws
+}
