@@ -110,8 +110,8 @@ impl QueryGridVariant {
 
     fn label(self) -> String {
         match self {
-            Self::Capped(Some(cap)) => format!("query grid, cap {cap}"),
-            Self::Capped(None) => "query grid, no cap".into(),
+            Self::Capped(Some(cap)) => format!("query grid cap {cap}"),
+            Self::Capped(None) => "query grid no cap".into(),
             Self::Thesis => "query grid as the thesis".into(),
         }
     }
