@@ -18,7 +18,8 @@
 //!
 //! Where a GPU is found (lavapipe will do), hardware occlusion queries over a uniform grid
 //! (`cullet::gpu::QueryGridCuller`, lossy: a cell coming into view is drawn a frame late) are a series on
-//! every scene: the thesis's cap of 4000 queries a frame, no cap, a cap of 500, and the thesis's own settings.
+//! every scene: the thesis's cap of 4000 queries a frame, no cap, a cap of 500, no cap and no spreading
+//! (visible results lasting one frame), and the thesis's own settings.
 //! Its time is the CPU's (binning, traversal, recording); the GPU's depth pass and queries are not counted.
 //!
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_ONLY` (series names as in the CSV's
@@ -92,17 +93,23 @@ enum Series {
 enum QueryGridVariant {
     /// The engine's settings with this query cap (`None`: no cap).
     Capped(Option<u32>),
+    /// No cap and no spreading: visible cells queried again every frame, as hidden ones are.
+    Unspread,
     /// `QueryGridSettings::thesis()`: hidden results last 2 frames and are trusted however old.
     Thesis,
 }
 
 impl QueryGridVariant {
-    const ALL: [Self; 4] = [Self::Capped(Some(4000)), Self::Capped(None), Self::Capped(Some(500)), Self::Thesis];
+    const ALL: [Self; 5] =
+        [Self::Capped(Some(4000)), Self::Capped(None), Self::Capped(Some(500)), Self::Unspread, Self::Thesis];
 
     /// Its settings; the judged pass waits for each frame's results, as a GPU that keeps up delivers them.
     fn settings(self) -> QueryGridSettings {
         let settings = match self {
             Self::Capped(query_cap) => QueryGridSettings { query_cap, ..QueryGridSettings::default() },
+            Self::Unspread => {
+                QueryGridSettings { query_cap: None, visible_lifetime: 1, ..QueryGridSettings::default() }
+            }
             Self::Thesis => QueryGridSettings::thesis(),
         };
         QueryGridSettings { wait_for_results: true, ..settings }
@@ -112,6 +119,7 @@ impl QueryGridVariant {
         match self {
             Self::Capped(Some(cap)) => format!("query grid cap {cap}"),
             Self::Capped(None) => "query grid no cap".into(),
+            Self::Unspread => "query grid no cap no spreading".into(),
             Self::Thesis => "query grid as the thesis".into(),
         }
     }
