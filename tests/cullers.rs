@@ -49,10 +49,9 @@ fn shadow_frusta_keep_everything_visible_on_the_city_path() {
     println!("city: {occluded} objects culled by shadow frusta over 40 frames; {metrics:?}");
 }
 
-/// Every stress case (far from the origin, tiny near planes, reversed and infinite depth, degenerate input):
-/// no false negative.
-#[test]
-fn shadow_frusta_lose_nothing_on_the_stress_cases() {
+/// Runs a fresh culler from `make` on every stress case (far from the origin, tiny near planes, reversed and
+/// infinite depth, degenerate input); panics on a false negative.
+fn assert_stress_cases_lose_nothing(make: impl Fn() -> Box<dyn Culler>) {
     for case in cullet_truth::stress::cases() {
         let path = cullet::CameraPath { fov_y_deg: 60.0, near: 0.1, far: None, keys: Vec::new() };
         let mut flight = Flight::for_cullers(path, case.camera.aspect, 1, |world| {
@@ -63,11 +62,17 @@ fn shadow_frusta_lose_nothing_on_the_stress_cases() {
             reference: ReferenceSettings { width: case.width, height: case.height, ..ReferenceSettings::default() },
             occlusion_ideal: false,
         };
-        let mut culler = ShadowFrustaCuller::default();
+        let mut culler = make();
         let culled = culler.cull(&CullScene::new(&flight.world), &case.camera);
         let judged = judge_culled(&flight.world, &case.camera, &culled, &case.scene.meshes, &judge).metrics;
         assert!(judged.false_negatives.is_empty(), "{} {}: {:?}", case.sweep, case.value, judged.false_negatives);
     }
+}
+
+/// Every stress case: no false negative.
+#[test]
+fn shadow_frusta_lose_nothing_on_the_stress_cases() {
+    assert_stress_cases_lose_nothing(|| Box::new(ShadowFrustaCuller::default()));
 }
 
 /// truck_town, nobody here's scene, with automatic occluders, around its orbit: no false negative.
@@ -286,21 +291,7 @@ fn the_hierarchy_keeps_everything_visible_and_culls_as_the_stages_do() {
     println!("hierarchy: {occluded} culled by occlusion (stages: {stages_occluded}); {metrics:?}");
     assert!(hierarchy.is_conservative((640, 360)));
     assert!(occluded as f64 >= 0.95 * stages_occluded as f64, "{occluded} against {stages_occluded}");
-    for case in cullet_truth::stress::cases() {
-        let path = cullet::CameraPath { fov_y_deg: 60.0, near: 0.1, far: None, keys: Vec::new() };
-        let mut flight = Flight::for_cullers(path, case.camera.aspect, 1, |world| {
-            case.scene.spawn(world);
-        });
-        flight.schedule.run(&mut flight.world);
-        let judge = JudgeSettings {
-            reference: ReferenceSettings { width: case.width, height: case.height, ..ReferenceSettings::default() },
-            occlusion_ideal: false,
-        };
-        let mut culler = HierarchyCuller::default();
-        let culled = culler.cull(&CullScene::new(&flight.world), &case.camera);
-        let judged = judge_culled(&flight.world, &case.camera, &culled, &case.scene.meshes, &judge).metrics;
-        assert!(judged.false_negatives.is_empty(), "{} {}: {:?}", case.sweep, case.value, judged.false_negatives);
-    }
+    assert_stress_cases_lose_nothing(|| Box::new(HierarchyCuller::default()));
     let Some(mut town) = cullet_test_support::shared_scene("truck_town/town_model.gltf") else { return };
     add_auto_occluders(&mut town.scene, &AutoOccluderSettings::default());
     let path = town.scene.orbit_path();

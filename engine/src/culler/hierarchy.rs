@@ -14,7 +14,7 @@
 //! into the same depth pyramid; a node whose box the pyramid hides hides its subtree untested, children
 //! visited nearest first.
 
-use super::{CullScene, Culled, Culler, OcclusionSettings, ViewStats};
+use super::{CullScene, Culled, Culler, OcclusionSettings, ViewStats, keep_everything};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::{DepthPyramid, ScreenView};
@@ -440,10 +440,7 @@ impl Culler for HierarchyCuller {
         let frustum = match camera.frustum() {
             Ok(frustum) => frustum,
             Err(error) => {
-                stats.frustum_error = Some(error);
-                self.frustum_visible = VisibleSet::all(store.len());
-                self.kept = self.frustum_visible.clone();
-                (stats.after_frustum, stats.after_occlusion) = (store.len(), store.len());
+                keep_everything(store.len(), error, &mut self.frustum_visible, &mut self.kept, &mut stats);
                 stats.frustum_time = start.elapsed();
                 return Culled { stages: vec![("frustum", &self.frustum_visible), ("occlusion", &self.kept)], stats };
             }

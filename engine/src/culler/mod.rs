@@ -86,6 +86,21 @@ impl Culled<'_> {
     }
 }
 
+/// A frame without a frustum (an invalid camera, `error`), for a culler of `len` objects: both of its sets
+/// keep every object, as every stage does, and `stats` say why.
+pub(crate) fn keep_everything(
+    len: usize,
+    error: crate::frustum::FrustumError,
+    frustum_visible: &mut VisibleSet,
+    kept: &mut VisibleSet,
+    stats: &mut ViewStats,
+) {
+    stats.frustum_error = Some(error);
+    *frustum_visible = VisibleSet::all(len);
+    kept.clone_from(frustum_visible);
+    (stats.after_frustum, stats.after_occlusion) = (len, len);
+}
+
 /// A way of culling, run frame by frame over a scene: the judge, the benches and the sample game compare
 /// cullers through it on the same scenes, paths and frames.
 ///

@@ -27,7 +27,7 @@ use super::clusters::ClusterLibrary;
 use super::scene::{GpuScene, instance_of, instances_from_world};
 use super::{GpuContext, GpuError};
 use crate::camera::Camera;
-use crate::culler::{CullScene, Culled, Culler, ViewStats};
+use crate::culler::{CullScene, Culled, Culler, ViewStats, keep_everything};
 use crate::frustum::{FrustumOptions, cull_frustum};
 use crate::mesh::Mesh;
 use crate::visible::VisibleSet;
@@ -346,12 +346,7 @@ impl Culler for QueryGridCuller {
         let frustum = match camera.frustum() {
             Ok(frustum) => frustum,
             Err(error) => {
-                // No frustum to cull with: keep everything, as every stage does.
-                stats.frustum_error = Some(error);
-                self.frustum_visible = VisibleSet::all(store.len());
-                self.kept = self.frustum_visible.clone();
-                stats.after_frustum = store.len();
-                stats.after_occlusion = store.len();
+                keep_everything(store.len(), error, &mut self.frustum_visible, &mut self.kept, &mut stats);
                 stats.frustum_time = start.elapsed();
                 return Culled { stages: vec![("frustum", &self.frustum_visible), ("query grid", &self.kept)], stats };
             }
