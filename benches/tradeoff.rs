@@ -782,7 +782,9 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
             .label("occluder shadow frusta")
             .legend(move |(x, y)| Cross::new((x + 10, y), 7, frusta_color.stroke_width(3)));
         let grid_color = RGBColor(140, 80, 20);
-        let square = |(x, y): (f64, f64)| Rectangle::new([(x, y), (x, y)], grid_color.stroke_width(10));
+        // A square marker, sized in pixels around the point.
+        let square =
+            |point: (f64, f64)| EmptyElement::at(point) + Rectangle::new([(-5, -5), (5, 5)], grid_color.filled());
         chart
             .draw_series(
                 rows.iter()

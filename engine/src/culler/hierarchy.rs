@@ -363,17 +363,17 @@ impl Traversal<'_> {
 ///
 /// # Example
 /// ```
-/// use bevy_ecs::prelude::*;
 /// use cullet::culler::{CullScene, Culler, HierarchyCuller};
-/// use cullet::scene::city::{CityParams, CityScene};
-///
-/// let city = CityScene::generate(CityParams::with_objects(2_000));
-/// let (mut world, mut schedule) = (World::new(), Schedule::default());
-/// cullet::install(&mut world, &mut schedule, cullet::PipelineSettings::default());
-/// city.spawn(&mut world);
-/// schedule.run(&mut world);
+/// # use bevy_ecs::prelude::*;
+/// # use cullet::prelude::*;
+/// # use glam::Vec3;
+/// # let (mut world, mut schedule) = (World::new(), Schedule::default());
+/// # cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+/// # world.insert_resource(Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z));
+/// # schedule.run(&mut world);
 /// let mut culler = HierarchyCuller::default();
-/// let culled = culler.cull(&CullScene::new(&world), &city.benchmark_cameras()[0].1);
+/// let camera = *world.resource::<Camera>();
+/// let culled = culler.cull(&CullScene::new(&world), &camera);
 /// assert!(culled.kept().count() <= culled.stats.after_frustum);
 /// ```
 #[derive(Debug, Default)]
