@@ -14,7 +14,7 @@
 //! into the same depth pyramid; a node whose box the pyramid hides hides its subtree untested, children
 //! visited nearest first.
 
-use super::{CullScene, Culled, Culler, OcclusionSettings, ViewStats, keep_everything};
+use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, keep_everything};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::{DepthPyramid, ScreenView};
@@ -403,15 +403,15 @@ impl HierarchyCuller {
     /// Builds or refits the tree to the store.
     fn sync(&mut self, scene: &CullScene) {
         let store = scene.store();
-        let now = (store.generation(), store.layout_generation());
-        if self.synced == Some(now) && self.built_with == self.settings.leaf_size {
-            return;
-        }
-        let same_layout = self.synced.is_some_and(|(_, layout)| layout == now.1);
-        match &mut self.bvh {
-            Some(bvh) if same_layout && self.built_with == self.settings.leaf_size => {
-                let listed = scene.moves.filter(|m| self.synced.is_some_and(|(g, _)| m.from == g && m.to == now.0));
-                let moved = listed.map_or_else(|| bvh.changed_slots(store), |m| m.slots.clone());
+        let change = if self.built_with == self.settings.leaf_size {
+            scene.change_since(self.synced)
+        } else {
+            StoreChange::Layout
+        };
+        match (change, &mut self.bvh) {
+            (StoreChange::None, Some(_)) => {}
+            (StoreChange::Moved(listed), Some(bvh)) => {
+                let moved = listed.map_or_else(|| bvh.changed_slots(store), <[u32]>::to_vec);
                 bvh.refit(store, &moved);
             }
             _ => {
@@ -419,7 +419,7 @@ impl HierarchyCuller {
                 self.built_with = self.settings.leaf_size;
             }
         }
-        self.synced = Some(now);
+        self.synced = Some(scene.generations());
     }
 }
 

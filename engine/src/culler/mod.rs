@@ -69,6 +69,39 @@ impl<'w> CullScene<'w> {
     }
 }
 
+/// What changed in a scene's store since a culler last brought a structure of its own (a tree, a grid) up to
+/// date, at the store's generation and layout generation `synced` ([`CullScene::change_since`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum StoreChange<'w> {
+    /// Nothing.
+    None,
+    /// Bounds changed in place: the slots, where the scene lists them; `None` where it does not.
+    Moved(Option<&'w [u32]>),
+    /// Objects came or went (or nothing was brought up to date yet): build again.
+    Layout,
+}
+
+impl<'w> CullScene<'w> {
+    /// What changed in the store since it was at `synced` (its generation and layout generation then).
+    pub(crate) fn change_since(&self, synced: Option<(u64, u64)>) -> StoreChange<'w> {
+        let store = self.store();
+        let now = (store.generation(), store.layout_generation());
+        match synced {
+            Some(then) if then == now => StoreChange::None,
+            Some((generation, layout)) if layout == now.1 => {
+                let listed = self.moves.filter(|m| (m.from, m.to) == (generation, now.0));
+                StoreChange::Moved(listed.map(|m| m.slots.as_slice()))
+            }
+            _ => StoreChange::Layout,
+        }
+    }
+
+    /// The store's generation and layout generation now: what [`CullScene::change_since`] compares with.
+    pub(crate) fn generations(&self) -> (u64, u64) {
+        (self.store().generation(), self.store().layout_generation())
+    }
+}
+
 /// What a [`Culler`] kept in one frame.
 #[derive(Clone, Debug)]
 pub struct Culled<'a> {

@@ -27,7 +27,7 @@ use super::clusters::ClusterLibrary;
 use super::scene::{GpuScene, instance_of, instances_from_world};
 use super::{GpuContext, GpuError};
 use crate::camera::Camera;
-use crate::culler::{CullScene, Culled, Culler, ViewStats, keep_everything};
+use crate::culler::{CullScene, Culled, Culler, StoreChange, ViewStats, keep_everything};
 use crate::frustum::{FrustumOptions, cull_frustum};
 use crate::mesh::Mesh;
 use crate::visible::VisibleSet;
@@ -237,21 +237,19 @@ impl QueryGridCuller {
     /// by the scene, or found by comparing their boxes), or everything where objects came or went.
     fn sync(&mut self, scene: &CullScene) {
         let store = scene.store();
-        let now = (store.generation(), store.layout_generation());
-        let moves = scene.moves.filter(|m| {
-            self.synced.is_some_and(|(generation, layout)| m.from == generation && layout == now.1 && m.to == now.0)
-        });
-        let unchanged = self.synced == Some(now) && self.built_with == self.settings.cell_size;
-        if unchanged {
-            return;
-        }
-        let same_layout = self.synced.is_some_and(|(_, layout)| layout == now.1);
-        let updated = match (moves, &mut self.grid) {
-            (_, Some(grid)) if self.built_with != self.settings.cell_size || !same_layout => None,
-            (Some(moves), Some(grid)) => grid.update(store, &moves.slots).then(|| moves.slots.clone()),
+        let change = if self.built_with == self.settings.cell_size {
+            scene.change_since(self.synced)
+        } else {
+            StoreChange::Layout
+        };
+        let updated = match (change, &mut self.grid) {
+            (StoreChange::None, Some(_)) => return,
+            (StoreChange::Moved(Some(slots)), Some(grid)) => grid.update(store, slots).then(|| slots.to_vec()),
             // What moved is not known: found by comparing every box with the one binned.
-            (None, Some(grid)) => grid.changed_slots(store).filter(|slots| grid.update(store, slots)),
-            (_, None) => None,
+            (StoreChange::Moved(None), Some(grid)) => {
+                grid.changed_slots(store).filter(|slots| grid.update(store, slots))
+            }
+            _ => None,
         };
         let world = scene.world;
         let gpu = self.queries.scene_mut();
@@ -268,7 +266,7 @@ impl QueryGridCuller {
                 gpu.write_instances(&self.context, store.len(), &all, |slot| instance_of(world, slot));
             }
         }
-        self.synced = Some(now);
+        self.synced = Some(scene.generations());
     }
 
     /// Reads the last frame's results where they are back, into the cells' results. Returns false where they
