@@ -76,6 +76,7 @@ pub mod occlusion;
 pub mod raster;
 
 pub mod camera;
+pub mod cells;
 pub mod culler;
 pub mod depth;
 #[cfg(feature = "gpu")]

@@ -121,6 +121,29 @@ pub fn set_slots(first_word: usize, words: &[u64]) -> impl Iterator<Item = usize
     })
 }
 
+/// A [`VisibleSet`] set from several threads at once (a traversal's tasks), copied into one when they are done.
+pub(crate) struct SharedVisibleSet(Vec<std::sync::atomic::AtomicU64>);
+
+impl SharedVisibleSet {
+    /// `len` slots, all clear.
+    pub(crate) fn new(len: usize) -> Self {
+        Self((0..len.div_ceil(64)).map(|_| std::sync::atomic::AtomicU64::new(0)).collect())
+    }
+
+    /// Sets `slot`, which must be below the length.
+    pub(crate) fn set(&self, slot: u32) {
+        self.0[slot as usize / 64].fetch_or(1 << (slot % 64), std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Copies the bits into `set`, resized to `len` slots.
+    pub(crate) fn copy_to(&self, len: usize, set: &mut VisibleSet) {
+        set.reset(len);
+        for (word, shared) in set.words_mut().iter_mut().zip(&self.0) {
+            *word = shared.load(std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

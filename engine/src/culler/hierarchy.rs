@@ -22,9 +22,9 @@ use crate::frustum::Frustum;
 use crate::occluders::select_occluders;
 use crate::occlusion::box_occluded;
 use crate::raster::rasterize;
-use crate::visible::VisibleSet;
+use crate::visible::{SharedVisibleSet, VisibleSet};
 use glam::Vec3;
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
 
 /// [`Node::right`] of a leaf.
@@ -215,26 +215,6 @@ fn build_subtree(nodes: &mut [Node], base: u32, order: &mut [u32], first: u32, b
     }
 }
 
-/// A bitset of store slots set from several threads.
-struct SharedSet(Vec<AtomicU64>);
-
-impl SharedSet {
-    fn new(len: usize) -> Self {
-        Self((0..len.div_ceil(64)).map(|_| AtomicU64::new(0)).collect())
-    }
-
-    fn set(&self, slot: u32) {
-        self.0[slot as usize / 64].fetch_or(1 << (slot % 64), Ordering::Relaxed);
-    }
-
-    fn copy_to(&self, len: usize, set: &mut VisibleSet) {
-        set.reset(len);
-        for (word, shared) in set.words_mut().iter_mut().zip(&self.0) {
-            *word = shared.load(Ordering::Relaxed);
-        }
-    }
-}
-
 /// Where a box stands against a plane `normal . (p - origin) + d >= 0`.
 enum Side {
     Outside,
@@ -249,8 +229,8 @@ struct Traversal<'a> {
     occlusion: Option<(&'a ScreenView, &'a DepthPyramid)>,
     eye: Vec3,
     /// Objects the frustum keeps, set by the frustum pass; read by the occlusion pass.
-    frustum_visible: &'a SharedSet,
-    kept: &'a SharedSet,
+    frustum_visible: &'a SharedVisibleSet,
+    kept: &'a SharedVisibleSet,
     frustum_only: Option<&'a VisibleSet>,
 }
 
@@ -447,7 +427,7 @@ impl Culler for HierarchyCuller {
         };
         let bvh = self.bvh.as_ref().expect("sync builds the tree");
         let all_planes = ((1u32 << frustum.planes().len()) - 1) as u8;
-        let (frustum_visible, kept) = (SharedSet::new(store.len()), SharedSet::new(store.len()));
+        let (frustum_visible, kept) = (SharedVisibleSet::new(store.len()), SharedVisibleSet::new(store.len()));
         let traversal = Traversal {
             bvh,
             frustum: &frustum,

@@ -11,16 +11,19 @@
 //! is its first implementation; a culler that keeps state across frames keeps it in `self`.
 //! [`ShadowFrustaCuller`] culls with the occluders' shadow frusta instead of a depth buffer;
 //! [`HierarchyCuller`] culls down a bounding volume hierarchy instead of over the linear arrays;
+//! [`PortalCuller`] through the cells and portals of an interior ([`crate::cells`]), then by occlusion;
 //! `cullet::gpu::QueryGridCuller` (feature `gpu`) with GPU occlusion queries over a uniform grid, a frame late.
 
 mod adaptive;
 mod hierarchy;
+mod portals;
 mod settings;
 mod shadow_frusta;
 mod view;
 
 pub use adaptive::{BenefitGate, RetestCost};
 pub use hierarchy::{Bvh, HierarchyCuller, HierarchySettings};
+pub use portals::{PortalCuller, PortalSettings, PortalStats};
 pub use settings::{
     AdaptiveSettings, MAX_OCCLUSION_SAMPLES, MAX_OCCLUSION_SIDE, OcclusionSettings, SettingsError, ViewSettings,
 };

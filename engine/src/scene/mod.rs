@@ -2,8 +2,8 @@
 //! them, spawned into a `bevy_ecs` world as the components the culling stages read.
 //!
 //! - `city` generates the built-in procedural city (dense, occluded), `field` an open field (nothing to
-//!   occlude), `cad` an assembly always entirely on screen (nothing for the frustum to cull): feature
-//!   `scenes`;
+//!   occlude), `cad` an assembly always entirely on screen (nothing for the frustum to cull), `building` floors of
+//!   rooms with their cells and portals (the portal culler's scene): feature `scenes`;
 //! - `gltf_import` loads a glTF 2.0 file (`.gltf` or `.glb`), artist occluders included; `gltf_export` writes
 //!   a scene as glTF, so the project ships test scenes its own generator made: feature `gltf`;
 //! - `auto_occluders` gives occluders to large meshes of scenes that have none;
@@ -12,6 +12,8 @@
 //!   pipeline through it.
 
 pub mod auto_occluders;
+#[cfg(feature = "scenes")]
+pub mod building;
 #[cfg(feature = "scenes")]
 pub mod cad;
 #[cfg(feature = "scenes")]
@@ -28,6 +30,7 @@ pub use flight::{Flight, FrameDelta};
 
 use crate::bounds::{LocalBounds, ObjectTransform, Static};
 use crate::camera::{CameraKey, CameraPath};
+use crate::cells::Cells;
 use crate::mesh::{Mesh, MeshRef, ObjectColor};
 use crate::occluders::Occluder;
 use bevy_ecs::prelude::*;
@@ -62,6 +65,8 @@ pub struct Scene {
     pub mesh_bounds: Vec<LocalBounds>,
     /// The objects.
     pub objects: Vec<SceneObject>,
+    /// The interior's cells and portals, where the scene has them ([`crate::cells`]): spawned as a resource.
+    pub cells: Option<Cells>,
 }
 
 impl Scene {
@@ -72,13 +77,16 @@ impl Scene {
             .map(|m| m.local_bounds().unwrap_or(LocalBounds { center: Vec3::ZERO, half_extent: Vec3::ZERO }))
             .collect();
         debug_assert!(objects.iter().all(|o| (o.mesh as usize) < meshes.len()));
-        Self { meshes, mesh_bounds, objects }
+        Self { meshes, mesh_bounds, objects, cells: None }
     }
 
     /// Spawns every object as an entity with [`LocalBounds`], [`ObjectTransform`], [`MeshRef`],
     /// [`ObjectColor`], [`Static`] or [`Velocity`], and its [`Occluder`] if it has one. Returns the entities in
-    /// object order.
+    /// object order. The scene's [`Cells`], where it has them, become a resource.
     pub fn spawn(&self, world: &mut World) -> Vec<Entity> {
+        if let Some(cells) = &self.cells {
+            world.insert_resource(cells.clone());
+        }
         self.objects
             .iter()
             .map(|object| {
@@ -100,10 +108,13 @@ impl Scene {
             .collect()
     }
 
-    /// Moves every object by `offset` (in f32, as a world that far from its origin would store it).
+    /// Moves every object (and cell) by `offset` (in f32, as a world that far from its origin would store it).
     pub fn translate(&mut self, offset: Vec3) {
         for object in &mut self.objects {
             object.transform.translation += glam::Vec3A::from(offset);
+        }
+        if let Some(cells) = &mut self.cells {
+            cells.translate(offset);
         }
     }
 
