@@ -22,17 +22,23 @@
 //! (visible results lasting one frame), and the thesis's own settings.
 //! Its time is the CPU's (binning, traversal, recording); the GPU's depth pass and queries are not counted.
 //!
+//! The bounding volume hierarchy (`HierarchyCuller`) and cells and portals (`PortalCuller`), each before the
+//! default buffer, are a series on every scene; the generated building (`cullet::scene::building`, its walk) is
+//! one more scene, judged like the shared ones.
+//!
 //! `cargo bench -p cullet-benches --bench tradeoff`; `CULLET_TRADEOFF_ONLY` (series names as in the CSV's
 //! `peer` column, comma-separated) runs only those with the default and frustum only; `CULLET_TRADEOFF_OBJECTS` (default 100000) and
 //! `CULLET_TRADEOFF_FRAMES` (default 200) size the city's run, `CULLET_TRADEOFF_SCENE_FRAMES` (default 60)
-//! each shared scene's, and `CULLET_TRADEOFF_SCENES` (default `city,truck_town,zdm2`) chooses the scenes.
+//! each shared scene's, and `CULLET_TRADEOFF_SCENES` (default `city,truck_town,zdm2,building`; `CULLET_TRADEOFF_BUILDING_OBJECTS`, default 1500, sizes the
+//! building) chooses the scenes.
 
 #[path = "moc/mod.rs"]
 mod moc;
 
 use cullet::camera::CameraPath;
 use cullet::culler::{
-    Culled, Culler, OcclusionSettings, ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
+    Culled, Culler, HierarchyCuller, HierarchySettings, OcclusionSettings, PortalCuller, PortalSettings,
+    ShadowFrustaCuller, ShadowFrustaSettings, StageCuller, ViewSettings,
 };
 use cullet::detail::DetailSettings;
 use cullet::gpu::{GpuContext, QueryGridCuller, QueryGridSettings};
@@ -86,6 +92,11 @@ enum Series {
     /// Hardware occlusion queries over a uniform grid (`cullet::gpu::QueryGridCuller`, lossy), on the GPU the
     /// bench finds, with the given query cap (`None`: none), or as the thesis has it.
     QueryGrid(QueryGridVariant),
+    /// A bounding volume hierarchy, then the occlusion stage with the row's settings (`HierarchyCuller`).
+    Hierarchy,
+    /// Cells and portals, then the occlusion stage with the row's settings (`PortalCuller`); without cells,
+    /// the frustum alone before it.
+    Portals,
 }
 
 /// Which query grid a row is.
@@ -139,6 +150,8 @@ impl Series {
             Self::ShadowFrusta => "cullet-shadow-frusta",
             Self::Detail(_) => "cullet-detail",
             Self::QueryGrid(_) => "cullet-query-grid",
+            Self::Hierarchy => "cullet-hierarchy",
+            Self::Portals => "cullet-portals",
         }
     }
 }
@@ -151,6 +164,10 @@ fn culler_for(series: Series, settings: OcclusionSettings, flight: &Flight, scen
             let viewport = settings.frame.unwrap_or((1920, 1080));
             Box::new(QueryGridCuller::new(context, &flight.world, &scene.meshes, viewport, variant.settings()))
         }
+        Series::Hierarchy => {
+            Box::new(HierarchyCuller::new(HierarchySettings { occlusion: settings, ..Default::default() }))
+        }
+        Series::Portals => Box::new(PortalCuller::new(PortalSettings { occlusion: settings })),
         Series::ShadowFrusta => {
             let triangle_budget = settings.triangle_budget;
             Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget, ..Default::default() }))
@@ -190,7 +207,7 @@ impl Row {
     /// Whether it never hides what a rendering of `viewport` shows.
     fn is_conservative_for(&self, viewport: (u32, u32)) -> bool {
         match self.series {
-            Series::Stages => self.settings.is_conservative_for(viewport),
+            Series::Stages | Series::Hierarchy | Series::Portals => self.settings.is_conservative_for(viewport),
             Series::ShadowFrusta => true,
             Series::Moc | Series::Detail(_) | Series::QueryGrid(_) => false,
         }
@@ -209,6 +226,8 @@ impl Row {
             }
             Series::ShadowFrusta => return format!("shadow frusta {}", self.settings.triangle_budget),
             Series::QueryGrid(variant) => return variant.label(),
+            Series::Hierarchy => return "hierarchy + default".into(),
+            Series::Portals => return "portals + default".into(),
             Series::Detail(pixels) => {
                 let s = &self.settings;
                 return format!(
@@ -281,7 +300,7 @@ fn main() {
     }
     let objects = env_or("CULLET_TRADEOFF_OBJECTS", 100_000);
     let frames = env_or("CULLET_TRADEOFF_FRAMES", 200) as u32;
-    let chosen = std::env::var("CULLET_TRADEOFF_SCENES").unwrap_or_else(|_| "city,truck_town,zdm2".into());
+    let chosen = std::env::var("CULLET_TRADEOFF_SCENES").unwrap_or_else(|_| "city,truck_town,zdm2,building".into());
     let chosen: Vec<&str> = chosen.split(',').map(str::trim).collect();
     let reference = ReferenceSettings::default();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/tradeoff");
@@ -310,6 +329,16 @@ fn main() {
             writeln!(paired_csv, "{threads},{PAIRED_PASSES},{default:.1},{for_frame:.1},{ratio:.4}").unwrap();
         }
         std::fs::write(dir.join("paired.csv"), paired_csv).unwrap();
+    }
+
+    if chosen.contains(&"building") {
+        let building = cullet::scene::building::building(env_or("CULLET_TRADEOFF_BUILDING_OBJECTS", 1500));
+        let frames = env_or("CULLET_TRADEOFF_SCENE_FRAMES", 60) as u32;
+        let path = cullet::scene::building::walk();
+        let judged = JudgedScene { name: "building", scene: &building, path, frames };
+        let mut scene_rows = sweep(&judged, scene_configs(&reference), &reference);
+        mark_pareto_front(&mut scene_rows, (reference.width, reference.height));
+        rows.extend(scene_rows);
     }
 
     // Nobody here's scenes: truck_town and zdm2 with automatic occluders (they have no artist ones), around
@@ -376,7 +405,15 @@ fn city_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings
         configs.push((Series::Detail(pixels), OcclusionSettings { frame, ..OcclusionSettings::default() }));
     }
     configs.extend(query_grid_configs(reference));
+    configs.extend(structure_configs(reference));
     configs
+}
+
+/// The hierarchy's and the portals' rows, each before the default buffer.
+fn structure_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSettings)> {
+    let frame = Some((reference.width, reference.height));
+    let default = OcclusionSettings { frame, ..OcclusionSettings::default() };
+    vec![(Series::Hierarchy, default), (Series::Portals, default)]
 }
 
 /// The query grid's rows, where a GPU is found: its cap at the thesis's 4000, none and 500, and as the thesis.
@@ -408,6 +445,7 @@ fn scene_configs(reference: &ReferenceSettings) -> Vec<(Series, OcclusionSetting
         configs.push((Series::ShadowFrusta, OcclusionSettings { triangle_budget, ..OcclusionSettings::default() }));
     }
     configs.extend(query_grid_configs(reference));
+    configs.extend(structure_configs(reference));
     configs
 }
 
@@ -793,6 +831,19 @@ fn plot(rows: &[Row], path: &std::path::Path, objects: usize, frames: u32) -> Re
             )?
             .label("GPU query grid (lossy, CPU time only)")
             .legend(move |(x, y)| Rectangle::new([(x + 5, y - 5), (x + 15, y + 5)], grid_color.filled()));
+        for (series, name, color) in [
+            (Series::Hierarchy, "hierarchy + default buffer", RGBColor(90, 40, 160)),
+            (Series::Portals, "cells and portals + default buffer", RGBColor(200, 120, 0)),
+        ] {
+            chart
+                .draw_series(
+                    rows.iter()
+                        .filter(|r| r.series == series)
+                        .map(|r| TriangleMarker::new((r.cull_us() / 1e3, value(r)), 7, color.filled())),
+                )?
+                .label(name)
+                .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 7, color.filled()));
+        }
         chart.draw_series(
             rows.iter()
                 .filter(|r| !r.settings.enabled)

@@ -33,7 +33,8 @@ use std::time::Instant;
 #[command(version, about)]
 struct Args {
     /// Scene to load: a built-in one, `city[:N]` (dense, occluded; 100 000 objects by default), `field[:N]`
-    /// (open, no occluders) or `cad[:N]` (everything on screen; 20 000 by default), or a glTF file (`.gltf` or
+    /// (open, no occluders), `cad[:N]` (everything on screen; 20 000 by default), `building[:N]` (floors of
+    /// rooms with cells and portals, walked through; 1 500 by default), or a glTF file (`.gltf` or
     /// `.glb`).
     #[arg(long, default_value = "city:100000")]
     scene: String,
@@ -194,8 +195,12 @@ fn load_scene(args: &Args) -> Result<LoadedScene, String> {
         Some((name, count)) => (name, Some(count)),
         None => (args.scene.as_str(), None),
     };
-    let builtin = ["city", "field", "cad"].contains(&name).then(|| match count {
-        None => Ok(if name == "city" { 100_000 } else { 20_000 }),
+    let builtin = ["city", "field", "cad", "building"].contains(&name).then(|| match count {
+        None => Ok(match name {
+            "city" => 100_000,
+            "building" => 1_500,
+            _ => 20_000,
+        }),
         Some(count) => count.parse::<usize>().map_err(|_| format!("bad object count in --scene {}", args.scene)),
     });
     let mut loaded = match builtin {
@@ -208,6 +213,7 @@ fn load_scene(args: &Args) -> Result<LoadedScene, String> {
                     (city.scene, path)
                 }
                 "field" => cullet::scene::field::field(objects),
+                "building" => (cullet::scene::building::building(objects), cullet::scene::building::walk()),
                 _ => cullet::scene::cad::cad(objects),
             };
             LoadedScene { description: format!("{name} of {} objects", scene.objects.len()), scene, path }
@@ -217,7 +223,7 @@ fn load_scene(args: &Args) -> Result<LoadedScene, String> {
             let extension = file.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
             if !matches!(extension.as_deref(), Some("gltf" | "glb")) {
                 return Err(format!(
-                    "unknown scene '{}': expected city[:N], field[:N], cad[:N] or a .gltf/.glb file",
+                    "unknown scene '{}': expected city[:N], field[:N], cad[:N], building[:N] or a .gltf/.glb file",
                     args.scene
                 ));
             }

@@ -353,16 +353,22 @@ impl PortalCuller {
             .collect();
         stats.objects_tested = views.iter().map(|(_, members)| members.len()).sum();
         let kept = SharedVisibleSet::new(store.len());
-        views
-            .par_iter()
-            .flat_map(|(frustum, members)| members.par_chunks(SLOTS_PER_TASK).map(move |chunk| (frustum, chunk)))
-            .for_each(|(frustum, chunk)| {
-                for &slot in chunk {
-                    if store.get(slot as usize).is_none_or(|bounds| frustum.intersects(&bounds)) {
-                        kept.set(slot);
-                    }
+        let test = |(frustum, chunk): (&Frustum, &[u32])| {
+            for &slot in chunk {
+                if store.get(slot as usize).is_none_or(|bounds| frustum.intersects(&bounds)) {
+                    kept.set(slot);
                 }
-            });
+            }
+        };
+        // Fewer tests than one task holds cost less than waking the pool.
+        if stats.objects_tested <= SLOTS_PER_TASK {
+            views.iter().for_each(|(frustum, members)| test((frustum, members)));
+        } else {
+            views
+                .par_iter()
+                .flat_map(|(frustum, members)| members.par_chunks(SLOTS_PER_TASK).map(move |chunk| (frustum, chunk)))
+                .for_each(test);
+        }
         kept.copy_to(store.len(), &mut self.portal_visible);
         self.portal_stats = stats;
     }
