@@ -262,3 +262,87 @@ fn hostile_field_values_never_panic() {
         })
         .unwrap();
 }
+
+/// A hall (a `_cell` node, or a node whose extras name its cell), a door (a `_portal` node) and a crate: the
+/// hall and the door are read as cells and portals and not drawn; a portal that joins nothing drops them with
+/// a warning, and the scene loads without them.
+#[test]
+fn cell_and_portal_nodes_become_the_scenes_cells() {
+    let quad = Mesh {
+        positions: vec![
+            glam::Vec3::new(0.0, 0.0, -0.5),
+            glam::Vec3::new(0.0, 0.0, 0.5),
+            glam::Vec3::new(0.0, 2.0, 0.5),
+            glam::Vec3::new(0.0, 2.0, -0.5),
+        ],
+        indices: vec![0, 1, 2, 0, 2, 3],
+    };
+    let object = |mesh, transform| cullet::scene::SceneObject {
+        mesh,
+        transform,
+        occluder: None,
+        velocity: None,
+        color: [200; 4],
+    };
+    let scene = Scene::new(
+        vec![Mesh::unit_cube(1), quad],
+        vec![
+            object(
+                0,
+                glam::Affine3A::from_scale_rotation_translation(
+                    glam::Vec3::new(10.0, 3.0, 10.0),
+                    glam::Quat::IDENTITY,
+                    glam::Vec3::new(0.0, 1.5, 0.0),
+                ),
+            ),
+            object(1, glam::Affine3A::from_translation(glam::Vec3::new(5.0, 0.0, 0.0))),
+            object(0, glam::Affine3A::from_translation(glam::Vec3::new(0.0, 0.5, 0.0))),
+        ],
+    );
+    let json: serde_json::Value = serde_json::from_str(&write_gltf(&scene, "hall")).unwrap();
+    let named = |patch: &dyn Fn(&mut serde_json::Value)| {
+        let mut json = json.clone();
+        let nodes = json["nodes"].as_array_mut().unwrap();
+        let with_mesh: Vec<usize> = (0..nodes.len()).filter(|&i| nodes[i].get("mesh").is_some()).collect();
+        assert_eq!(with_mesh.len(), 3);
+        nodes[with_mesh[0]]["name"] = "hall_cell".into();
+        nodes[with_mesh[1]]["name"] = "door_portal".into();
+        patch(&mut json);
+        parse(&json.to_string()).unwrap()
+    };
+    for loaded in [
+        named(&|_| {}),
+        named(&|json| {
+            let nodes = json["nodes"].as_array_mut().unwrap();
+            let hall = nodes.iter_mut().find(|n| n["name"] == "hall_cell").unwrap();
+            hall["name"] = "the big room".into();
+            hall["extras"] = serde_json::json!({ "cell": "hall" });
+        }),
+    ] {
+        assert_eq!(loaded.scene.objects.len(), 1, "{:?}", loaded.warnings);
+        let cells = loaded.scene.cells.as_ref().expect("cells");
+        assert_eq!(cells.cells().len(), 1);
+        assert_eq!(cells.cells()[0].name, "hall");
+        let (min, max) = cells.cells()[0].boxes[0];
+        assert!(
+            min.abs_diff_eq(glam::Vec3::new(-5.0, 0.0, -5.0), 1e-5)
+                && max.abs_diff_eq(glam::Vec3::new(5.0, 3.0, 5.0), 1e-5)
+        );
+        assert_eq!(cells.portals().len(), 1);
+        assert_eq!(cells.portals()[0].joins, (0, None));
+    }
+    let astray = named(&|json| {
+        let nodes = json["nodes"].as_array_mut().unwrap();
+        let door = nodes.iter_mut().find(|n| n["name"] == "door_portal").unwrap();
+        door["matrix"] = serde_json::Value::Null;
+        door.as_object_mut().unwrap().remove("matrix");
+        door["translation"] = serde_json::json!([100.0, 0.0, 0.0]);
+    });
+    assert!(astray.scene.cells.is_none());
+    assert!(
+        astray.warnings.iter().any(|w| w.contains("cells and portals dropped") && w.contains("door_portal")),
+        "{:?}",
+        astray.warnings
+    );
+    assert_eq!(astray.scene.objects.len(), 1);
+}

@@ -11,6 +11,14 @@
 //! when the camera is inside that object; an occluder node whose parent draws nothing is carried by an object
 //! of its own that has the occluder's vertices for bounds and no triangles.
 //!
+//! Cells and portals ([`crate::cells`]): a node whose name ends in `_cell`, or whose `extras` holds
+//! `"cell": "name"`, is not drawn; the box around its mesh's vertices, in world space, is one box of the cell
+//! of that name (the node's name without the suffix, or the extras' name), so several nodes make a cell of
+//! several boxes. A node whose name ends in `_portal`, or whose `extras` holds `"portal": true`, is not drawn
+//! either; its mesh's vertices in world space are a portal's, joined to the cells whose boxes hold its centre
+//! ([`Cells::joined_by_position`]). Cells and portals that break the rules there are dropped with a warning
+//! naming the problem, and the scene is culled without them: never with a wrong graph.
+//!
 //! Malformed files are refused with a [`GltfError`] naming the file and the problem: unreadable or invalid
 //! JSON, missing or short buffers, compressed geometry (Draco, meshopt), unsupported required extensions,
 //! accessors outside their buffers, indices out of range, non-finite positions or transforms, cyclic node
@@ -18,6 +26,7 @@
 //! positions) are returned as warnings. Nothing in here panics on any input.
 
 use super::{Scene, SceneObject};
+use crate::cells::{Cell, Cells};
 use crate::mesh::Mesh;
 use crate::occluders::Occluder;
 use base64::Engine as _;
@@ -26,6 +35,10 @@ use std::path::{Path, PathBuf};
 
 /// Suffix of a node name that marks an artist occluder.
 pub const OCCLUDER_SUFFIX: &str = "_occluder";
+/// Suffix of a node name that marks a box of a cell.
+pub const CELL_SUFFIX: &str = "_cell";
+/// Suffix of a node name that marks a portal.
+pub const PORTAL_SUFFIX: &str = "_portal";
 
 /// A glTF file that could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -202,6 +215,8 @@ impl Loader {
         let mut drawn: Vec<Option<MeshObjects>> = vec![None; document.meshes().len()];
         let mut objects = Vec::new();
         let mut occluder_nodes = 0;
+        let mut cells: Vec<Cell> = Vec::new();
+        let mut portals: Vec<(String, Vec<Vec3>)> = Vec::new();
         let scene = document.default_scene().or_else(|| document.scenes().next()).ok_or(GltfProblem::NoScene)?;
 
         // Depth-first over the hierarchy: (node, parent's world transform, first object drawn by the parent).
@@ -228,7 +243,22 @@ impl Loader {
             }
             let mut first_object = None;
             if let Some(mesh) = node.mesh() {
-                if is_occluder(&node) {
+                if let Some(role) = cell_or_portal(&node) {
+                    let points: Vec<Vec3> =
+                        geometry.triangles_of(&mesh)?.iter().map(|&p| world.transform_point3(p)).collect();
+                    match role {
+                        Role::Cell(name) => {
+                            let bounds = points
+                                .iter()
+                                .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(min, max), &p| (min.min(p), max.max(p)));
+                            match cells.iter_mut().find(|cell| cell.name == name) {
+                                Some(cell) => cell.boxes.push(bounds),
+                                None => cells.push(Cell { name, boxes: vec![bounds] }),
+                            }
+                        }
+                        Role::Portal(name) => portals.push((name, points)),
+                    }
+                } else if is_occluder(&node) {
                     occluder_nodes += 1;
                     let triangles = geometry.triangles_of(&mesh)?;
                     match parent_object {
@@ -263,7 +293,16 @@ impl Loader {
                 stack.push((child, world, first_object));
             }
         }
-        Ok(GltfScene { scene: Scene::new(meshes, objects), warnings: geometry.warnings, occluder_nodes })
+        let mut scene = Scene::new(meshes, objects);
+        if !cells.is_empty() || !portals.is_empty() {
+            match Cells::joined_by_position(cells, portals) {
+                Ok(cells) => scene.cells = Some(cells),
+                Err(error) => {
+                    geometry.warnings.push(format!("cells and portals dropped, culled without them: {error}"))
+                }
+            }
+        }
+        Ok(GltfScene { scene, warnings: geometry.warnings, occluder_nodes })
     }
 }
 
@@ -382,6 +421,32 @@ fn check_validator_preconditions(root: &gltf::json::Root) -> Result<(), GltfProb
         }
     }
     Ok(())
+}
+
+/// What a cell or portal node is.
+enum Role {
+    /// A box of the cell of this name.
+    Cell(String),
+    /// A portal of this name.
+    Portal(String),
+}
+
+/// The node's role in the cells and portals, from its name's suffix or its extras (`"cell": "name"`,
+/// `"portal": true`); `None` for other nodes.
+fn cell_or_portal(node: &gltf::Node) -> Option<Role> {
+    let name = node.name().unwrap_or_default();
+    let extras: Option<serde_json::Value> = node.extras().as_ref().and_then(|raw| serde_json::from_str(raw.get()).ok());
+    let extra = |key: &str| extras.as_ref().and_then(|v| v.get(key).cloned());
+    if let Some(cell) = name.strip_suffix(CELL_SUFFIX) {
+        return Some(Role::Cell(cell.to_string()));
+    }
+    if let Some(serde_json::Value::String(cell)) = extra("cell") {
+        return Some(Role::Cell(cell));
+    }
+    let flagged = extra("portal") == Some(serde_json::Value::Bool(true));
+    let fallback = || format!("node {}", node.index());
+    (name.ends_with(PORTAL_SUFFIX) || flagged)
+        .then(|| Role::Portal(if name.is_empty() { fallback() } else { name.to_string() }))
 }
 
 /// Whether `node` is an artist occluder: its name ends in [`OCCLUDER_SUFFIX`] or its extras say
