@@ -14,7 +14,7 @@
 //! into the same depth pyramid; a node whose box the pyramid hides hides its subtree untested, children
 //! visited nearest first.
 
-use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, keep_everything};
+use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, frustum_or_keep_everything};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::{DepthPyramid, ScreenView};
@@ -417,13 +417,15 @@ impl Culler for HierarchyCuller {
         let store = scene.store();
         let mut stats = ViewStats { objects: store.len(), ..ViewStats::default() };
         self.sync(scene);
-        let frustum = match camera.frustum() {
-            Ok(frustum) => frustum,
-            Err(error) => {
-                keep_everything(store.len(), error, &mut self.frustum_visible, &mut self.kept, &mut stats);
-                stats.frustum_time = start.elapsed();
-                return Culled { stages: vec![("frustum", &self.frustum_visible), ("occlusion", &self.kept)], stats };
-            }
+        let Some(frustum) = frustum_or_keep_everything(
+            camera,
+            store.len(),
+            &mut self.frustum_visible,
+            &mut self.kept,
+            &mut stats,
+            start,
+        ) else {
+            return Culled { stages: vec![("frustum", &self.frustum_visible), ("occlusion", &self.kept)], stats };
         };
         let bvh = self.bvh.as_ref().expect("sync builds the tree");
         let all_planes = ((1u32 << frustum.planes().len()) - 1) as u8;

@@ -122,19 +122,26 @@ impl Culled<'_> {
     }
 }
 
-/// A frame without a frustum (an invalid camera, `error`), for a culler of `len` objects: both of its sets
-/// keep every object, as every stage does, and `stats` say why.
-pub(crate) fn keep_everything(
+/// The camera's frustum; or, for a camera without one (invalid, its error in `stats`), `None` with both of a
+/// culler's sets keeping all `len` objects, as every stage does, and `stats.frustum_time` since `start`.
+pub(crate) fn frustum_or_keep_everything(
+    camera: &Camera,
     len: usize,
-    error: crate::frustum::FrustumError,
     frustum_visible: &mut VisibleSet,
     kept: &mut VisibleSet,
     stats: &mut ViewStats,
-) {
+    start: std::time::Instant,
+) -> Option<crate::frustum::Frustum> {
+    let error = match camera.frustum() {
+        Ok(frustum) => return Some(frustum),
+        Err(error) => error,
+    };
     stats.frustum_error = Some(error);
     *frustum_visible = VisibleSet::all(len);
     kept.clone_from(frustum_visible);
     (stats.after_frustum, stats.after_occlusion) = (len, len);
+    stats.frustum_time = start.elapsed();
+    None
 }
 
 /// A way of culling, run frame by frame over a scene: the judge, the benches and the sample game compare

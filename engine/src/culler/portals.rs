@@ -13,7 +13,7 @@
 //! which the clipped portal's projection holds; so the point's pixel lies in every rectangle along the way, and
 //! its object, listed in every region its box touches, is tested against a view that holds it.
 
-use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, keep_everything};
+use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, frustum_or_keep_everything};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::cells::Cells;
@@ -387,13 +387,15 @@ impl Culler for PortalCuller {
         let start = Instant::now();
         let store = scene.store();
         let mut stats = ViewStats { objects: store.len(), ..ViewStats::default() };
-        let frustum = match camera.frustum() {
-            Ok(frustum) => frustum,
-            Err(error) => {
-                keep_everything(store.len(), error, &mut self.portal_visible, &mut self.kept, &mut stats);
-                stats.frustum_time = start.elapsed();
-                return Culled { stages: vec![("portals", &self.portal_visible), ("occlusion", &self.kept)], stats };
-            }
+        let Some(frustum) = frustum_or_keep_everything(
+            camera,
+            store.len(),
+            &mut self.portal_visible,
+            &mut self.kept,
+            &mut stats,
+            start,
+        ) else {
+            return Culled { stages: vec![("portals", &self.portal_visible), ("occlusion", &self.kept)], stats };
         };
         self.cull_portals(scene, camera, &frustum);
         stats.after_frustum = self.portal_visible.count();

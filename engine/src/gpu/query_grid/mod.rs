@@ -27,7 +27,7 @@ use super::clusters::ClusterLibrary;
 use super::scene::{GpuScene, instance_of, instances_from_world};
 use super::{GpuContext, GpuError};
 use crate::camera::Camera;
-use crate::culler::{CullScene, Culled, Culler, StoreChange, ViewStats, keep_everything};
+use crate::culler::{CullScene, Culled, Culler, StoreChange, ViewStats, frustum_or_keep_everything};
 use crate::frustum::{FrustumOptions, cull_frustum};
 use crate::mesh::Mesh;
 use crate::visible::VisibleSet;
@@ -341,13 +341,15 @@ impl Culler for QueryGridCuller {
         let frame = self.frame;
         let mut stats = ViewStats { objects: store.len(), ..ViewStats::default() };
         self.stats = QueryGridStats { results_late: !back, ..QueryGridStats::default() };
-        let frustum = match camera.frustum() {
-            Ok(frustum) => frustum,
-            Err(error) => {
-                keep_everything(store.len(), error, &mut self.frustum_visible, &mut self.kept, &mut stats);
-                stats.frustum_time = start.elapsed();
-                return Culled { stages: vec![("frustum", &self.frustum_visible), ("query grid", &self.kept)], stats };
-            }
+        let Some(frustum) = frustum_or_keep_everything(
+            camera,
+            store.len(),
+            &mut self.frustum_visible,
+            &mut self.kept,
+            &mut stats,
+            start,
+        ) else {
+            return Culled { stages: vec![("frustum", &self.frustum_visible), ("query grid", &self.kept)], stats };
         };
         stats.after_frustum = cull_frustum(store, &frustum, FrustumOptions::default(), &mut self.frustum_visible);
         stats.frustum_time = start.elapsed();
