@@ -19,7 +19,6 @@ use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::Frustum;
-use crate::occluders::select_occluders;
 use crate::occlusion::box_occluded;
 use crate::raster::rasterize;
 use crate::visible::{SharedVisibleSet, VisibleSet};
@@ -451,13 +450,7 @@ impl Culler for HierarchyCuller {
         if occlusion.enabled && occlusion.validate().is_ok() && !bvh.nodes.is_empty() {
             let start = Instant::now();
             let view = occlusion.view(camera);
-            let occluders: Vec<_> =
-                select_occluders(store, &self.frustum_visible, camera.position, occlusion.triangle_budget, |slot| {
-                    scene.occluder_of(slot)
-                })
-                .into_iter()
-                .map(|(_, occluder)| occluder)
-                .collect();
+            let occluders = scene.occluders_among(&self.frustum_visible, camera.position, occlusion.triangle_budget);
             let raster = rasterize(&view, &occluders, occlusion.mode, &mut self.pyramid);
             (stats.occluders, stats.occluder_triangles) = (occluders.len(), raster.triangles_rasterized);
             stats.occluders_hidden = raster.occluders_hidden;

@@ -63,6 +63,20 @@ impl<'w> CullScene<'w> {
         self.world.resource::<BoundsStore>()
     }
 
+    /// The occluders [`crate::occluders::select_occluders`] chooses among `visible` for an eye at `eye`
+    /// within `triangle_budget` triangles, best first.
+    pub(crate) fn occluders_among(
+        &self,
+        visible: &VisibleSet,
+        eye: glam::Vec3,
+        triangle_budget: usize,
+    ) -> Vec<OccluderInstance<'w>> {
+        crate::occluders::select_occluders(self.store(), visible, eye, triangle_budget, |slot| self.occluder_of(slot))
+            .into_iter()
+            .map(|(_, occluder)| occluder)
+            .collect()
+    }
+
     /// The occluder of the object in store slot `slot`, where it has one.
     pub fn occluder_of(&self, slot: usize) -> Option<OccluderInstance<'w>> {
         let entity = *self.store().entities().get(slot)?;

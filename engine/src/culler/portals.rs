@@ -19,7 +19,6 @@ use crate::camera::Camera;
 use crate::cells::Cells;
 use crate::depth::DepthPyramid;
 use crate::frustum::{Frustum, FrustumOptions, cull_frustum};
-use crate::occluders::select_occluders;
 use crate::occlusion::occlude;
 use crate::visible::{SharedVisibleSet, VisibleSet};
 use glam::{DMat4, DVec2, DVec3, DVec4};
@@ -405,13 +404,7 @@ impl Culler for PortalCuller {
         let runs = occlusion.enabled && occlusion.validate().is_ok();
         if runs {
             let start = Instant::now();
-            let occluders: Vec<_> =
-                select_occluders(store, &self.portal_visible, camera.position, occlusion.triangle_budget, |slot| {
-                    scene.occluder_of(slot)
-                })
-                .into_iter()
-                .map(|(_, occluder)| occluder)
-                .collect();
+            let occluders = scene.occluders_among(&self.portal_visible, camera.position, occlusion.triangle_budget);
             let selection_time = start.elapsed();
             let view = occlusion.view(camera);
             let run = occlude(

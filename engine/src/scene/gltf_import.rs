@@ -435,7 +435,7 @@ enum Role {
 /// `"portal": true`); `None` for other nodes.
 fn cell_or_portal(node: &gltf::Node) -> Option<Role> {
     let name = node.name().unwrap_or_default();
-    let extras: Option<serde_json::Value> = node.extras().as_ref().and_then(|raw| serde_json::from_str(raw.get()).ok());
+    let extras = extras_of(node);
     let extra = |key: &str| extras.as_ref().and_then(|v| v.get(key).cloned());
     if let Some(cell) = name.strip_suffix(CELL_SUFFIX) {
         return Some(Role::Cell(cell.to_string()));
@@ -453,11 +453,13 @@ fn cell_or_portal(node: &gltf::Node) -> Option<Role> {
 /// `"occluder": true`.
 fn is_occluder(node: &gltf::Node) -> bool {
     let named = node.name().is_some_and(|n| n.ends_with(OCCLUDER_SUFFIX));
-    let flagged = node.extras().as_ref().is_some_and(|raw| {
-        serde_json::from_str::<serde_json::Value>(raw.get())
-            .is_ok_and(|v| v.get("occluder") == Some(&serde_json::Value::Bool(true)))
-    });
+    let flagged = extras_of(node).is_some_and(|v| v.get("occluder") == Some(&serde_json::Value::Bool(true)));
     named || flagged
+}
+
+/// The node's extras as JSON, where it has them and they parse.
+fn extras_of(node: &gltf::Node) -> Option<serde_json::Value> {
+    node.extras().as_ref().and_then(|raw| serde_json::from_str(raw.get()).ok())
 }
 
 /// An occluder of `soup`'s triangles added to `existing`'s.
