@@ -47,7 +47,7 @@ pub struct Portal {
 impl Portal {
     /// The mean of its vertices.
     pub fn centre(&self) -> Vec3 {
-        self.vertices.iter().copied().sum::<Vec3>() / self.vertices.len().max(1) as f32
+        mean(&self.vertices)
     }
 }
 
@@ -180,7 +180,7 @@ impl Cells {
             if !covers_area(&vertices) {
                 return Err(CellsError::FlatPortal(name));
             }
-            let centre = vertices.iter().copied().sum::<Vec3>() / vertices.len() as f32;
+            let centre = mean(&vertices);
             let holding: Vec<usize> = (0..cells.len()).filter(|&cell| cell_holds(&cells[cell], centre)).collect();
             let joins = match holding[..] {
                 [] => return Err(CellsError::JoinsNothing(name)),
@@ -272,6 +272,11 @@ impl Cells {
     }
 }
 
+/// The mean of `points` (the origin for none).
+fn mean(points: &[Vec3]) -> Vec3 {
+    points.iter().copied().sum::<Vec3>() / points.len().max(1) as f32
+}
+
 /// Whether `point` lies in one of `cell`'s boxes (boundary included).
 fn cell_holds(cell: &Cell, point: Vec3) -> bool {
     cell.boxes.iter().any(|&(min, max)| point.cmpge(min).all() && point.cmple(max).all())
@@ -283,9 +288,8 @@ fn covers_area(vertices: &[Vec3]) -> bool {
     if vertices.len() < 3 || vertices.iter().any(|v| !v.is_finite()) {
         return false;
     }
-    let scale = vertices.iter().map(|v| (*v - first).length()).fold(0.0, f32::max);
-    let farthest = vertices.iter().copied().max_by(|a, b| (*a - first).length().total_cmp(&(*b - first).length()));
-    let axis = farthest.map_or(Vec3::ZERO, |far| far - first);
+    let axis = vertices.iter().map(|v| *v - first).max_by(|a, b| a.length().total_cmp(&b.length())).unwrap_or_default();
+    let scale = axis.length();
     // Some vertex off the line through the first and the farthest, by more than rounding.
     vertices.iter().any(|v| (*v - first).cross(axis).length() > scale * scale * 1e-5)
 }
