@@ -8,7 +8,8 @@
 //! survivors and occluders of Cullet's default configuration. The occluders' shadow frusta (`ShadowFrustaCuller`)
 //! are a series at each budget, on the same occluders as the depth buffer at that budget. Last, the default and the settings for the
 //! 1920x1080 frame (`OcclusionSettings::for_frame`) are timed against each other in alternating passes, on
-//! rayon's threads and on one (CPU time), into `target/tradeoff/paired.csv`.
+//! rayon's threads and on one (CPU time), into `target/tradeoff/paired.csv`; in the building, the portals before
+//! the default buffer against the default buffer alone the same way, into `target/tradeoff/building-paired.csv`.
 //!
 //! truck_town and zdm2, nobody here's scenes (with automatic occluders, around their orbits), are judged the same way with
 //! fewer configurations (frustum only, the default buffer at each budget, the masked buffers for the frame,
@@ -74,8 +75,11 @@ const DETAIL_PIXELS: [u32; 3] = [1, 2, 4];
 /// deterministic). Each round times every configuration once, so that a slow stretch of the machine slows one
 /// pass of each rather than every pass of a few.
 const TIMED_ROUNDS: usize = 3;
-/// Alternating passes of each of the two configurations [`paired`] compares.
+/// Alternating passes of each of the two configurations [`paired_for_frame`] compares.
 const PAIRED_PASSES: usize = 8;
+/// Alternating passes of the default and the portals in the building: a pass is a fiftieth of the city's, and
+/// the difference a few percent.
+const BUILDING_PAIRED_PASSES: usize = 64;
 
 /// Which culler a row is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -167,7 +171,7 @@ fn culler_for(series: Series, settings: OcclusionSettings, flight: &Flight, scen
         Series::Hierarchy => {
             Box::new(HierarchyCuller::new(HierarchySettings { occlusion: settings, ..Default::default() }))
         }
-        Series::Portals => Box::new(PortalCuller::new(PortalSettings { occlusion: settings })),
+        Series::Portals => Box::new(PortalCuller::new(PortalSettings { occlusion: settings, ..Default::default() })),
         Series::ShadowFrusta => {
             let triangle_budget = settings.triangle_budget;
             Box::new(ShadowFrustaCuller::new(ShadowFrustaSettings { triangle_budget, ..Default::default() }))
@@ -321,7 +325,7 @@ fn main() {
         let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
         for threads in [rayon::current_num_threads(), 1] {
             let pool = if threads == 1 { Some(&one_thread) } else { None };
-            let (default, for_frame, ratio) = paired(&|settings| judged.flight(settings), frames, pool);
+            let (default, for_frame, ratio) = paired_for_frame(&|settings| judged.flight(settings), frames, pool);
             println!(
                 "default against for_frame(1920, 1080), {threads} thread(s), {PAIRED_PASSES} alternating passes: \
                  fastest {default:.1} and {for_frame:.1} us/frame, median ratio {ratio:.3}"
@@ -339,6 +343,19 @@ fn main() {
         let mut scene_rows = sweep(&judged, scene_configs(&reference), &reference);
         mark_pareto_front(&mut scene_rows, (reference.width, reference.height));
         rows.extend(scene_rows);
+
+        let frame = Some((reference.width, reference.height));
+        let default = (Series::Stages, OcclusionSettings { frame, ..OcclusionSettings::default() });
+        let portals = (Series::Portals, default.1);
+        let passes = BUILDING_PAIRED_PASSES;
+        let (default_us, portals_us, ratio) = paired_cullers(&judged, passes, default, portals);
+        println!(
+            "building: the default against portals + default, {passes} alternating passes: fastest \
+             {default_us:.1} and {portals_us:.1} us/frame, median ratio {ratio:.3}"
+        );
+        let csv =
+            format!("passes,default_us,portals_us,median_ratio\n{passes},{default_us:.1},{portals_us:.1},{ratio:.4}\n");
+        std::fs::write(dir.join("building-paired.csv"), csv).unwrap();
     }
 
     // Nobody here's scenes: truck_town and zdm2 with automatic occluders (they have no artist ones), around
@@ -557,10 +574,8 @@ fn sweep(judged: &JudgedScene, configs: Vec<(Series, OcclusionSettings)>, refere
 
 /// The default settings against those for the 1920x1080 frame (`OcclusionSettings::for_frame`), the new
 /// default wherever the frame is known: their mean time a frame (bounds, frustum, raster and occlusion test)
-/// over the path in [`PAIRED_PASSES`] passes each, alternating which goes first, so that a slow stretch of the
-/// machine slows both. On `pool` where given, else on rayon's global one. Returns each one's fastest pass and
-/// the median of the passes' ratios (for_frame's time over the default's).
-fn paired(
+/// over the path, in [`paired`] passes, on `pool` where given, else on rayon's global one.
+fn paired_for_frame(
     flight: &(impl Fn(OcclusionSettings) -> Flight + Sync),
     frames: u32,
     pool: Option<&rayon::ThreadPool>,
@@ -577,14 +592,40 @@ fn paired(
         pool.map_or_else(run, |pool| pool.install(run))
     };
     let (default, for_frame) = (OcclusionSettings::default(), OcclusionSettings::for_frame(1920, 1080));
+    paired(PAIRED_PASSES, || pass_us(default), || pass_us(for_frame))
+}
+
+/// Two cullers' mean time a frame over `judged`'s path, each a fresh culler on a flight of its own (the
+/// culler's bounds, frustum, raster and occlusion time, as the sweep counts it), in `passes` [`paired`] passes.
+fn paired_cullers(
+    judged: &JudgedScene,
+    passes: usize,
+    a: (Series, OcclusionSettings),
+    b: (Series, OcclusionSettings),
+) -> (f64, f64, f64) {
+    let pass_us = |(series, settings): (Series, OcclusionSettings)| {
+        let mut run = judged.culler_flight();
+        let mut culler = culler_for(series, settings, &run, judged.scene);
+        let total = (0..judged.frames).map(|frame| {
+            let (bounds_time, Culled { stats, .. }) = run.cull_frame(frame, culler.as_mut());
+            (bounds_time + stats.frustum_time + stats.raster_time + stats.occlusion_time).as_secs_f64()
+        });
+        total.sum::<f64>() / judged.frames.max(1) as f64 * 1e6
+    };
+    paired(passes, || pass_us(a), || pass_us(b))
+}
+
+/// Times two passes, `a` and `b` (each returning its time), against each other in `passes` passes each, alternating which goes first, so that a slow stretch of the machine slows both. Returns each one's
+/// fastest pass and the median of the passes' ratios (`b`'s time over `a`'s).
+fn paired(passes: usize, mut a: impl FnMut() -> f64, mut b: impl FnMut() -> f64) -> (f64, f64, f64) {
     let (mut fastest, mut ratios) = ((f64::INFINITY, f64::INFINITY), Vec::new());
-    for pass in 0..PAIRED_PASSES {
+    for pass in 0..passes.max(1) {
         let (a, b) = if pass % 2 == 0 {
-            let a = pass_us(default);
-            (a, pass_us(for_frame))
+            let a = a();
+            (a, b())
         } else {
-            let b = pass_us(for_frame);
-            (pass_us(default), b)
+            let b = b();
+            (a(), b)
         };
         fastest = (fastest.0.min(a), fastest.1.min(b));
         ratios.push(b / a);

@@ -106,6 +106,40 @@ fn occlusion_that_removes_nothing_is_skipped_then_reprobed() {
     assert!((0..12).all(|_| !paying.run_with_camera(camera(), 0.0).occlusion_gated));
 }
 
+/// The hierarchy and the portals (a world without cells: the frustum, then occlusion) skip occlusion that
+/// removes nothing as the stages do, and never skip it where it pays.
+#[test]
+fn the_structures_skip_occlusion_that_removes_nothing() {
+    use cullet::culler::{CullScene, Culler, HierarchyCuller, HierarchySettings, PortalCuller, PortalSettings};
+    let adaptive =
+        AdaptiveSettings { reuse_unchanged: false, low_benefit_frames: 3, reprobe_every: 5, ..Default::default() };
+    let cullers = || -> [Box<dyn Culler>; 2] {
+        [
+            Box::new(HierarchyCuller::new(HierarchySettings { adaptive, ..Default::default() })),
+            Box::new(PortalCuller::new(PortalSettings { adaptive, ..Default::default() })),
+        ]
+    };
+    for (scene, pays) in [(wall_scene(0, 6), false), (wall_scene(8, 0), true)] {
+        let path = CameraPath { fov_y_deg: 90.0, near: 0.1, far: None, keys: Vec::new() };
+        let mut flight = Flight::for_cullers(path, 1.0, 1, |world| {
+            scene.spawn(world);
+        });
+        flight.schedule.run(&mut flight.world);
+        for mut culler in cullers() {
+            let gated: Vec<bool> =
+                (0..12).map(|_| culler.cull(&CullScene::new(&flight.world), &camera()).stats.occlusion_gated).collect();
+            let expected = if pays {
+                [false; 12]
+            } else {
+                [false, false, false, true, true, true, true, true, false, false, false, true]
+            };
+            assert_eq!(gated, expected, "{}", culler.name());
+            let culled = culler.cull(&CullScene::new(&flight.world), &camera());
+            assert_eq!(culled.stats.after_occlusion, culled.kept().count(), "{}", culler.name());
+        }
+    }
+}
+
 /// The built-in scenes along their paths, with the default gating and with gating that skips the occlusion
 /// stage at once: zero false negatives, the repeated frame reused, and the stage skipped where it had
 /// occluders to skip.

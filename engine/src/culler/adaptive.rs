@@ -1,6 +1,7 @@
 //! What a view's culler remembers to skip work that cannot pay off: the benefit gate that skips a stage
 //! removing too little, and the choice between re-testing moved objects alone or in a full pass.
 
+use super::AdaptiveSettings;
 use crate::bounds::BoundsStore;
 use crate::frustum::{Frustum, FrustumOptions, PlaneCoherence, cull_frustum};
 use crate::visible::VisibleSet;
@@ -47,6 +48,13 @@ impl BenefitGate {
         } else {
             self.low_frames = 0;
         }
+    }
+
+    /// Records a frame an occlusion stage ran, removing `removed` of the `tested` objects that reached it,
+    /// against `adaptive`'s [`AdaptiveSettings::min_occlusion_benefit`], frames and re-probes.
+    pub fn record_occlusion(&mut self, removed: usize, tested: usize, adaptive: &AdaptiveSettings) {
+        let (frames, reprobe) = (adaptive.low_benefit_frames, adaptive.reprobe_every);
+        self.record(removed, tested, adaptive.min_occlusion_benefit, frames, reprobe);
     }
 }
 

@@ -14,7 +14,10 @@
 //! into the same depth pyramid; a node whose box the pyramid hides hides its subtree untested, children
 //! visited nearest first.
 
-use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, frustum_or_keep_everything};
+use super::adaptive::BenefitGate;
+use super::{
+    AdaptiveSettings, CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, frustum_or_keep_everything,
+};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::depth::{DepthPyramid, ScreenView};
@@ -41,11 +44,15 @@ pub struct HierarchySettings {
     /// The occlusion stage's settings: its buffer, raster mode and occluder budget (`enabled: false` for the
     /// frustum alone).
     pub occlusion: OcclusionSettings,
+    /// When occlusion is skipped for removing too little lately: the occlusion stage's benefit gate
+    /// ([`AdaptiveSettings::min_occlusion_benefit`], its frames and re-probes); [`AdaptiveSettings::fixed`]
+    /// never skips.
+    pub adaptive: AdaptiveSettings,
 }
 
 impl Default for HierarchySettings {
     fn default() -> Self {
-        Self { leaf_size: 8, occlusion: OcclusionSettings::default() }
+        Self { leaf_size: 8, occlusion: OcclusionSettings::default(), adaptive: AdaptiveSettings::default() }
     }
 }
 
@@ -366,6 +373,8 @@ pub struct HierarchyCuller {
     frustum_visible: VisibleSet,
     kept: VisibleSet,
     pyramid: DepthPyramid,
+    /// Skips occlusion where it has removed too little lately.
+    gate: BenefitGate,
 }
 
 impl HierarchyCuller {
@@ -447,7 +456,9 @@ impl Culler for HierarchyCuller {
 
         let occlusion = self.settings.occlusion;
         let mut kept_set = &self.frustum_visible;
-        if occlusion.enabled && occlusion.validate().is_ok() && !bvh.nodes.is_empty() {
+        let runs = occlusion.enabled && occlusion.validate().is_ok() && !bvh.nodes.is_empty();
+        stats.occlusion_gated = runs && self.gate.skip_this_frame();
+        if runs && !stats.occlusion_gated {
             let start = Instant::now();
             let view = occlusion.view(camera);
             let occluders = scene.occluders_among(&self.frustum_visible, camera.position, occlusion.triangle_budget);
@@ -467,6 +478,11 @@ impl Culler for HierarchyCuller {
                 kept_set = &self.kept;
             }
             stats.occlusion_time = start.elapsed();
+            // A frame without occluders says nothing of what occlusion is worth here.
+            if !occluders.is_empty() {
+                let removed = stats.after_frustum - kept_set.count();
+                self.gate.record_occlusion(removed, stats.after_frustum, &self.settings.adaptive);
+            }
         }
         stats.after_occlusion = kept_set.count();
         let mut stages = vec![("frustum", &self.frustum_visible)];

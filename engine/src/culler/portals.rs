@@ -13,13 +13,17 @@
 //! which the clipped portal's projection holds; so the point's pixel lies in every rectangle along the way, and
 //! its object, listed in every region its box touches, is tested against a view that holds it.
 
-use super::{CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, frustum_or_keep_everything};
-use crate::bounds::BoundsStore;
+use super::adaptive::BenefitGate;
+use super::{
+    AdaptiveSettings, CullScene, Culled, Culler, OcclusionSettings, StoreChange, ViewStats, frustum_or_keep_everything,
+};
+use crate::bounds::{BoundsStore, SIMD_LANES};
 use crate::camera::Camera;
 use crate::cells::Cells;
 use crate::depth::DepthPyramid;
 use crate::frustum::{Frustum, FrustumOptions, cull_frustum};
 use crate::occlusion::occlude;
+use crate::parallel::{self, Stage};
 use crate::visible::{SharedVisibleSet, VisibleSet};
 use glam::{DMat4, DVec2, DVec3, DVec4};
 use rayon::prelude::*;
@@ -37,6 +41,10 @@ const RECT_MARGIN: f64 = 1e-6;
 pub struct PortalSettings {
     /// The occlusion stage run over what the portals keep (`enabled: false` for the portals alone).
     pub occlusion: OcclusionSettings,
+    /// When occlusion is skipped for removing too little of what the portals keep lately: the occlusion
+    /// stage's benefit gate ([`AdaptiveSettings::min_occlusion_benefit`], its frames and re-probes);
+    /// [`AdaptiveSettings::fixed`] never skips.
+    pub adaptive: AdaptiveSettings,
 }
 
 /// Counts of the last frame's traversal.
@@ -103,18 +111,24 @@ struct Membership {
 
 impl Membership {
     fn build(store: &BoundsStore, cells: &Cells) -> Self {
-        let of_slot: Vec<Vec<u32>> = (0..store.len())
-            .into_par_iter()
-            .map(|slot| {
-                let mut regions = Vec::new();
-                if let Some((min, max)) = slot_box(store, slot) {
-                    cells.regions_of_box(min, max, &mut regions);
-                } else {
-                    regions.push(cells.outside() as u32);
-                }
-                regions
-            })
-            .collect();
+        let regions_of = |slot: usize| {
+            let mut regions = Vec::new();
+            if let Some((min, max)) = slot_box(store, slot) {
+                cells.regions_of_box(min, max, &mut regions);
+            } else {
+                regions.push(cells.outside() as u32);
+            }
+            regions
+        };
+        let of_slot: Vec<Vec<u32>> = parallel::region(|region| {
+            (0..store.len().div_ceil(SLOTS_PER_TASK))
+                .into_par_iter()
+                .flat_map_iter(|task| {
+                    let slots = task * SLOTS_PER_TASK..((task + 1) * SLOTS_PER_TASK).min(store.len());
+                    region.task(|| slots.map(regions_of).collect::<Vec<_>>())
+                })
+                .collect()
+        });
         let mut of_region = vec![Vec::new(); cells.region_count()];
         for (slot, regions) in of_slot.iter().enumerate() {
             for &region in regions {
@@ -190,11 +204,13 @@ fn traverse(cells: &Cells, camera: &Camera) -> (Vec<Option<Rect>>, PortalStats) 
     let view_from_relative = camera.view_from_relative_f64();
     let clip_from_view = camera.clip_from_view_f64();
     let mut portal_rects: Vec<Option<Option<Rect>>> = vec![None; cells.portals().len()];
+    let mut in_view = Vec::new();
     while let Some(region) = queue.pop() {
         let Some(through) = seen[region] else { continue };
         for (index, portal) in cells.portals_of(region) {
             let rect = *portal_rects[index].get_or_insert_with(|| {
-                project_portal(&portal.vertices, eye, &view_from_relative, &clip_from_view, camera.near as f64)
+                let near = camera.near as f64;
+                project_portal(&portal.vertices, eye, &view_from_relative, &clip_from_view, near, &mut in_view)
             });
             let Some(rect) = rect.and_then(|rect| rect.intersect(through)) else { continue };
             let behind = cells.across(portal, region);
@@ -222,30 +238,34 @@ fn project_portal(
     view_from_relative: &DMat4,
     clip_from_view: &DMat4,
     near: f64,
+    in_view: &mut Vec<DVec3>,
 ) -> Option<Rect> {
-    let in_view: Vec<DVec3> =
-        vertices.iter().map(|vertex| view_from_relative.transform_point3(vertex.as_dvec3() - eye.as_dvec3())).collect();
+    in_view.clear();
+    in_view
+        .extend(vertices.iter().map(|vertex| view_from_relative.transform_point3(vertex.as_dvec3() - eye.as_dvec3())));
     // Depth along the view direction: -z in a right-handed view.
     let depth = |p: &DVec3| -p.z;
-    let mut clipped: Vec<DVec3> = in_view.iter().copied().filter(|p| depth(p) >= near).collect();
-    if clipped.is_empty() {
-        return None;
-    }
+    let mut rect = Rect { min: DVec2::splat(f64::INFINITY), max: DVec2::splat(f64::NEG_INFINITY) };
+    let mut add = |point: DVec3| {
+        let clip = *clip_from_view * point.extend(1.0);
+        let ndc = DVec2::new(clip.x, clip.y) / clip.w;
+        (rect.min, rect.max) = (rect.min.min(ndc), rect.max.max(ndc));
+    };
     // The convex hull's part beyond the near plane is spanned by its vertices there and the crossings of every
     // segment between a vertex beyond and one before it.
+    let mut beyond_near = false;
     for a in in_view.iter().filter(|p| depth(p) >= near) {
+        beyond_near = true;
+        add(*a);
         for b in in_view.iter().filter(|p| depth(p) < near) {
             let t = (depth(a) - near) / (depth(a) - depth(b));
             let mut crossing = a.lerp(*b, t);
             crossing.z = -near;
-            clipped.push(crossing);
+            add(crossing);
         }
     }
-    let mut rect = Rect { min: DVec2::splat(f64::INFINITY), max: DVec2::splat(f64::NEG_INFINITY) };
-    for point in clipped {
-        let clip = *clip_from_view * point.extend(1.0);
-        let ndc = DVec2::new(clip.x, clip.y) / clip.w;
-        (rect.min, rect.max) = (rect.min.min(ndc), rect.max.max(ndc));
+    if !beyond_near {
+        return None;
     }
     let margin = DVec2::splat(RECT_MARGIN) + (rect.max.abs().max(rect.min.abs())) * 1e-9;
     let rect = Rect { min: rect.min - margin, max: rect.max + margin };
@@ -291,11 +311,15 @@ pub struct PortalCuller {
     membership: Membership,
     /// The cells' id and the store's generations the membership was made for.
     synced: Option<(u64, (u64, u64))>,
+    /// What the camera's whole frustum keeps, before the portals narrow it.
+    in_frustum: VisibleSet,
     portal_visible: VisibleSet,
     kept: VisibleSet,
     occluded: VisibleSet,
     pyramid: DepthPyramid,
     portal_stats: PortalStats,
+    /// Skips occlusion where it has removed too little lately.
+    gate: BenefitGate,
 }
 
 impl PortalCuller {
@@ -335,38 +359,64 @@ impl PortalCuller {
         };
         self.sync(scene, cells);
         let (seen, mut stats) = traverse(cells, camera);
+        // The camera's frustum first, over the whole store at once: a region seen whole keeps its members that
+        // pass it, and only the members that pass it of a region seen through portals are tested again, against
+        // the view narrowed to that region's rectangle.
+        cull_frustum(store, frustum, FrustumOptions::default(), &mut self.in_frustum);
         let clip_from_relative = camera.clip_from_relative_f64();
-        let views: Vec<(Frustum, &[u32])> = seen
+        let views: Vec<(Option<Frustum>, &[u32])> = seen
             .iter()
             .zip(&self.membership.of_region)
             .filter_map(|(rect, members)| {
                 let rect = (*rect)?;
-                let narrowed = if rect == Rect::SCREEN {
-                    *frustum
-                } else {
+                let narrowed = (!rect.contains(Rect::SCREEN)).then(|| {
                     let matrix = rect.intersect(Rect::SCREEN).unwrap_or(rect).narrow(clip_from_relative);
                     Frustum::from_clip_from_relative_f64(camera.position, matrix, camera.depth).unwrap_or(*frustum)
-                };
+                });
                 Some((narrowed, members.as_slice()))
             })
             .collect();
         stats.objects_tested = views.iter().map(|(_, members)| members.len()).sum();
-        let kept = SharedVisibleSet::new(store.len());
-        let test = |(frustum, chunk): (&Frustum, &[u32])| {
-            for &slot in chunk {
-                if store.get(slot as usize).is_none_or(|bounds| frustum.intersects(&bounds)) {
-                    kept.set(slot);
+        let (kept, in_frustum) = (SharedVisibleSet::new(store.len()), &self.in_frustum);
+        let test = |(narrowed, chunk): (&Option<Frustum>, &[u32])| {
+            let passing = chunk.iter().copied().filter(|&slot| in_frustum.contains(slot as usize));
+            let Some(narrowed) = narrowed else {
+                passing.for_each(|slot| kept.set(slot));
+                return;
+            };
+            // Eight at a time, so that the narrowed view's tests run in SIMD lanes.
+            let mut batch = Vec::with_capacity(SIMD_LANES);
+            let test_batch = |batch: &mut Vec<u32>| {
+                let inside = narrowed.intersects_slots(store, batch);
+                batch
+                    .iter()
+                    .enumerate()
+                    .filter(|&(lane, _)| inside >> lane & 1 != 0)
+                    .for_each(|(_, &slot)| kept.set(slot));
+                batch.clear();
+            };
+            for slot in passing {
+                batch.push(slot);
+                if batch.len() == SIMD_LANES {
+                    test_batch(&mut batch);
                 }
+            }
+            if !batch.is_empty() {
+                test_batch(&mut batch);
             }
         };
         // Fewer tests than one task holds cost less than waking the pool.
         if stats.objects_tested <= SLOTS_PER_TASK {
             views.iter().for_each(|(frustum, members)| test((frustum, members)));
         } else {
-            views
-                .par_iter()
-                .flat_map(|(frustum, members)| members.par_chunks(SLOTS_PER_TASK).map(move |chunk| (frustum, chunk)))
-                .for_each(test);
+            parallel::region(|region| {
+                views
+                    .par_iter()
+                    .flat_map(|(frustum, members)| {
+                        members.par_chunks(SLOTS_PER_TASK).map(move |chunk| (frustum, chunk))
+                    })
+                    .for_each(|task| region.task(|| test(task)));
+            });
         }
         kept.copy_to(store.len(), &mut self.portal_visible);
         self.portal_stats = stats;
@@ -396,14 +446,18 @@ impl Culler for PortalCuller {
         ) else {
             return Culled { stages: vec![("portals", &self.portal_visible), ("occlusion", &self.kept)], stats };
         };
+        let stage = Stage::Frustum.enter();
         self.cull_portals(scene, camera, &frustum);
+        drop(stage);
         stats.after_frustum = self.portal_visible.count();
         stats.frustum_time = start.elapsed();
 
         let occlusion = self.settings.occlusion;
         let runs = occlusion.enabled && occlusion.validate().is_ok();
-        if runs {
+        stats.occlusion_gated = runs && self.gate.skip_this_frame();
+        if runs && !stats.occlusion_gated {
             let start = Instant::now();
+            let _stage = Stage::Raster.enter();
             let occluders = scene.occluders_among(&self.portal_visible, camera.position, occlusion.triangle_budget);
             let selection_time = start.elapsed();
             let view = occlusion.view(camera);
@@ -421,7 +475,15 @@ impl Culler for PortalCuller {
             stats.occluders_hidden = run.raster.occluders_hidden;
             (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
             stats.after_occlusion = run.test.visible;
+            // A frame without occluders says nothing of what occlusion is worth here.
+            if !occluders.is_empty() {
+                let removed = stats.after_frustum - stats.after_occlusion;
+                self.gate.record_occlusion(removed, stats.after_frustum, &self.settings.adaptive);
+            }
         } else {
+            if stats.occlusion_gated {
+                self.kept.clone_from(&self.portal_visible);
+            }
             stats.after_occlusion = stats.after_frustum;
         }
         let mut stages = vec![("portals", &self.portal_visible)];
@@ -465,9 +527,10 @@ mod tests {
             glam::Vec3::new(0.5, 1.0, -2.0),
             glam::Vec3::new(0.5, -1.0, -2.0),
         ];
-        let rect = project_portal(&door, camera.position, &view, &clip, camera.near as f64).unwrap();
+        let mut scratch = Vec::new();
+        let rect = project_portal(&door, camera.position, &view, &clip, camera.near as f64, &mut scratch).unwrap();
         assert!(rect.max.x > 1.0, "its near edge reaches far right of the screen: {rect:?}");
         let behind = door.map(|v| v + glam::Vec3::Z * 5.0);
-        assert_eq!(project_portal(&behind, camera.position, &view, &clip, camera.near as f64), None);
+        assert_eq!(project_portal(&behind, camera.position, &view, &clip, camera.near as f64, &mut scratch), None);
     }
 }

@@ -160,10 +160,8 @@ impl Culler for ShadowFrustaCuller {
             stats.occlusion_time = start.elapsed();
             // A frame without occluders says nothing of what the regions are worth here.
             if !chosen_none {
-                let adaptive = &self.settings.adaptive;
                 let removed = stats.after_frustum - self.visible.count();
-                let (frames, reprobe) = (adaptive.low_benefit_frames, adaptive.reprobe_every);
-                self.gate.record(removed, stats.after_frustum, adaptive.min_occlusion_benefit, frames, reprobe);
+                self.gate.record_occlusion(removed, stats.after_frustum, &self.settings.adaptive);
             }
         }
         stats.after_occlusion = self.visible.count();

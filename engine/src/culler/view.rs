@@ -339,10 +339,7 @@ impl ViewCuller {
         (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
         // A frame that rasterized nothing says nothing of what occlusion is worth here.
         if !instances.is_empty() {
-            let adaptive = &settings.adaptive;
-            let (frames, reprobe) = (adaptive.low_benefit_frames, adaptive.reprobe_every);
-            let removed = stats.occlusion_removed();
-            self.occlusion_gate.record(removed, stats.after_frustum, adaptive.min_occlusion_benefit, frames, reprobe);
+            self.occlusion_gate.record_occlusion(stats.occlusion_removed(), stats.after_frustum, &settings.adaptive);
         }
     }
 
