@@ -17,6 +17,9 @@
 //! deterministic, the machine is not), a stage's figure the mean of those over the frames. The schedule runs on
 //! one thread, inside a rayon pool of `p` threads, so the stages' own parallelism is what scales.
 //!
+//! The bounding volume hierarchy (`HierarchyCuller`, every stage on every frame) is a series of its own on the same
+//! city: its strong scaling and its work and span, into `hierarchy_strong.csv` and `hierarchy_work_span.csv`.
+//!
 //! Writes `target/scaling/strong.csv`, `weak.csv`, `amdahl.csv`, `parts.csv`, `work_span.csv`, `scaling.png`
 //! (speedup and efficiency against threads), `ns_per_object.png` (against object count, with the bandwidth
 //! bound) and `parallelism.png` (work over span against object count, on one thread).
@@ -32,7 +35,7 @@ use cullet::occlusion::test_occlusion;
 use cullet::parallel::{self, Stage};
 use cullet::pipeline::CullStats;
 
-use cullet::culler::{AdaptiveSettings, OcclusionSettings};
+use cullet::culler::{AdaptiveSettings, Culler, HierarchyCuller, HierarchySettings, OcclusionSettings};
 use cullet::raster::rasterize;
 use cullet::scene::city::{CityParams, CityScene};
 use cullet::scene::flight::Flight;
@@ -68,15 +71,30 @@ fn thread_counts(cores: usize) -> Vec<usize> {
     counts
 }
 
-/// Mean per-frame time of each of [`STAGES`], in nanoseconds, for `frames` frames of `flight`.
-fn time_frames(flight: &mut Flight, frames: u32) -> [f64; 5] {
+/// The times of the culling stages of one frame, in [`STAGES`] order but the whole frame.
+type StageTimes = [Duration; 4];
+
+/// Runs frame `frame` of the pipeline's `flight`.
+fn pipeline_frame(flight: &mut Flight, frame: u32) -> StageTimes {
+    let stats: CullStats = flight.run_frame(frame);
+    [stats.bounds_time, stats.frustum_time, stats.raster_time, stats.occlusion_time]
+}
+
+/// Runs frame `frame` of `flight` with `culler` (its bounds stage, then the culler).
+fn culler_frame(flight: &mut Flight, culler: &mut dyn Culler, frame: u32) -> StageTimes {
+    let (bounds_time, culled) = flight.cull_frame(frame, culler);
+    [bounds_time, culled.stats.frustum_time, culled.stats.raster_time, culled.stats.occlusion_time]
+}
+
+/// Mean per-frame time of each of [`STAGES`], in nanoseconds, for `frames` frames run by `run`.
+fn time_frames(frames: u32, mut run: impl FnMut(u32) -> StageTimes) -> [f64; 5] {
     let mut fastest = vec![[f64::INFINITY; 5]; frames as usize];
     for _ in 0..PASSES {
         for frame in 0..frames {
             let start = Instant::now();
-            let stats: CullStats = flight.run_frame(frame);
+            let [bounds, frustum, raster, occlusion] = run(frame);
             let wall = start.elapsed();
-            let times = [stats.bounds_time, stats.frustum_time, stats.raster_time, stats.occlusion_time, wall];
+            let times = [bounds, frustum, raster, occlusion, wall];
             for (best, time) in fastest[frame as usize].iter_mut().zip(times) {
                 *best = best.min(time.as_secs_f64() * 1e9);
             }
@@ -85,23 +103,23 @@ fn time_frames(flight: &mut Flight, frames: u32) -> [f64; 5] {
     std::array::from_fn(|stage| fastest.iter().map(|f| f[stage]).sum::<f64>() / f64::from(frames))
 }
 
-/// Work and span of each of [`STAGES`], in nanoseconds per frame (means over `frames` frames of `flight`,
+/// Work and span of each of [`STAGES`], in nanoseconds per frame (means over `frames` frames run by `run`,
 /// each frame's from the fastest of [`PASSES`] passes), recorded on a pool of one thread.
-fn work_span_frames(flight: &mut Flight, frames: u32) -> [(f64, f64); 5] {
+fn work_span_frames(frames: u32, mut run: impl FnMut(u32) -> StageTimes) -> [(f64, f64); 5] {
     let mut fastest = vec![(Duration::MAX, [(0.0, 0.0); 5]); frames as usize];
     for frame in (0..PASSES).flat_map(|_| 0..frames) {
         parallel::take_recorded();
         parallel::set_recording(true);
         let start = Instant::now();
-        let stats: CullStats = flight.run_frame(frame);
+        let [bounds, frustum, raster, occlusion] = run(frame);
         let wall = start.elapsed();
         parallel::set_recording(false);
         let recorded = parallel::take_recorded();
         let stages = [
-            (recorded.stage(Stage::Bounds), stats.bounds_time),
-            (recorded.stage(Stage::Frustum), stats.frustum_time),
-            (recorded.stage(Stage::Raster), stats.raster_time),
-            (recorded.stage(Stage::Occlusion), stats.occlusion_time),
+            (recorded.stage(Stage::Bounds), bounds),
+            (recorded.stage(Stage::Frustum), frustum),
+            (recorded.stage(Stage::Raster), raster),
+            (recorded.stage(Stage::Occlusion), occlusion),
             (recorded.total(), wall),
         ];
         let best = &mut fastest[frame as usize];
@@ -254,6 +272,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut bandwidth: Vec<(usize, usize, f64)> = Vec::new();
     let mut parts: Vec<(usize, usize, [f64; 3])> = Vec::new();
     let mut work_span = Vec::new();
+    let (mut hierarchy, mut hierarchy_work_span) = (Vec::new(), Vec::new());
     for &objects in &sizes {
         if !fits_in_memory(objects) {
             println!("{objects} objects: skipped, not enough memory");
@@ -263,7 +282,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (city, mut flight) = flight(objects, frames);
         println!("{objects} objects: city built in {:.1} s", start.elapsed().as_secs_f64());
         for &p in &threads {
-            let ns = with_threads(p, || time_frames(&mut flight, frames));
+            let ns = with_threads(p, || time_frames(frames, |frame| pipeline_frame(&mut flight, frame)));
             let read = with_threads(p, || read_ns_per_object(flight.world.resource::<BoundsStore>()));
             let part_ns = with_threads(p, || time_parts(&city, &flight));
             println!(
@@ -276,7 +295,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             parts.push((objects, p, part_ns));
         }
         // After the timed passes: the first frame stores every object.
-        let measured = with_threads(1, || work_span_frames(&mut flight, frames));
+        let measured = with_threads(1, || work_span_frames(frames, |frame| pipeline_frame(&mut flight, frame)));
         println!(
             "  work/span on 1 thread: {}",
             STAGES
@@ -287,6 +306,35 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .join(", ")
         );
         work_span.push(WorkSpan { objects, work_span: measured });
+        drop(flight);
+
+        // The bounding volume hierarchy on the same city: its tree's build or refit is in its frustum time.
+        let mut flight = Flight::for_cullers(city.flythrough(), 16.0 / 9.0, frames, |world| {
+            city.spawn(world);
+        });
+        flight.schedule.set_executor(SingleThreadedExecutor::new());
+        let settings = HierarchySettings { adaptive: AdaptiveSettings::fixed(), ..Default::default() };
+        let mut culler = HierarchyCuller::new(settings);
+        for &p in &threads {
+            let ns = with_threads(p, || time_frames(frames, |frame| culler_frame(&mut flight, &mut culler, frame)));
+            println!(
+                "  hierarchy, {p:2} threads: {}",
+                STAGES.iter().zip(ns).map(|(s, t)| format!("{s} {:.3} ms", t / 1e6)).collect::<Vec<_>>().join(", ")
+            );
+            hierarchy.push(Strong { objects, threads: p, ns });
+        }
+        let measured =
+            with_threads(1, || work_span_frames(frames, |frame| culler_frame(&mut flight, &mut culler, frame)));
+        println!(
+            "  hierarchy work/span on 1 thread: {}",
+            STAGES
+                .iter()
+                .zip(measured)
+                .map(|(s, (work, span))| format!("{s} {:.3}/{:.3} ms = {:.1}", work / 1e6, span / 1e6, work / span))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        hierarchy_work_span.push(WorkSpan { objects, work_span: measured });
     }
 
     // Weak scaling: the work per thread fixed.
@@ -297,27 +345,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             continue;
         }
         let (_, mut flight) = flight(objects, frames);
-        let ns = with_threads(p, || time_frames(&mut flight, frames));
+        let ns = with_threads(p, || time_frames(frames, |frame| pipeline_frame(&mut flight, frame)));
         println!("weak: {p:2} threads, {objects} objects: frame {:.3} ms", ns[4] / 1e6);
         weak.push(Strong { objects, threads: p, ns });
     }
 
     // CSVs.
-    let mut csv = String::from("objects,threads,stage,ns_per_frame,ns_per_object,speedup,efficiency\n");
-    for row in &strong {
-        let one = strong.iter().find(|r| r.objects == row.objects && r.threads == 1).unwrap_or(row);
-        for (stage, (&t, &t1)) in STAGES.iter().zip(row.ns.iter().zip(&one.ns)) {
-            let speedup = t1 / t;
-            let per_object = t / row.objects as f64;
-            let efficiency = speedup / row.threads as f64;
-            writeln!(
-                csv,
-                "{},{},{stage},{t:.0},{per_object:.4},{speedup:.3},{efficiency:.3}",
-                row.objects, row.threads
-            )?;
-        }
-    }
-    std::fs::write(out.join("strong.csv"), &csv)?;
+    std::fs::write(out.join("strong.csv"), strong_csv(&strong))?;
+    std::fs::write(out.join("hierarchy_strong.csv"), strong_csv(&hierarchy))?;
     let mut csv = String::from("objects,threads,stage,ns_per_frame,efficiency\n");
     let weak_one = weak.iter().find(|r| r.threads == 1);
     for row in &weak {
@@ -333,13 +368,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     std::fs::write(out.join("parts.csv"), &csv)?;
-    let mut csv = String::from("objects,stage,work_ns,span_ns,parallelism\n");
-    for row in &work_span {
-        for (stage, (work, span)) in STAGES.iter().zip(row.work_span) {
-            writeln!(csv, "{},{stage},{work:.0},{span:.0},{:.2}", row.objects, work / span)?;
-        }
-    }
-    std::fs::write(out.join("work_span.csv"), &csv)?;
+    std::fs::write(out.join("work_span.csv"), work_span_csv(&work_span))?;
+    std::fs::write(out.join("hierarchy_work_span.csv"), work_span_csv(&hierarchy_work_span))?;
 
     // The Amdahl fit of every stage and part, per size.
     println!(
@@ -380,6 +410,33 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     plot_parallelism(&work_span, &out.join("parallelism.png"))?;
     println!("\nwrote {}", out.display());
     Ok(())
+}
+
+/// Strong scaling rows as CSV: per size, thread count and stage, the time a frame, per object, and the
+/// speed-up and efficiency against one thread.
+fn strong_csv(rows: &[Strong]) -> String {
+    let mut csv = String::from("objects,threads,stage,ns_per_frame,ns_per_object,speedup,efficiency\n");
+    for row in rows {
+        let one = rows.iter().find(|r| r.objects == row.objects && r.threads == 1).unwrap_or(row);
+        for (stage, (&t, &t1)) in STAGES.iter().zip(row.ns.iter().zip(&one.ns)) {
+            let speedup = t1 / t;
+            let (per_object, efficiency) = (t / row.objects as f64, speedup / row.threads as f64);
+            let (objects, threads) = (row.objects, row.threads);
+            writeln!(csv, "{objects},{threads},{stage},{t:.0},{per_object:.4},{speedup:.3},{efficiency:.3}").unwrap();
+        }
+    }
+    csv
+}
+
+/// Work and span rows as CSV: per size and stage, work, span and their ratio.
+fn work_span_csv(rows: &[WorkSpan]) -> String {
+    let mut csv = String::from("objects,stage,work_ns,span_ns,parallelism\n");
+    for row in rows {
+        for (stage, (work, span)) in STAGES.iter().zip(row.work_span) {
+            writeln!(csv, "{},{stage},{work:.0},{span:.0},{:.2}", row.objects, work / span).unwrap();
+        }
+    }
+    csv
 }
 
 /// Colour of each of [`STAGES`].

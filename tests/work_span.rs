@@ -134,3 +134,52 @@ fn the_pipeline_records_each_stage_inside_its_time() {
         assert!(total.wall <= wall && total.span(wall) <= wall, "frame {frame}: {total:?}");
     }
 }
+
+/// The hierarchy records its tree's traversals (and its build) under the frustum and occlusion stages, and the
+/// portals their member tests under the frustum stage, each inside the stage's time.
+#[test]
+fn the_structures_record_their_stages_inside_their_times() {
+    use cullet::culler::{Culler, HierarchyCuller, HierarchySettings, PortalCuller, PortalSettings};
+    let _lock = RECORDING.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let city = CityScene::generate(CityParams::with_objects(20_000));
+    let building = cullet::scene::building::building(12_000);
+    let adaptive = AdaptiveSettings::fixed();
+    let cases: [(&cullet::scene::Scene, cullet::CameraPath, Box<dyn Culler + Send>); 2] = [
+        (
+            &city.scene,
+            city.flythrough(),
+            Box::new(HierarchyCuller::new(HierarchySettings { adaptive, ..Default::default() })),
+        ),
+        (
+            &building,
+            cullet::scene::building::walk(),
+            Box::new(PortalCuller::new(PortalSettings { adaptive, ..Default::default() })),
+        ),
+    ];
+    for (scene, path, mut culler) in cases {
+        let frames = 4;
+        let mut flight = Flight::for_cullers(path, 16.0 / 9.0, frames, |world| {
+            scene.spawn(world);
+        });
+        flight.schedule.set_executor(SingleThreadedExecutor::new());
+        for frame in 0..frames {
+            let mut stats = None;
+            let (recorded, _) = record_on(1, || stats = Some(flight.cull_frame(frame, culler.as_mut()).1.stats));
+            let stats = stats.unwrap();
+            let stages = [
+                (Stage::Frustum, stats.frustum_time),
+                (Stage::Raster, stats.raster_time),
+                (Stage::Occlusion, stats.occlusion_time),
+            ];
+            for (stage, time) in stages {
+                let times = recorded.stage(stage);
+                assert!(times.regions >= 1, "{}, frame {frame}: {stage:?} recorded no region", culler.name());
+                assert!(
+                    times.tasks <= times.wall && times.wall <= time,
+                    "{}, frame {frame}: {stage:?} {times:?} in {time:?}",
+                    culler.name()
+                );
+            }
+        }
+    }
+}

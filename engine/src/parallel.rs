@@ -188,6 +188,22 @@ pub fn region<R>(body: impl FnOnce(&Region) -> R) -> R {
     result
 }
 
+/// `f` of every index below `len`, in order, computed as one [`region`] whose tasks each take `per_task`
+/// consecutive indices (at least one).
+pub(crate) fn map_range<T: Send>(len: usize, per_task: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    use rayon::prelude::*;
+    let per_task = per_task.max(1);
+    region(|region| {
+        (0..len.div_ceil(per_task))
+            .into_par_iter()
+            .flat_map_iter(|task| {
+                let indices = task * per_task..((task + 1) * per_task).min(len);
+                region.task(|| indices.map(&f).collect::<Vec<_>>())
+            })
+            .collect()
+    })
+}
+
 /// A parallel region opened by [`region`]: the tasks it runs are timed where it is recorded.
 #[derive(Debug)]
 pub struct Region {

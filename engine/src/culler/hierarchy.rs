@@ -23,6 +23,7 @@ use crate::camera::Camera;
 use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::Frustum;
 use crate::occlusion::box_occluded;
+use crate::parallel::{self, Region, Stage};
 use crate::raster::rasterize;
 use crate::visible::{SharedVisibleSet, VisibleSet};
 use glam::Vec3;
@@ -33,6 +34,8 @@ use std::time::Instant;
 const LEAF: u32 = u32::MAX;
 /// Subtrees of more objects than this are built and culled as rayon tasks of their own.
 const PARALLEL_ABOVE: u32 = 8192;
+/// Store slots a task handles where the tree's work is per slot (boxes, changes).
+const SLOTS_PER_TASK: usize = 16384;
 /// [`Bvh::coherence`] of a node no plane rejected last frame.
 const NO_PLANE: u8 = u8::MAX;
 
@@ -109,12 +112,12 @@ impl Bvh {
     /// The tree over every object of `store`, leaves of at most `leaf` objects (at least 1).
     pub fn build(store: &BoundsStore, leaf: u32) -> Self {
         let leaf = leaf.max(1);
-        let boxes: Vec<(Vec3, Vec3)> = (0..store.len()).map(|slot| slot_box(store, slot)).collect();
+        let boxes: Vec<(Vec3, Vec3)> = parallel::map_range(store.len(), SLOTS_PER_TASK, |slot| slot_box(store, slot));
         let mut order: Vec<u32> = (0..store.len() as u32).collect();
         let count = if order.is_empty() { 0 } else { node_counts(order.len() as u32, leaf).0 as usize };
         let mut nodes = vec![Node::default(); count];
         if !order.is_empty() {
-            build_subtree(&mut nodes, 0, &mut order, 0, &boxes, leaf);
+            parallel::region(|region| build_subtree(&mut nodes, 0, &mut order, 0, &boxes, leaf, region));
         }
         let mut parent = vec![LEAF; nodes.len()];
         let mut leaf_of = vec![0; order.len()];
@@ -139,11 +142,8 @@ impl Bvh {
 
     /// The slots whose boxes in `store` differ from the tree's, where the caller does not know what moved.
     fn changed_slots(&self, store: &BoundsStore) -> Vec<u32> {
-        use rayon::prelude::*;
-        (0..store.len() as u32)
-            .into_par_iter()
-            .filter(|&s| slot_box(store, s as usize) != self.boxes[s as usize])
-            .collect()
+        let changed = parallel::map_range(store.len(), SLOTS_PER_TASK, |s| slot_box(store, s) != self.boxes[s]);
+        changed.iter().enumerate().filter(|&(_, &changed)| changed).map(|(slot, _)| slot as u32).collect()
     }
 
     /// Refits the leaves of `slots` to their boxes in `store`, and their ancestors bottom-up.
@@ -189,7 +189,16 @@ fn union(boxes: impl Iterator<Item = (Vec3, Vec3)>) -> (Vec3, Vec3) {
 
 /// Builds the subtree whose root is `nodes[0]` (node `base` of the tree) over `order` (starting at `first` of
 /// the tree's order).
-fn build_subtree(nodes: &mut [Node], base: u32, order: &mut [u32], first: u32, boxes: &[(Vec3, Vec3)], leaf: u32) {
+/// Subtrees of more than [`PARALLEL_ABOVE`] objects are split across rayon; the others are `region`'s tasks.
+fn build_subtree(
+    nodes: &mut [Node],
+    base: u32,
+    order: &mut [u32],
+    first: u32,
+    boxes: &[(Vec3, Vec3)],
+    leaf: u32,
+    region: &Region,
+) {
     let count = order.len() as u32;
     let (min, max) = union(order.iter().map(|&s| boxes[s as usize]));
     if count <= leaf {
@@ -210,15 +219,21 @@ fn build_subtree(nodes: &mut [Node], base: u32, order: &mut [u32], first: u32, b
     nodes[0] = Node { min, max, first, count, right: base + 1 + left_nodes };
     let (left_tree, right_tree) = nodes[1..].split_at_mut(left_nodes as usize);
     let (left_order, right_order) = order.split_at_mut(half as usize);
-    let mut build_left = move || build_subtree(left_tree, base + 1, left_order, first, boxes, leaf);
+    let mut build_left = move || build_subtree(left_tree, base + 1, left_order, first, boxes, leaf, region);
     let mut build_right =
-        move || build_subtree(right_tree, base + 1 + left_nodes, right_order, first + half, boxes, leaf);
+        move || build_subtree(right_tree, base + 1 + left_nodes, right_order, first + half, boxes, leaf, region);
     if count > PARALLEL_ABOVE {
-        rayon::join(build_left, build_right);
+        rayon::join(|| as_task(region, half, build_left), || as_task(region, count - half, build_right));
     } else {
         build_left();
         build_right();
     }
+}
+
+/// Runs `f`, the work on a subtree of `objects` objects: a task of `region` where the subtree is one rayon
+/// runs serially (at most [`PARALLEL_ABOVE`] objects), which the work-and-span accounting then counts.
+fn as_task<R>(region: &Region, objects: u32, f: impl FnOnce() -> R) -> R {
+    if objects > PARALLEL_ABOVE { f() } else { region.task(f) }
 }
 
 /// Where a box stands against a plane `normal . (p - origin) + d >= 0`.
@@ -292,8 +307,16 @@ impl Traversal<'_> {
         self.occlusion.is_some_and(|(view, pyramid)| box_occluded(view, pyramid, min, max))
     }
 
+    /// Culls the whole tree, as one parallel region: subtrees of more than [`PARALLEL_ABOVE`] objects split
+    /// across rayon, the others its tasks.
+    fn run(&self, all_planes: u8) {
+        if !self.bvh.nodes.is_empty() {
+            parallel::region(|region| self.visit(0, all_planes, region));
+        }
+    }
+
     /// Culls the subtree of node `index` whose parent's box lay inside every plane but those of `mask`.
-    fn visit(&self, index: u32, mask: u8) {
+    fn visit(&self, index: u32, mask: u8, region: &Region) {
         let node = self.bvh.nodes[index as usize];
         let Some(mask) = self.classify(node.min, node.max, mask, Some(&self.bvh.coherence[index as usize])) else {
             return;
@@ -316,10 +339,14 @@ impl Traversal<'_> {
         };
         let (near, far) = if distance(left) <= distance(right) { (left, right) } else { (right, left) };
         if node.count > PARALLEL_ABOVE {
-            rayon::join(|| self.visit(near, mask), || self.visit(far, mask));
+            let subtree = |child: u32| {
+                let objects = self.bvh.nodes[child as usize].count;
+                as_task(region, objects, || self.visit(child, mask, region));
+            };
+            rayon::join(|| subtree(near), || subtree(far));
         } else {
-            self.visit(near, mask);
-            self.visit(far, mask);
+            self.visit(near, mask, region);
+            self.visit(far, mask, region);
         }
     }
 
@@ -424,6 +451,7 @@ impl Culler for HierarchyCuller {
         let start = Instant::now();
         let store = scene.store();
         let mut stats = ViewStats { objects: store.len(), ..ViewStats::default() };
+        let stage = Stage::Frustum.enter();
         self.sync(scene);
         let Some(frustum) = frustum_or_keep_everything(
             camera,
@@ -447,12 +475,11 @@ impl Culler for HierarchyCuller {
             kept: &kept,
             frustum_only: None,
         };
-        if !bvh.nodes.is_empty() {
-            traversal.visit(0, all_planes);
-        }
+        traversal.run(all_planes);
         frustum_visible.copy_to(store.len(), &mut self.frustum_visible);
         stats.after_frustum = self.frustum_visible.count();
         stats.frustum_time = start.elapsed();
+        drop(stage);
 
         let occlusion = self.settings.occlusion;
         let mut kept_set = &self.frustum_visible;
@@ -460,9 +487,11 @@ impl Culler for HierarchyCuller {
         stats.occlusion_gated = runs && self.gate.skip_this_frame();
         if runs && !stats.occlusion_gated {
             let start = Instant::now();
+            let stage = Stage::Raster.enter();
             let view = occlusion.view(camera);
             let occluders = scene.occluders_among(&self.frustum_visible, camera.position, occlusion.triangle_budget);
             let raster = rasterize(&view, &occluders, occlusion.mode, &mut self.pyramid);
+            drop(stage);
             (stats.occluders, stats.occluder_triangles) = (occluders.len(), raster.triangles_rasterized);
             stats.occluders_hidden = raster.occluders_hidden;
             stats.raster_time = start.elapsed();
@@ -473,7 +502,8 @@ impl Culler for HierarchyCuller {
                     frustum_only: Some(&self.frustum_visible),
                     ..traversal
                 };
-                traversal.visit(0, all_planes);
+                let _stage = Stage::Occlusion.enter();
+                traversal.run(all_planes);
                 kept.copy_to(store.len(), &mut self.kept);
                 kept_set = &self.kept;
             }

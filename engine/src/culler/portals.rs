@@ -120,15 +120,7 @@ impl Membership {
             }
             regions
         };
-        let of_slot: Vec<Vec<u32>> = parallel::region(|region| {
-            (0..store.len().div_ceil(SLOTS_PER_TASK))
-                .into_par_iter()
-                .flat_map_iter(|task| {
-                    let slots = task * SLOTS_PER_TASK..((task + 1) * SLOTS_PER_TASK).min(store.len());
-                    region.task(|| slots.map(regions_of).collect::<Vec<_>>())
-                })
-                .collect()
-        });
+        let of_slot = parallel::map_range(store.len(), SLOTS_PER_TASK, regions_of);
         let mut of_region = vec![Vec::new(); cells.region_count()];
         for (slot, regions) in of_slot.iter().enumerate() {
             for &region in regions {
