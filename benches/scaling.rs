@@ -296,15 +296,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         // After the timed passes: the first frame stores every object.
         let measured = with_threads(1, || work_span_frames(frames, |frame| pipeline_frame(&mut flight, frame)));
-        println!(
-            "  work/span on 1 thread: {}",
-            STAGES
-                .iter()
-                .zip(measured)
-                .map(|(s, (work, span))| format!("{s} {:.3}/{:.3} ms = {:.1}", work / 1e6, span / 1e6, work / span))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+        println!("  work/span on 1 thread: {}", work_span_line(&measured));
         work_span.push(WorkSpan { objects, work_span: measured });
         drop(flight);
 
@@ -325,15 +317,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let measured =
             with_threads(1, || work_span_frames(frames, |frame| culler_frame(&mut flight, &mut culler, frame)));
-        println!(
-            "  hierarchy work/span on 1 thread: {}",
-            STAGES
-                .iter()
-                .zip(measured)
-                .map(|(s, (work, span))| format!("{s} {:.3}/{:.3} ms = {:.1}", work / 1e6, span / 1e6, work / span))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+        println!("  hierarchy work/span on 1 thread: {}", work_span_line(&measured));
         hierarchy_work_span.push(WorkSpan { objects, work_span: measured });
     }
 
@@ -410,6 +394,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     plot_parallelism(&work_span, &out.join("parallelism.png"))?;
     println!("\nwrote {}", out.display());
     Ok(())
+}
+
+/// Each stage's work, span (ms) and parallelism, on one line.
+fn work_span_line(measured: &[(f64, f64); 5]) -> String {
+    let stage = |(name, (work, span)): (&&str, &(f64, f64))| {
+        format!("{name} {:.3}/{:.3} ms = {:.1}", work / 1e6, span / 1e6, work / span)
+    };
+    STAGES.iter().zip(measured).map(stage).collect::<Vec<_>>().join(", ")
 }
 
 /// Strong scaling rows as CSV: per size, thread count and stage, the time a frame, per object, and the
