@@ -615,8 +615,9 @@ fn paired_cullers(
     paired(passes, || pass_us(a), || pass_us(b))
 }
 
-/// Times two passes, `a` and `b` (each returning its time), against each other in `passes` passes each, alternating which goes first, so that a slow stretch of the machine slows both. Returns each one's
-/// fastest pass and the median of the passes' ratios (`b`'s time over `a`'s).
+/// Times two passes, `a` and `b` (each returning its time), against each other in `passes` passes each,
+/// alternating which goes first, so that a slow stretch of the machine slows both. Returns each one's fastest
+/// pass and the median of the passes' ratios (`b`'s time over `a`'s).
 fn paired(passes: usize, mut a: impl FnMut() -> f64, mut b: impl FnMut() -> f64) -> (f64, f64, f64) {
     let (mut fastest, mut ratios) = ((f64::INFINITY, f64::INFINITY), Vec::new());
     for pass in 0..passes.max(1) {

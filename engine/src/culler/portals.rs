@@ -58,7 +58,9 @@ pub struct PortalStats {
     pub regions: usize,
     /// Portals looked through (whose rectangle grew the region behind them).
     pub portals_passed: usize,
-    /// Object tests run: each object once per seen region it is listed in.
+    /// Region memberships looked at: each object once per seen region it is listed in (of these, the objects
+    /// that pass the camera's frustum in a region seen through portals are tested again, against its narrowed
+    /// view).
     pub objects_tested: usize,
 }
 
