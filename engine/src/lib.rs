@@ -71,6 +71,7 @@ pub mod detail;
 pub mod frustum;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod lod;
 pub mod occluders;
 pub mod occlusion;
 pub mod raster;

@@ -58,14 +58,23 @@ pub enum Stage {
     Occlusion,
     /// The light views' occlusion (`light_occlusion_time`).
     LightOcclusion,
+    /// Choosing levels of detail (`lod::LodStats::time`).
+    Lod,
     /// Outside every stage above: the thread's stage when none was entered.
     Other,
 }
 
 impl Stage {
     /// Every stage, in pipeline order; [`Recorded::stage`] is indexed by position in this array.
-    pub const ALL: [Stage; 6] =
-        [Stage::Bounds, Stage::Frustum, Stage::Raster, Stage::Occlusion, Stage::LightOcclusion, Stage::Other];
+    pub const ALL: [Stage; 7] = [
+        Stage::Bounds,
+        Stage::Frustum,
+        Stage::Raster,
+        Stage::Occlusion,
+        Stage::LightOcclusion,
+        Stage::Lod,
+        Stage::Other,
+    ];
 
     /// Makes this the calling thread's stage until the returned scope is dropped (then the stage before it is
     /// the thread's again). Costs a thread-local write.

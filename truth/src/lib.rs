@@ -11,6 +11,7 @@
 //!   exact full-resolution depth buffer, and the same box test against it.
 //! - [`metrics`]: false negatives (with the stage that culled them), false positives, culling efficiency per
 //!   stage, occlusion efficiency against the ideal, and image error; per frame and over a camera path.
+//! - [`lod`]: the image error of levels of detail: each object at its chosen level against full detail.
 //! - [`judge`]: all of the above for a `bevy_ecs` world that has just run the culling schedule.
 //! - [`half_spaces`]: a view's frustum as exact f64 half-spaces, which the other modules test against.
 //! - [`shadows`]: which shadow casters a light view needs, decided exactly: their shadows can reach the
@@ -23,6 +24,7 @@
 
 pub mod half_spaces;
 pub mod judge;
+pub mod lod;
 pub mod metrics;
 pub mod occluders;
 pub mod render;

@@ -29,6 +29,8 @@ pub enum CullStage {
     /// Rasterize artist occluders and test the frustum survivors against them; then the same for each light
     /// view, as its light sees them.
     Occlusion,
+    /// Choose each kept object's level of detail; only in a world set up by [`crate::lod::install`].
+    Lod,
 }
 
 /// The camera's culling: its [`ViewCuller`], which holds each stage's result ([`ViewCuller::frustum_visible`],

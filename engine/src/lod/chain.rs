@@ -1,0 +1,138 @@
+//! Generating a mesh's levels with meshoptimizer's simplifier, each level's geometric error measured against
+//! the full-detail mesh in the mesh's own space.
+
+use super::{LodError, LodLevel};
+use crate::mesh::Mesh;
+
+/// Error, as a fraction of the mesh's extent, below which a level counts as lossless: a thousandth of the
+/// object's size, under a pixel until the object is a thousand pixels tall.
+const LOSSLESS: f32 = 1e-3;
+
+/// How [`build_chain`] simplifies.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChainSettings {
+    /// Most levels a chain has, the full-detail mesh included (at least 1, at most [`super::MAX_LEVELS`]).
+    pub max_levels: usize,
+    /// Each level aims at this fraction of the previous level's triangles, in `(0, 1)`.
+    pub reduction: f32,
+    /// No level deviates from the full-detail mesh by more than this fraction of the mesh's extent (its
+    /// largest side): a coarser level would only be chosen where the whole object is a few pixels tall.
+    pub max_relative_error: f32,
+}
+
+impl Default for ChainSettings {
+    /// Up to 6 levels, halving the triangles, up to 10% of the extent.
+    fn default() -> Self {
+        Self { max_levels: 6, reduction: 0.5, max_relative_error: 0.1 }
+    }
+}
+
+/// The levels of `mesh`, finest first: the mesh itself (error 0), then simplified levels with fewer triangles
+/// and a larger error each (in `mesh`'s units: how far the level's surface may lie from the full-detail one).
+/// A level no coarser, or no more accurate, than its neighbours is left out, so that every level is the
+/// coarsest for some error. Vertices are welded by position before simplifying (the meshes carry positions
+/// only), so faces that share an edge stay joined.
+///
+/// # Errors
+/// [`LodError`] for a mesh the simplifier must not read: indices not a whole number of triangles, an index
+/// past the positions, a position not finite. The mesh itself is then the only level
+/// ([`super::LodLibrary::build`] keeps it so).
+pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel>, LodError> {
+    validate(mesh)?;
+    let full = LodLevel { mesh: mesh.clone(), error: 0.0 };
+    let max_levels = settings.max_levels.clamp(1, super::MAX_LEVELS);
+    if max_levels == 1 || mesh.indices.is_empty() {
+        return Ok(vec![full]);
+    }
+    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
+    // Validated above: every index is below `positions.len()`, the count a multiple of 3.
+    let (unique, remap) = meshopt::generate_vertex_remap(&positions, Some(&mesh.indices));
+    let indices = meshopt::remap_index_buffer(Some(&mesh.indices), positions.len(), &remap);
+    let welded = meshopt::remap_vertex_buffer(&positions, unique, &remap);
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&welded), 12, 0)
+        .expect("12-byte positions at offset 0 fit their own buffer");
+    let extent = meshopt::simplify_scale(&adapter);
+    let options = meshopt::SimplifyOptions::ErrorAbsolute;
+    let error_limit = settings.max_relative_error.max(0.0) * extent;
+
+    let mut levels = vec![full];
+    let mut triangles = indices.len() / 3;
+    // First the coarsest level that is as good as lossless (coplanar triangles merged: over-tessellated flat
+    // faces, as in the city's boxes), then halving.
+    let mut lossless = true;
+    while levels.len() < max_levels {
+        let (target, limit) = if lossless {
+            (0, LOSSLESS * extent)
+        } else {
+            (((triangles as f32 * settings.reduction.clamp(0.01, 0.99)) as usize).max(1) * 3, error_limit)
+        };
+        let mut error = 0.0;
+        let simplified = meshopt::simplify(&indices, &adapter, target, limit, options, Some(&mut error));
+        let was_lossless = std::mem::replace(&mut lossless, false);
+        let kept = simplified.len() / 3;
+        // The simplifier stops at the error limit or where collapses would tear the mesh: no real saving.
+        if kept == 0 || kept as f32 > 0.9 * triangles as f32 {
+            if was_lossless {
+                continue;
+            }
+            break;
+        }
+        let error = error.max(levels.last().map_or(0.0, |l| l.error));
+        let level = LodLevel { mesh: compact(&welded, simplified), error };
+        // A coarser level as accurate as the one before replaces it (never the full-detail mesh).
+        if levels.len() > 1 && levels.last().is_some_and(|last| last.error >= error) {
+            levels.pop();
+        }
+        levels.push(level);
+        triangles = kept;
+    }
+    Ok(levels)
+}
+
+/// The mesh of `indices` into `positions`, with only the positions it uses, in first-use order.
+fn compact(positions: &[[f32; 3]], mut indices: Vec<u32>) -> Mesh {
+    let used = meshopt::optimize_vertex_fetch(&mut indices, positions);
+    let vertices = indices.iter().copied().max().map_or(0, |m| m as usize + 1);
+    Mesh { positions: used[..vertices].iter().map(|&p| glam::Vec3::from_array(p)).collect(), indices }
+}
+
+/// Checks what meshoptimizer relies on: whole triangles, indices in range, finite positions.
+fn validate(mesh: &Mesh) -> Result<(), LodError> {
+    if !mesh.indices.len().is_multiple_of(3) {
+        return Err(LodError::PartialTriangle { indices: mesh.indices.len() });
+    }
+    if let Some(&index) = mesh.indices.iter().find(|&&i| i as usize >= mesh.positions.len()) {
+        return Err(LodError::IndexOutOfRange { index, positions: mesh.positions.len() });
+    }
+    if let Some(vertex) = mesh.positions.iter().position(|p| !p.is_finite()) {
+        return Err(LodError::NonFinitePosition { vertex });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_subdivided_box_simplifies_to_twelve_triangles_without_error() {
+        let levels = build_chain(&Mesh::unit_cube(8), &ChainSettings::default()).unwrap();
+        assert_eq!(levels[0].mesh.triangle_count(), 768);
+        let coarsest = levels.last().unwrap();
+        assert_eq!(coarsest.mesh.triangle_count(), 12);
+        assert!(coarsest.error < LOSSLESS, "{}", coarsest.error);
+        assert_eq!(levels.len(), 2, "no level between: the lossless one comes first");
+    }
+
+    #[test]
+    fn bad_meshes_are_refused_not_read() {
+        let mut mesh = Mesh::unit_cube(1);
+        mesh.indices.push(0);
+        assert!(matches!(build_chain(&mesh, &ChainSettings::default()), Err(LodError::PartialTriangle { .. })));
+        mesh.indices.extend_from_slice(&[1, 99]);
+        assert!(matches!(build_chain(&mesh, &ChainSettings::default()), Err(LodError::IndexOutOfRange { .. })));
+        let mut mesh = Mesh::unit_cube(1);
+        mesh.positions[3].x = f32::NAN;
+        assert!(matches!(build_chain(&mesh, &ChainSettings::default()), Err(LodError::NonFinitePosition { .. })));
+    }
+}

@@ -1,0 +1,393 @@
+//! Choosing each kept object's level, frame by frame: the coarsest level whose geometric error projects under
+//! a threshold in pixels, with hysteresis against flicker, over the SoA bounds in parallel.
+
+use super::LodLibrary;
+use super::library::ChainTable;
+use crate::bounds::{BoundsStore, ObjectTransform};
+use crate::camera::Camera;
+use crate::mesh::MeshRef;
+use crate::parallel::{self, Stage};
+use crate::pipeline::{CameraCuller, CullStage};
+use crate::visible::VisibleSet;
+use bevy_ecs::prelude::*;
+use rayon::prelude::*;
+use std::time::{Duration, Instant};
+
+/// Bitset words (of 64 objects) one task of the selection looks at.
+const WORDS_PER_TASK: usize = 16;
+/// [`LodSelection::chain`] of an object without a mesh: it has no levels.
+const NO_CHAIN: u32 = u32::MAX;
+/// [`LodSelection::level`] of an object not chosen for since it was stored.
+const UNCHOSEN: u8 = u8::MAX;
+
+/// How levels are chosen; a resource of a world set up by [`install`]. Off (every object at full detail)
+/// with neither a pixel error nor a budget.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct LodSettings {
+    /// Each object draws the coarsest level whose geometric error projects to at most this many pixels; 0
+    /// (the default), or anything not above 0, keeps full detail unless a budget asks for less.
+    pub max_error_pixels: f32,
+    /// The height of the frame in pixels, which sizes a pixel.
+    pub viewport_height: u32,
+    /// An object goes to a coarser level only once that level's error projects under `1 - hysteresis` of the
+    /// threshold, so that one near the threshold does not switch back and forth; in `[0, 1)`. To a finer
+    /// level it goes at once: the threshold always holds.
+    pub hysteresis: f32,
+    /// At most this many triangles a frame over the objects the camera keeps: levels coarser than the
+    /// threshold's, chosen best-first ([`super::budget`]), and objects dropped, smallest on screen first, where
+    /// even every object's coarsest level does not fit. `None` for no budget.
+    pub triangle_budget: Option<u64>,
+}
+
+impl Default for LodSettings {
+    /// Off: full detail, no budget; hysteresis 0.25 for when it is switched on.
+    fn default() -> Self {
+        Self { max_error_pixels: 0.0, viewport_height: 1080, hysteresis: 0.25, triangle_budget: None }
+    }
+}
+
+impl LodSettings {
+    /// Levels whose error projects to at most `pixels` in a frame `viewport_height` pixels tall; no budget.
+    pub fn pixels(pixels: f32, viewport_height: u32) -> Self {
+        Self { max_error_pixels: pixels, viewport_height, ..Self::default() }
+    }
+
+    /// Whether it chooses anything but full detail.
+    pub fn enabled(&self) -> bool {
+        self.viewport_height > 0 && (self.max_error_pixels > 0.0 || self.triangle_budget.is_some())
+    }
+
+    /// The focal length in pixels of `camera` in a frame of this height: what turns a length at a distance
+    /// into pixels.
+    pub(crate) fn focal_pixels(&self, camera: &Camera) -> f32 {
+        0.5 * self.viewport_height as f32 / (0.5 * camera.fov_y).tan()
+    }
+}
+
+/// What the last selection chose.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LodStats {
+    /// Kept objects with levels (a [`MeshRef`] naming a chain).
+    pub objects: usize,
+    /// Their triangles at full detail.
+    pub triangles_full: u64,
+    /// Their triangles at the chosen levels (dropped objects count none).
+    pub triangles: u64,
+    /// Kept objects whose level differs from their level the last time they were kept: popping.
+    pub switches: usize,
+    /// Objects dropped to keep the budget.
+    pub dropped: usize,
+    /// Wall time of the selection, budget included.
+    pub time: Duration,
+}
+
+/// Each object's level, by store slot; a resource of a world set up by [`install`], chosen each frame for the
+/// objects the camera keeps ([`LodSelection::select`]). An object the camera did not keep keeps the level it
+/// had.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct LodSelection {
+    /// Per slot, the object's chain ([`MeshRef`]), or [`NO_CHAIN`].
+    pub(super) chain: Vec<u32>,
+    /// Per slot, the largest axis scale of the object's transform: what turns the mesh's error into the
+    /// world's.
+    pub(super) scale: Vec<f32>,
+    /// Per slot (padded to whole words), the level, or [`UNCHOSEN`].
+    pub(super) level: Vec<u8>,
+    /// The store layout the per-slot tables were filled for.
+    layout: Option<u64>,
+    /// Objects dropped this frame to keep the budget.
+    pub(super) dropped: VisibleSet,
+    /// Slots whose level changed in the last selection.
+    pub(super) changed: Vec<u32>,
+    pub(super) stats: LodStats,
+    /// The last selection chose anything but full detail.
+    active: bool,
+}
+
+impl LodSelection {
+    /// The level of the object in `slot` (0 is full detail), or `None` for an object without levels or never
+    /// chosen for.
+    pub fn level(&self, slot: usize) -> Option<u8> {
+        self.level.get(slot).copied().filter(|&l| l != UNCHOSEN && self.chain.get(slot) != Some(&NO_CHAIN))
+    }
+
+    /// The mesh, in [`LodLibrary::meshes`], that the object in `slot` draws: `None` for an object without
+    /// levels or dropped by the budget. An object not chosen for yet draws full detail.
+    pub fn mesh_of(&self, slot: usize, library: &LodLibrary) -> Option<u32> {
+        let chain = *self.chain.get(slot)?;
+        if chain == NO_CHAIN || self.dropped.contains(slot) {
+            return None;
+        }
+        library.mesh_of(chain, self.level(slot).unwrap_or(0))
+    }
+
+    /// Slots whose level changed in the last selection, increasing: what a GPU copy of the instances must
+    /// rewrite.
+    pub fn changed(&self) -> &[u32] {
+        &self.changed
+    }
+
+    /// Objects the budget dropped this frame: kept by culling, not to be drawn.
+    pub fn dropped(&self) -> &VisibleSet {
+        &self.dropped
+    }
+
+    /// What the last selection chose.
+    pub fn stats(&self) -> LodStats {
+        self.stats
+    }
+
+    /// Sets the object in `slot` to draw `chain` (a [`MeshRef`]; `None` for none) under a transform whose
+    /// largest axis scale is `scale`. Grows the tables to hold `slot`.
+    pub fn set_object(&mut self, slot: usize, chain: Option<u32>, scale: f32) {
+        self.resize(slot + 1);
+        self.chain[slot] = chain.unwrap_or(NO_CHAIN);
+        self.scale[slot] = scale;
+    }
+
+    /// Sizes the tables for `len` slots; new slots have no levels until set.
+    fn resize(&mut self, len: usize) {
+        if len > self.chain.len() {
+            self.chain.resize(len, NO_CHAIN);
+            self.scale.resize(len, 1.0);
+        }
+        let padded = len.div_ceil(64) * 64;
+        if padded > self.level.len() {
+            self.level.resize(padded, UNCHOSEN);
+        }
+    }
+
+    /// Chooses a level for every object of `visible` (store slots of `store`) seen from `camera`, as
+    /// `settings` ask: under [`LodSettings::max_error_pixels`], then within [`LodSettings::triangle_budget`].
+    /// With `settings` off, every object goes back to full detail, and a frame after that costs nothing.
+    pub fn select(
+        &mut self,
+        library: &LodLibrary,
+        store: &BoundsStore,
+        camera: &Camera,
+        visible: &VisibleSet,
+        settings: &LodSettings,
+    ) {
+        let start = Instant::now();
+        let _stage = Stage::Lod.enter();
+        self.changed.clear();
+        self.resize(store.len());
+        self.dropped.reset(store.len());
+        if !settings.enabled() {
+            if self.active {
+                self.reset_to_full_detail();
+            }
+            self.stats = LodStats { time: start.elapsed(), ..LodStats::default() };
+            return;
+        }
+        self.active = true;
+        let previous = settings.triangle_budget.map(|_| self.level.clone());
+        let focal = settings.focal_pixels(camera);
+        self.choose_within_threshold(library, store, camera, visible, settings, focal);
+        if let (Some(budget), Some(previous)) = (settings.triangle_budget, previous)
+            && self.stats.triangles > budget
+        {
+            self.fit_budget(library, store, camera, visible, settings, focal, budget, &previous);
+        }
+        self.stats.time = start.elapsed();
+    }
+
+    /// Every object back at full detail (LOD switched off).
+    fn reset_to_full_detail(&mut self) {
+        self.active = false;
+        for (slot, level) in self.level.iter_mut().enumerate() {
+            if *level != UNCHOSEN && *level != 0 {
+                *level = 0;
+                self.changed.push(slot as u32);
+            }
+        }
+    }
+
+    /// The threshold's choice with hysteresis, in parallel over runs of words; fills the stats and the
+    /// changed slots.
+    fn choose_within_threshold(
+        &mut self,
+        library: &LodLibrary,
+        store: &BoundsStore,
+        camera: &Camera,
+        visible: &VisibleSet,
+        settings: &LodSettings,
+        focal: f32,
+    ) {
+        let soa = store.soa();
+        let (chains, scales) = (&self.chain, &self.scale);
+        let (eye, threshold) = (camera.position, settings.max_error_pixels.max(0.0));
+        let keep_below = 1.0 - settings.hysteresis.clamp(0.0, 0.99);
+        let len = store.len();
+        let tasks: Vec<Choice> = parallel::region(|region| {
+            visible
+                .words()
+                .par_chunks(WORDS_PER_TASK)
+                .zip(self.level.par_chunks_mut(WORDS_PER_TASK * 64))
+                .enumerate()
+                .map(|(task, (words, levels))| {
+                    region.task(|| {
+                        let mut choice = Choice::default();
+                        let mut allowed = [0.0f32; 64];
+                        for (w, &word) in words.iter().enumerate() {
+                            if word == 0 {
+                                continue;
+                            }
+                            let base = (task * WORDS_PER_TASK + w) * 64;
+                            let end = (base + 64).min(len);
+                            // Straight-line over the whole word's SoA bounds, so that it vectorizes: the
+                            // error in the mesh's units that projects to `threshold` pixels at the object's
+                            // nearest distance from the eye (0 where the eye is inside its sphere).
+                            for (i, allowed) in allowed[..end - base].iter_mut().enumerate() {
+                                let slot = base + i;
+                                let (dx, dy, dz) = (
+                                    soa.center_x[slot] - eye.x,
+                                    soa.center_y[slot] - eye.y,
+                                    soa.center_z[slot] - eye.z,
+                                );
+                                let nearest = ((dx * dx + dy * dy + dz * dz).sqrt() - soa.radius[slot]).max(0.0);
+                                *allowed = threshold * nearest / (focal * scales[slot]);
+                            }
+                            let mut bits = word;
+                            while bits != 0 {
+                                let i = bits.trailing_zeros() as usize;
+                                bits &= bits - 1;
+                                let slot = base + i;
+                                let Some(table) = chains.get(slot).and_then(|&c| library.chains.get(c as usize)) else {
+                                    continue;
+                                };
+                                // Not finite (a zero or broken scale): full detail.
+                                let within = if allowed[i].is_finite() { allowed[i] } else { 0.0 };
+                                let level = &mut levels[slot - task * WORDS_PER_TASK * 64];
+                                let chosen = hysteresis(table, *level, within, within * keep_below);
+                                choice.add(table, slot, *level, chosen);
+                                *level = chosen;
+                            }
+                        }
+                        choice
+                    })
+                })
+                .collect()
+        });
+        let mut stats = LodStats::default();
+        for task in tasks {
+            stats.objects += task.objects;
+            stats.triangles_full += task.triangles_full;
+            stats.triangles += task.triangles;
+            stats.switches += task.switches;
+            self.changed.extend(task.changed);
+        }
+        self.stats = stats;
+    }
+}
+
+/// The level an object at `previous` goes to: finer at once where `previous` is coarser than the coarsest
+/// level within `allowed`; coarser only to the coarsest within `relaxed` (below `allowed`).
+#[inline]
+fn hysteresis(table: &ChainTable, previous: u8, allowed: f32, relaxed: f32) -> u8 {
+    let target = table.coarsest_within(allowed);
+    if previous == UNCHOSEN || previous >= table.levels || previous > target {
+        return target;
+    }
+    previous.max(table.coarsest_within(relaxed))
+}
+
+/// One task's share of a selection.
+#[derive(Default)]
+struct Choice {
+    objects: usize,
+    triangles_full: u64,
+    triangles: u64,
+    switches: usize,
+    changed: Vec<u32>,
+}
+
+impl Choice {
+    fn add(&mut self, table: &ChainTable, slot: usize, previous: u8, chosen: u8) {
+        self.objects += 1;
+        self.triangles_full += table.triangles[0] as u64;
+        self.triangles += table.triangles[chosen as usize] as u64;
+        if previous != chosen {
+            self.changed.push(slot as u32);
+            self.switches += (previous != UNCHOSEN) as usize;
+        }
+    }
+}
+
+/// Installs level selection into a world set up by [`crate::install`]: `library` (the levels of the meshes
+/// that [`MeshRef`]s name), `settings` and the [`LodSelection`] as resources, and the [`CullStage::Lod`]
+/// systems in `schedule`, after the occlusion stage: each run chooses a level for every object the camera
+/// keeps.
+pub fn install(world: &mut World, schedule: &mut Schedule, library: LodLibrary, settings: LodSettings) {
+    world.insert_resource(library);
+    world.insert_resource(settings);
+    world.init_resource::<LodSelection>();
+    schedule.configure_sets(CullStage::Lod.after(CullStage::Occlusion));
+    schedule.add_systems((sync_objects, select_levels).chain().in_set(CullStage::Lod));
+}
+
+/// Objects whose mesh or transform changed, for [`sync_objects`].
+type ChangedObjects<'w, 's> = Query<
+    'w,
+    's,
+    (Entity, Option<&'static MeshRef>, &'static ObjectTransform),
+    Or<(Changed<MeshRef>, Changed<ObjectTransform>)>,
+>;
+
+/// Keeps [`LodSelection`]'s per-slot chain and scale in step with the entities: every slot after the store's
+/// layout changed (objects added, removed or moved between slots), else only the objects whose [`MeshRef`] or
+/// [`ObjectTransform`] changed.
+fn sync_objects(
+    store: Res<BoundsStore>,
+    mut selection: ResMut<LodSelection>,
+    changed: ChangedObjects,
+    all: Query<(Option<&MeshRef>, Option<&ObjectTransform>)>,
+) {
+    let object = |mesh: Option<&MeshRef>, transform: Option<&ObjectTransform>| {
+        (mesh.map(|m| m.0), transform.map_or(1.0, |t| largest_axis_scale(&t.0)))
+    };
+    if selection.layout != Some(store.layout_generation()) {
+        let objects: Vec<(Option<u32>, f32)> = store
+            .entities()
+            .par_iter()
+            .map(|&entity| all.get(entity).map_or((None, 1.0), |(mesh, transform)| object(mesh, transform)))
+            .collect();
+        let selection = &mut *selection;
+        selection.chain.clear();
+        selection.scale.clear();
+        selection.level.clear();
+        selection.resize(objects.len());
+        for (slot, (chain, scale)) in objects.into_iter().enumerate() {
+            selection.set_object(slot, chain, scale);
+        }
+        selection.layout = Some(store.layout_generation());
+        return;
+    }
+    for (entity, mesh, transform) in &changed {
+        if let Some(slot) = store.slot_of(entity) {
+            let (chain, scale) = object(mesh, Some(transform));
+            selection.set_object(slot, chain, scale);
+        }
+    }
+}
+
+/// The largest length a unit vector of the mesh's space takes in the world, for a transform without shear:
+/// the longest column.
+fn largest_axis_scale(transform: &glam::Affine3A) -> f32 {
+    let m = transform.matrix3;
+    m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length())
+}
+
+/// Chooses the levels of the camera's kept objects ([`LodSelection::select`]).
+fn select_levels(
+    library: Res<LodLibrary>,
+    store: Res<BoundsStore>,
+    camera: Option<Res<Camera>>,
+    culler: Res<CameraCuller>,
+    settings: Res<LodSettings>,
+    mut selection: ResMut<LodSelection>,
+) {
+    if let Some(camera) = camera {
+        selection.select(&library, &store, &camera, culler.visible(), &settings);
+    }
+}
