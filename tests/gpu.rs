@@ -908,3 +908,36 @@ fn two_phase_marks_start_again_before_they_wrap() {
     let drew_early: Vec<bool> = early_draws.iter().map(|&draws| draws > 0).collect();
     assert_eq!(drew_early, [false, true, true, false, true, true], "{early_draws:?}");
 }
+
+#[test]
+fn levels_of_detail_draw_fewer_triangles_and_nearly_the_same_image() {
+    use cullet::lod::{self, ChainSettings, LodLibrary, LodSettings};
+    let Some(context) = context_for_tests() else { return };
+    let ((width, height), frames) = ((640, 360), 6);
+    let city = CityScene::generate(CityParams::with_objects(3_000));
+    let library = LodLibrary::build(&city.scene.meshes, &ChainSettings::default());
+    let fly = |lod: bool| {
+        let aspect = width as f32 / height as f32;
+        let mut flight = Flight::new(city.flythrough(), aspect, frames, OcclusionSettings::default(), |world| {
+            city.spawn(world);
+        });
+        if lod {
+            lod::install(&mut flight.world, &mut flight.schedule, library.clone(), LodSettings::pixels(1.0, height));
+        }
+        let mut culler = GpuCuller::for_world(&context, &flight.world, &city.scene.meshes, (width, height));
+        let (mut triangles, mut images) = (0u64, Vec::new());
+        for frame in 0..frames {
+            flight.run_frame(frame);
+            let output = culler.run_world(&context, &mut flight.world, &GpuCullSettings::default()).unwrap();
+            triangles += output.counters.triangles_out as u64;
+            images.push(culler.read_image(&context).unwrap().object);
+        }
+        (triangles, images)
+    };
+    let ((full, full_images), (drawn, lod_images)) = (fly(false), fly(true));
+    assert!(drawn * 2 <= full, "{drawn} of {full} triangles drawn");
+    for (frame, (a, b)) in full_images.iter().zip(&lod_images).enumerate() {
+        let changed = a.iter().zip(b).filter(|(a, b)| a != b).count();
+        assert!(changed * 200 <= a.len(), "frame {frame}: {changed} pixels changed");
+    }
+}

@@ -2,7 +2,7 @@
 
 use crate::report::{
     LightViewColumns, LightViewTotals, STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary,
-    print_savings, print_summary,
+    print_lod_summary, print_savings, print_summary,
 };
 use crate::validation::Validation;
 use crate::{Args, CullerChoice, Prepared, gpu_error_message};
@@ -11,6 +11,7 @@ use cullet::depth::DepthBuffer;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput, ReadBack};
 use cullet::gpu::{QueryGridCuller, QueryGridSettings, QueryGridStats};
+use cullet::lod::LodSelection;
 use cullet::{BoundsStore, Camera};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressFinish, ProgressStyle};
 use std::io::IsTerminal;
@@ -117,6 +118,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
     };
     let mut gpu_frames: Vec<GpuFrameOutput> = Vec::new();
     let mut per_frame = Vec::with_capacity(args.headless_frames() as usize);
+    let mut lod_frames = Vec::new();
     let mut savings = Vec::with_capacity(args.headless_frames() as usize);
     let slot_triangles = SlotTriangles::of_world(&flight.world, &scene.meshes);
     let mut validation = args.validate.then(|| Validation::new(width, height));
@@ -298,6 +300,9 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
             ));
         }
         per_frame.push(stats);
+        if let Some(selection) = flight.world.get_resource::<LodSelection>() {
+            lod_frames.push(selection.stats());
+        }
         savings.push(saved);
         if let Some(OwnCuller::QueryGrid(grid)) = &own_culler {
             query_grid.add(&grid.stats());
@@ -315,6 +320,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
         println!("per-frame statistics written to {}", file.display());
     }
     print_summary(&per_frame);
+    print_lod_summary(&lod_frames);
     query_grid.print();
     println!(
         "{} frames in {:.2} s: {:.2} ms a frame, wall time (every stage{}, and all this run adds)",

@@ -16,6 +16,7 @@ use cullet::CameraPath;
 use cullet::detail::DetailSettings;
 use cullet::frustum::LightSource;
 use cullet::gpu::{GpuError, GpuGating};
+use cullet::lod::{ChainSettings, LodLibrary, LodSettings};
 use cullet::pipeline::LightViews;
 
 use cullet::culler::{AdaptiveSettings, OcclusionSettings};
@@ -101,6 +102,16 @@ struct Args {
     /// --resolution frame. --validate counts what it costs and does not fail on it.
     #[arg(long, value_name = "PIXELS")]
     detail_pixels: Option<f32>,
+    /// Levels of detail (lossy): each object the camera keeps draws the coarsest level of its mesh (made by
+    /// meshoptimizer's simplifier at load) whose error projects under this many pixels of the --resolution
+    /// frame.
+    #[arg(long, value_name = "PIXELS")]
+    lod_pixels: Option<f32>,
+    /// Levels of detail under a budget (lossy): at most this many triangles a frame over the objects the
+    /// camera keeps, levels chosen best-first by error removed per triangle, the smallest objects dropped
+    /// where even the coarsest levels do not fit. With --lod-pixels, never finer than its levels.
+    #[arg(long, value_name = "TRIANGLES")]
+    triangle_budget: Option<u64>,
     /// Most occluder triangles rasterized per frame (default: 5120 for the buffer standing for the frame's
     /// pixels, 4096 for the others).
     #[arg(long)]
@@ -407,6 +418,19 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
     }
     if let Some(min_pixels) = args.detail_pixels {
         flight.world.insert_resource(DetailSettings { min_pixels, viewport_height: height });
+    }
+    if args.lod_pixels.is_some() || args.triangle_budget.is_some() {
+        let library = LodLibrary::build(&scene.meshes, &ChainSettings::default());
+        for (mesh, error) in library.errors() {
+            println!("mesh {mesh} keeps full detail only: {error}");
+        }
+        let settings = LodSettings {
+            max_error_pixels: args.lod_pixels.unwrap_or(0.0),
+            viewport_height: height,
+            triangle_budget: args.triangle_budget,
+            ..LodSettings::default()
+        };
+        cullet::lod::install(&mut flight.world, &mut flight.schedule, library, settings);
     }
     if args.fixed_pipeline {
         flight.world.insert_resource(AdaptiveSettings::fixed());

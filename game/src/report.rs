@@ -3,6 +3,7 @@
 use cullet::draw_cost::{DrawSavings, draw_ns_per_triangle};
 use cullet::frustum::{LightSource, cube_face_cameras};
 use cullet::gpu::{GpuCounters, GpuFrameOutput, GpuPassTimes};
+use cullet::lod::LodStats;
 use cullet::pipeline::{CullStats, LightViews, LightViewsVisible};
 use std::time::Duration;
 
@@ -341,6 +342,29 @@ pub fn print_summary(frames: &[CullStats]) {
             "detail culling (lossy): {detail:.0} objects a frame dropped for projecting too small, in `kept` above"
         );
     }
+}
+
+/// Prints the levels of detail's means over `frames` (nothing without any).
+pub fn print_lod_summary(frames: &[LodStats]) {
+    if frames.is_empty() {
+        return;
+    }
+    let n = frames.len() as f64;
+    let mean = |f: fn(&LodStats) -> f64| frames.iter().map(f).sum::<f64>() / n;
+    let (full, drawn) = (mean(|s| s.triangles_full as f64), mean(|s| s.triangles as f64));
+    let time = Spread::of(frames.iter().map(|s| micros(s.time)).collect());
+    let most = frames.iter().map(|s| s.triangles).max().unwrap_or(0);
+    println!(
+        "levels of detail (lossy): kept objects' triangles {full:.0} -> {drawn:.0} a frame ({:.1}% fewer, at most \
+         {most} in a frame), {:.1} level switches and {:.1} objects dropped by the budget a frame; selection \
+         {:.1} us (median {:.1}; tables {:.1})",
+        100.0 * (1.0 - drawn / full.max(1.0)),
+        mean(|s| s.switches as f64),
+        mean(|s| s.dropped as f64),
+        time.mean,
+        time.median,
+        Spread::of(frames.iter().map(|s| micros(s.tables_time)).collect()).median,
+    );
 }
 
 #[cfg(test)]

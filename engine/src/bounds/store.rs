@@ -206,6 +206,8 @@ pub struct BoundsStore {
     moved: Option<Vec<u32>>,
     /// The generation at the last [`BoundsStore::take_moves`].
     moves_taken_at: u64,
+    /// What the last [`BoundsStore::take_moves`] handed over, for the stages after the one that took them.
+    last_moves: Option<StoreMoves>,
 }
 
 /// The slots whose bounds changed in place between two generations of a store, increasing
@@ -813,8 +815,16 @@ impl BoundsStore {
     /// culler ([`crate::culler::ViewFrame::moves`]).
     pub fn take_moves(&mut self) -> Option<StoreMoves> {
         let from = std::mem::replace(&mut self.moves_taken_at, self.generation);
-        let slots = self.take_moved_slots()?;
-        Some(StoreMoves { from, to: self.generation, slots })
+        let moves = self.take_moved_slots().map(|slots| StoreMoves { from, to: self.generation, slots });
+        self.last_moves.clone_from(&moves);
+        moves
+    }
+
+    /// What the last [`BoundsStore::take_moves`] returned: the stages after the one that took them (in the
+    /// pipeline, the frustum stage) read the frame's moves here. `None` before any, or when too many moved to
+    /// list.
+    pub fn last_moves(&self) -> Option<&StoreMoves> {
+        self.last_moves.as_ref()
     }
 
     /// Drains the rejections recorded since the last call.

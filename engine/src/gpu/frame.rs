@@ -14,7 +14,7 @@ use super::late_read::LateRead;
 use super::output::{
     COUNTER_BYTES, GpuCounters, GpuFrameOutput, ONE_PHASE_PASSES, PassTimer, PhaseCounters, TIMED_PASSES,
 };
-use super::scene::{GpuInstance, GpuScene, instance_of, instances_from_world};
+use super::scene::{GpuInstance, GpuScene, drawn_meshes, instance_of, instances_from_world};
 use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
 use super::two_phase::TwoPhase;
 use super::view_cull::{CullPasses, PassGate, ViewCull, candidates, fits_binding, view_buffer};
@@ -253,7 +253,8 @@ impl GpuCuller {
     /// If `world` was not set up by [`crate::install`] (it has no [`BoundsStore`]).
     pub fn for_world(context: &GpuContext, world: &World, meshes: &[Mesh], target_size: (u32, u32)) -> Self {
         let occlusion = world.get_resource::<OcclusionSettings>().copied().unwrap_or_default();
-        let scene = GpuScene::new(context, ClusterLibrary::build(meshes), instances_from_world(world));
+        let scene =
+            GpuScene::new(context, ClusterLibrary::build(drawn_meshes(world, meshes)), instances_from_world(world));
         Self::new(context, scene, target_size.0, target_size.1, occlusion.width, occlusion.height)
     }
 
@@ -864,7 +865,15 @@ impl GpuCuller {
         world: &mut World,
         recolor: impl Fn(usize, GpuInstance) -> GpuInstance,
     ) {
-        let written = world.resource_mut::<BoundsStore>().take_written_slots();
+        let mut written = world.resource_mut::<BoundsStore>().take_written_slots();
+        // Objects whose level of detail changed draw another mesh.
+        if let Some(selection) = world.get_resource::<crate::lod::LodSelection>()
+            && !selection.changed().is_empty()
+        {
+            written.extend_from_slice(selection.changed());
+            written.sort_unstable();
+            written.dedup();
+        }
         let count = world.resource::<BoundsStore>().len();
         let slots = if self.recolored { (0..count as u32).collect() } else { written };
         self.scene.write_instances(context, count, &slots, |slot| recolor(slot as usize, instance_of(world, slot)));

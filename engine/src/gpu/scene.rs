@@ -13,6 +13,12 @@ pub use super::interface::INSTANCE_CONE_SAFE;
 /// [`GpuInstance::mesh`] of an object with no mesh: it has no clusters and draws nothing.
 pub const NO_MESH: u32 = u32::MAX;
 
+/// The meshes the GPU draws for `world`: [`crate::lod::LodLibrary::meshes`] where it has levels of detail,
+/// else `meshes` (what its [`crate::mesh::MeshRef`]s index).
+pub fn drawn_meshes<'a>(world: &'a bevy_ecs::world::World, meshes: &'a [crate::mesh::Mesh]) -> &'a [crate::mesh::Mesh] {
+    world.get_resource::<crate::lod::LodLibrary>().map_or(meshes, |library| library.meshes())
+}
+
 /// The instances of `world`'s culled objects, indexed by store slot (see [`instance_of`]).
 pub fn instances_from_world(world: &bevy_ecs::world::World) -> Vec<GpuInstance> {
     let store = world.resource::<crate::bounds::BoundsStore>();
@@ -20,11 +26,20 @@ pub fn instances_from_world(world: &bevy_ecs::world::World) -> Vec<GpuInstance> 
 }
 
 /// The instance in store slot `slot` of `world`: its [`crate::mesh::MeshRef`] with its
-/// [`crate::bounds::ObjectTransform`]; an object without a mesh gets [`NO_MESH`].
+/// [`crate::bounds::ObjectTransform`]; an object without a mesh gets [`NO_MESH`]. In a world with levels of
+/// detail ([`crate::lod::install`]) the mesh is the chosen level's in [`crate::lod::LodLibrary::meshes`]
+/// ([`NO_MESH`] for an object the budget dropped).
 pub fn instance_of(world: &bevy_ecs::world::World, slot: u32) -> GpuInstance {
     let entity = world.resource::<crate::bounds::BoundsStore>().entities()[slot as usize];
     let transform = world.get::<crate::bounds::ObjectTransform>(entity).map_or(Affine3A::IDENTITY, |t| t.0);
     let mesh = world.get::<crate::mesh::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
+    let mesh = match (world.get_resource::<crate::lod::LodLibrary>(), world.get_resource::<crate::lod::LodSelection>())
+    {
+        (Some(library), Some(selection)) if mesh != NO_MESH => {
+            selection.mesh_of(slot as usize, library).or_else(|| library.mesh_of(mesh, 0)).unwrap_or(NO_MESH)
+        }
+        _ => mesh,
+    };
     let color = world.get::<crate::mesh::ObjectColor>(entity).map(|c| c.0);
     GpuInstance::new(&transform, mesh).with_color(color)
 }

@@ -14,7 +14,9 @@ use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
 /// Bitset words (of 64 objects) one task of the selection looks at.
-const WORDS_PER_TASK: usize = 16;
+const WORDS_PER_TASK: usize = 128;
+/// Kept objects in a word from which the word's distances are computed all at once.
+const DENSE_WORD: u32 = 16;
 /// [`LodSelection::chain`] of an object without a mesh: it has no levels.
 const NO_CHAIN: u32 = u32::MAX;
 /// [`LodSelection::level`] of an object not chosen for since it was stored.
@@ -77,8 +79,10 @@ pub struct LodStats {
     pub switches: usize,
     /// Objects dropped to keep the budget.
     pub dropped: usize,
-    /// Wall time of the selection, budget included.
+    /// Wall time of the selection, its per-object tables brought up to date and the budget included.
     pub time: Duration,
+    /// Of `time`, bringing the per-object tables (mesh, scale) up to date with the entities.
+    pub tables_time: Duration,
 }
 
 /// Each object's level, by store slot; a resource of a world set up by [`install`], chosen each frame for the
@@ -93,8 +97,8 @@ pub struct LodSelection {
     pub(super) scale: Vec<f32>,
     /// Per slot (padded to whole words), the level, or [`UNCHOSEN`].
     pub(super) level: Vec<u8>,
-    /// The store layout the per-slot tables were filled for.
-    layout: Option<u64>,
+    /// The store's layout and generation the per-slot tables were last brought up to date with.
+    synced: Option<(u64, u64)>,
     /// Objects dropped this frame to keep the budget.
     pub(super) dropped: VisibleSet,
     /// Slots whose level changed in the last selection.
@@ -102,6 +106,8 @@ pub struct LodSelection {
     pub(super) stats: LodStats,
     /// The last selection chose anything but full detail.
     active: bool,
+    /// Time the last [`sync_objects`] took, counted in the next selection's.
+    sync_time: Duration,
 }
 
 impl LodSelection {
@@ -168,7 +174,8 @@ impl LodSelection {
         visible: &VisibleSet,
         settings: &LodSettings,
     ) {
-        let start = Instant::now();
+        let tables_time = std::mem::take(&mut self.sync_time);
+        let start = Instant::now() - tables_time;
         let _stage = Stage::Lod.enter();
         self.changed.clear();
         self.resize(store.len());
@@ -177,7 +184,7 @@ impl LodSelection {
             if self.active {
                 self.reset_to_full_detail();
             }
-            self.stats = LodStats { time: start.elapsed(), ..LodStats::default() };
+            self.stats = LodStats { time: start.elapsed(), tables_time, ..LodStats::default() };
             return;
         }
         self.active = true;
@@ -189,7 +196,7 @@ impl LodSelection {
         {
             self.fit_budget(library, store, camera, visible, settings, focal, budget, &previous);
         }
-        self.stats.time = start.elapsed();
+        (self.stats.time, self.stats.tables_time) = (start.elapsed(), tables_time);
     }
 
     /// Every object back at full detail (LOD switched off).
@@ -229,24 +236,27 @@ impl LodSelection {
                     region.task(|| {
                         let mut choice = Choice::default();
                         let mut allowed = [0.0f32; 64];
+                        // The error in the mesh's units that projects to `threshold` pixels at the object's
+                        // nearest distance from the eye (0 where the eye is inside its sphere).
+                        let allowed_at = |slot: usize| {
+                            let (dx, dy, dz) =
+                                (soa.center_x[slot] - eye.x, soa.center_y[slot] - eye.y, soa.center_z[slot] - eye.z);
+                            let nearest = ((dx * dx + dy * dy + dz * dz).sqrt() - soa.radius[slot]).max(0.0);
+                            threshold * nearest / (focal * scales[slot])
+                        };
                         for (w, &word) in words.iter().enumerate() {
                             if word == 0 {
                                 continue;
                             }
                             let base = (task * WORDS_PER_TASK + w) * 64;
-                            let end = (base + 64).min(len);
-                            // Straight-line over the whole word's SoA bounds, so that it vectorizes: the
-                            // error in the mesh's units that projects to `threshold` pixels at the object's
-                            // nearest distance from the eye (0 where the eye is inside its sphere).
-                            for (i, allowed) in allowed[..end - base].iter_mut().enumerate() {
-                                let slot = base + i;
-                                let (dx, dy, dz) = (
-                                    soa.center_x[slot] - eye.x,
-                                    soa.center_y[slot] - eye.y,
-                                    soa.center_z[slot] - eye.z,
-                                );
-                                let nearest = ((dx * dx + dy * dy + dz * dz).sqrt() - soa.radius[slot]).max(0.0);
-                                *allowed = threshold * nearest / (focal * scales[slot]);
+                            // A dense word is computed whole, straight-line over the SoA bounds so that it
+                            // vectorizes; a sparse one object by object.
+                            let dense = word.count_ones() >= DENSE_WORD;
+                            if dense {
+                                let end = (base + 64).min(len);
+                                for (i, allowed) in allowed[..end - base].iter_mut().enumerate() {
+                                    *allowed = allowed_at(base + i);
+                                }
                             }
                             let mut bits = word;
                             while bits != 0 {
@@ -256,8 +266,9 @@ impl LodSelection {
                                 let Some(table) = chains.get(slot).and_then(|&c| library.chains.get(c as usize)) else {
                                     continue;
                                 };
+                                let allowed = if dense { allowed[i] } else { allowed_at(slot) };
                                 // Not finite (a zero or broken scale): full detail.
-                                let within = if allowed[i].is_finite() { allowed[i] } else { 0.0 };
+                                let within = if allowed.is_finite() { allowed } else { 0.0 };
                                 let level = &mut levels[slot - task * WORDS_PER_TASK * 64];
                                 let chosen = hysteresis(table, *level, within, within * keep_below);
                                 choice.add(table, slot, *level, chosen);
@@ -322,53 +333,62 @@ pub fn install(world: &mut World, schedule: &mut Schedule, library: LodLibrary, 
     world.insert_resource(library);
     world.insert_resource(settings);
     world.init_resource::<LodSelection>();
+    world.init_resource::<LodRemeshed>();
+    world.add_observer(on_mesh_inserted);
     schedule.configure_sets(CullStage::Lod.after(CullStage::Occlusion));
     schedule.add_systems((sync_objects, select_levels).chain().in_set(CullStage::Lod));
 }
 
-/// Objects whose mesh or transform changed, for [`sync_objects`].
-type ChangedObjects<'w, 's> = Query<
-    'w,
-    's,
-    (Entity, Option<&'static MeshRef>, &'static ObjectTransform),
-    Or<(Changed<MeshRef>, Changed<ObjectTransform>)>,
->;
-
-/// Keeps [`LodSelection`]'s per-slot chain and scale in step with the entities: every slot after the store's
-/// layout changed (objects added, removed or moved between slots), else only the objects whose [`MeshRef`] or
-/// [`ObjectTransform`] changed.
+/// Keeps [`LodSelection`]'s per-slot chain and scale in step with the entities, at a cost that follows what
+/// changed: every slot after the store's layout changed (objects added, removed or moved between slots, or a
+/// [`MeshRef`] inserted), else only the slots whose bounds changed in place this frame
+/// ([`BoundsStore::last_moves`]: transforms mutated or inserted). An object's mesh is changed by inserting a new
+/// [`MeshRef`] (an insert, not a mutation).
 fn sync_objects(
     store: Res<BoundsStore>,
     mut selection: ResMut<LodSelection>,
-    changed: ChangedObjects,
-    all: Query<(Option<&MeshRef>, Option<&ObjectTransform>)>,
+    mut remeshed: ResMut<LodRemeshed>,
+    objects: Query<(Option<&MeshRef>, Option<&ObjectTransform>)>,
 ) {
-    let object = |mesh: Option<&MeshRef>, transform: Option<&ObjectTransform>| {
-        (mesh.map(|m| m.0), transform.map_or(1.0, |t| largest_axis_scale(&t.0)))
+    let start = Instant::now();
+    let _stage = Stage::Lod.enter();
+    let object_in = |slot: u32| {
+        let entity = store.entities()[slot as usize];
+        objects.get(entity).map_or((None, 1.0), |(mesh, transform)| {
+            (mesh.map(|m| m.0), transform.map_or(1.0, |t| largest_axis_scale(&t.0)))
+        })
     };
-    if selection.layout != Some(store.layout_generation()) {
-        let objects: Vec<(Option<u32>, f32)> = store
-            .entities()
-            .par_iter()
-            .map(|&entity| all.get(entity).map_or((None, 1.0), |(mesh, transform)| object(mesh, transform)))
-            .collect();
-        let selection = &mut *selection;
-        selection.chain.clear();
-        selection.scale.clear();
-        selection.level.clear();
-        selection.resize(objects.len());
-        for (slot, (chain, scale)) in objects.into_iter().enumerate() {
-            selection.set_object(slot, chain, scale);
+    let incremental = store
+        .last_moves()
+        .filter(|moves| selection.synced == Some((store.layout_generation(), moves.from)) && !remeshed.0)
+        .filter(|moves| moves.to == store.generation());
+    let slots: Vec<u32> = match incremental {
+        Some(moves) => moves.slots.clone(),
+        None => {
+            let selection = &mut *selection;
+            selection.chain.clear();
+            selection.scale.clear();
+            selection.level.clear();
+            selection.resize(store.len());
+            (0..store.len() as u32).collect()
         }
-        selection.layout = Some(store.layout_generation());
-        return;
+    };
+    let objects: Vec<(Option<u32>, f32)> = parallel::map_range(slots.len(), 512, |i| object_in(slots[i]));
+    for (&slot, (chain, scale)) in slots.iter().zip(objects) {
+        selection.set_object(slot as usize, chain, scale);
     }
-    for (entity, mesh, transform) in &changed {
-        if let Some(slot) = store.slot_of(entity) {
-            let (chain, scale) = object(mesh, Some(transform));
-            selection.set_object(slot, chain, scale);
-        }
-    }
+    selection.synced = Some((store.layout_generation(), store.generation()));
+    remeshed.0 = false;
+    selection.sync_time = start.elapsed();
+}
+
+/// Set when a [`MeshRef`] was inserted since the last [`sync_objects`]: its tables are then filled again.
+#[derive(Resource, Default)]
+struct LodRemeshed(bool);
+
+/// Observer: an object's mesh changed.
+fn on_mesh_inserted(_event: On<Insert<MeshRef>>, mut remeshed: ResMut<LodRemeshed>) {
+    remeshed.0 = true;
 }
 
 /// The largest length a unit vector of the mesh's space takes in the world, for a transform without shear:

@@ -24,7 +24,7 @@ pub mod grid;
 
 use super::cell_queries::{CellBox, CellQueries};
 use super::clusters::ClusterLibrary;
-use super::scene::{GpuScene, instance_of, instances_from_world};
+use super::scene::{GpuScene, drawn_meshes, instance_of, instances_from_world};
 use super::{GpuContext, GpuError};
 use crate::camera::Camera;
 use crate::culler::{CullScene, Culled, Culler, StoreChange, ViewStats, frustum_or_keep_everything};
@@ -184,7 +184,8 @@ impl QueryGridCuller {
         viewport: (u32, u32),
         settings: QueryGridSettings,
     ) -> Self {
-        let scene = GpuScene::new(context, ClusterLibrary::build(meshes), instances_from_world(world));
+        let scene =
+            GpuScene::new(context, ClusterLibrary::build(drawn_meshes(world, meshes)), instances_from_world(world));
         Self {
             settings,
             context: context.clone(),
