@@ -10,7 +10,7 @@ use bevy_ecs::prelude::Resource;
 use rayon::prelude::*;
 
 /// Bitset words (of 64 objects) one task of [`cull_small`] looks at.
-const WORDS_PER_TASK: usize = 16;
+const WORDS_PER_TASK: usize = 128;
 
 /// When objects are too small to draw; a resource of a world set up by [`crate::install`] (off there until
 /// changed).
@@ -55,7 +55,6 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
     }
     let soa = store.soa();
     let eye = camera.position;
-    let len = store.len();
     // Under the threshold: 2 f r / sqrt(d^2 - r^2) < min, squared as 4 f^2 r^2 < min^2 (d^2 - r^2) with
     // d^2 > r^2, with no root or division per object.
     let focal = 0.5 * settings.viewport_height as f32 / (0.5 * camera.fov_y).tan();
@@ -69,23 +68,30 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
                 region.task(|| {
                     let mut cleared = 0;
                     for (i, word) in words.iter_mut().enumerate() {
-                        let base = (chunk * WORDS_PER_TASK + i) * 64;
-                        let mut bits = *word;
-                        while bits != 0 {
-                            let slot = base + bits.trailing_zeros() as usize;
-                            bits &= bits - 1;
-                            if slot >= len {
-                                break;
-                            }
-                            let centre = glam::Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]);
-                            let (radius_squared, distance_squared) =
-                                (soa.radius[slot] * soa.radius[slot], (centre - eye).length_squared());
-                            let beyond = distance_squared - radius_squared;
-                            if beyond > 0.0 && four_focal_squared * radius_squared < min_squared * beyond {
-                                *word &= !(1 << (slot - base));
-                                cleared += 1;
-                            }
+                        if *word == 0 {
+                            continue;
                         }
+                        let base = (chunk * WORDS_PER_TASK + i) * 64;
+                        // The whole word at once, over fixed 64-lane runs of the SoA bounds (padded to whole
+                        // words) so that it vectorizes; then packed, bit `i` set where object `base + i` is
+                        // under the threshold.
+                        let lanes = base..base + 64;
+                        let (xs, ys, zs, radii) = (
+                            &soa.center_x[lanes.clone()],
+                            &soa.center_y[lanes.clone()],
+                            &soa.center_z[lanes.clone()],
+                            &soa.radius[lanes],
+                        );
+                        let mut under = [false; 64];
+                        for lane in 0..64 {
+                            let (dx, dy, dz) = (xs[lane] - eye.x, ys[lane] - eye.y, zs[lane] - eye.z);
+                            let radius_squared = radii[lane] * radii[lane];
+                            let beyond = dx * dx + dy * dy + dz * dz - radius_squared;
+                            under[lane] = beyond > 0.0 && four_focal_squared * radius_squared < min_squared * beyond;
+                        }
+                        let small = under.iter().rev().fold(0u64, |bits, &u| bits << 1 | u as u64);
+                        cleared += (*word & small).count_ones() as usize;
+                        *word &= !small;
                     }
                     cleared
                 })

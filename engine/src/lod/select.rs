@@ -99,6 +99,8 @@ pub struct LodSelection {
     pub(super) level: Vec<u8>,
     /// The store's layout and generation the per-slot tables were last brought up to date with.
     synced: Option<(u64, u64)>,
+    /// Slots whose scale may be out of date (the object moved while the camera did not keep it).
+    stale: VisibleSet,
     /// Objects dropped this frame to keep the budget.
     pub(super) dropped: VisibleSet,
     /// Slots whose level changed in the last selection.
@@ -340,12 +342,14 @@ pub fn install(world: &mut World, schedule: &mut Schedule, library: LodLibrary, 
 }
 
 /// Keeps [`LodSelection`]'s per-slot chain and scale in step with the entities, at a cost that follows what
-/// changed: every slot after the store's layout changed (objects added, removed or moved between slots, or a
-/// [`MeshRef`] inserted), else only the slots whose bounds changed in place this frame
-/// ([`BoundsStore::last_moves`]: transforms mutated or inserted). An object's mesh is changed by inserting a new
-/// [`MeshRef`] (an insert, not a mutation).
+/// changed and what the camera keeps: every slot after the store's layout changed (objects added, removed or
+/// moved between slots, or a [`MeshRef`] inserted); else the slots whose bounds changed in place this frame
+/// ([`BoundsStore::last_moves`]: transforms mutated or inserted) are marked stale, and only the stale slots the
+/// camera keeps are read from their entities (the others when it keeps them). An object's mesh is changed by
+/// inserting a new [`MeshRef`] (an insert, not a mutation).
 fn sync_objects(
     store: Res<BoundsStore>,
+    culler: Res<CameraCuller>,
     mut selection: ResMut<LodSelection>,
     mut remeshed: ResMut<LodRemeshed>,
     objects: Query<(Option<&MeshRef>, Option<&ObjectTransform>)>,
@@ -362,14 +366,28 @@ fn sync_objects(
         .last_moves()
         .filter(|moves| selection.synced == Some((store.layout_generation(), moves.from)) && !remeshed.0)
         .filter(|moves| moves.to == store.generation());
+    let selection = &mut *selection;
     let slots: Vec<u32> = match incremental {
-        Some(moves) => moves.slots.clone(),
+        Some(moves) => {
+            for &slot in &moves.slots {
+                selection.stale.set(slot as usize, true);
+            }
+            // Stale and kept: a word-wise AND, then only those objects' entities are read.
+            let (stale, kept) = (selection.stale.words_mut(), culler.visible().words());
+            let mut slots = Vec::new();
+            for (w, (stale, &kept)) in stale.iter_mut().zip(kept).enumerate() {
+                let refresh = *stale & kept;
+                *stale &= !refresh;
+                slots.extend(crate::visible::set_slots(w, &[refresh]).map(|slot| slot as u32));
+            }
+            slots
+        }
         None => {
-            let selection = &mut *selection;
             selection.chain.clear();
             selection.scale.clear();
             selection.level.clear();
             selection.resize(store.len());
+            selection.stale.reset(store.len());
             (0..store.len() as u32).collect()
         }
     };
