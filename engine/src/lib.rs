@@ -14,7 +14,9 @@
 //!    farthest-depth [`depth::DepthPyramid`];
 //! 5. [`occlusion`]: each frustum survivor's box tested against that pyramid; each light view (a sun's
 //!    cascade, a lamp's face) has a buffer of its own, seen from its light, and drops its hidden casters;
-//! 6. `gpu` (feature `gpu`): on the GPU, the survivors' clusters and triangles culled against the frustum,
+//! 6. [`lod`], opt-in and lossy: a level of detail for each object the camera keeps, under a pixel error and a
+//!    triangle budget;
+//! 7. `gpu` (feature `gpu`): on the GPU, the survivors' clusters and triangles culled against the frustum,
 //!    normal cones and an HZB primed from the occluder buffer, compacted, and drawn with one
 //!    multi-draw-indirect.
 //!
@@ -33,7 +35,8 @@
 //! # Features
 //! - `gpu` (default): the GPU passes and the draw (`wgpu`, `meshopt`), and `draw_cost`;
 //! - `gltf` (default): glTF import and export (`gltf`);
-//! - `scenes` (default): the built-in procedural scenes (`rand`).
+//! - `scenes` (default): the built-in procedural scenes (`rand`);
+//! - `lod` (default): level-of-detail generation (`meshopt`).
 //!
 //! Without default features the CPU stages (bounds, frustum, occluders, raster, occlusion, the schedule)
 //! build on `bevy_ecs`, `glam` and `rayon` alone.

@@ -68,6 +68,7 @@ fn hud(c: &mut Criterion) {
         frustum: FrustumSettings::default(),
         occlusion: OcclusionSettings::default(),
         detail: Default::default(),
+        lod: Some(Default::default()),
         gpu: GpuCullSettings::default(),
         frozen: false,
         view: View::Shaded,

@@ -1,8 +1,8 @@
 //! The headless run: the camera path flown frame by frame, with statistics, validation and screenshots.
 
 use crate::report::{
-    LightViewColumns, LightViewTotals, STATS_HEADER, gating_and_savings_columns, micros, print_gpu_summary,
-    print_lod_summary, print_savings, print_summary,
+    LightViewColumns, LightViewTotals, STATS_HEADER, gating_and_savings_columns, lod_columns, micros,
+    print_gpu_summary, print_lod_summary, print_savings, print_summary,
 };
 use crate::validation::Validation;
 use crate::{Args, CullerChoice, Prepared, gpu_error_message};
@@ -279,7 +279,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                     (a.to_string(), b.to_string(), c.to_string())
                 });
             csv.push_str(&format!(
-                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{},{}{}\n",
+                "{frame},{},{},{},{},{},{},{},{},{:.1},{:.1},{:.1},{:.1},{gpu_us:.1},{false_negatives},{false_positives},{image_error},{},{},{},{},{}{}\n",
                 stats.objects,
                 stats.after_frustum,
                 stats.after_occlusion,
@@ -296,6 +296,7 @@ pub fn run(args: &Args, prepared: Prepared) -> Result<(), String> {
                 stats.retested,
                 u8::from(stats.occlusion_gated),
                 gating_and_savings_columns(gpu_output.as_ref(), &saved),
+                lod_columns(flight.world.get_resource::<LodSelection>().map(LodSelection::stats)),
                 light_view_columns.row(&flight.world),
             ));
         }

@@ -11,7 +11,8 @@ use std::time::Duration;
 pub const STATS_HEADER: &str = "frame,objects,after_frustum,after_occlusion,clusters_in,clusters_out,triangles_in,\
 triangles_out,draws,bounds_us,frustum_us,raster_us,occlusion_us,gpu_us,false_negatives,false_positives,\
 image_error_pixels,reused,retested,occlusion_gated,cluster_pass_skipped,triangle_pass_skipped,saved_triangles_frustum,\
-saved_triangles_occlusion,saved_triangles_clusters,saved_triangles_triangles";
+saved_triangles_occlusion,saved_triangles_clusters,saved_triangles_triangles,lod_triangles_full,lod_triangles,\
+lod_switches,lod_dropped,lod_us";
 
 /// Microseconds of `duration`.
 pub fn micros(duration: Duration) -> f64 {
@@ -118,6 +119,14 @@ pub fn gating_and_savings_columns(gpu: Option<&GpuFrameOutput>, savings: &DrawSa
         savings.clusters,
         savings.triangles
     )
+}
+
+/// The stats CSV's level-of-detail columns of a frame (empty where levels of detail are off).
+pub fn lod_columns(lod: Option<LodStats>) -> String {
+    match lod.filter(|s| s.objects > 0) {
+        Some(s) => format!("{},{},{},{},{:.1}", s.triangles_full, s.triangles, s.switches, s.dropped, micros(s.time)),
+        None => ",,,,".into(),
+    }
 }
 
 /// Mean, median, 95th and 99th percentiles and maximum of some per-frame figures.
@@ -344,9 +353,9 @@ pub fn print_summary(frames: &[CullStats]) {
     }
 }
 
-/// Prints the levels of detail's means over `frames` (nothing without any).
+/// Prints the levels of detail's means over `frames` (nothing where they were off throughout).
 pub fn print_lod_summary(frames: &[LodStats]) {
-    if frames.is_empty() {
+    if frames.iter().all(|s| s.objects == 0) {
         return;
     }
     let n = frames.len() as f64;

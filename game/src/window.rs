@@ -7,15 +7,16 @@
 
 use crate::hud::controls::{Controls, View};
 use crate::hud::painter::{HudPainter, Work};
-use crate::hud::{FRUSTUM_TINT, HELP, Hud, HudFrame, OCCLUSION_TINT};
+use crate::hud::{FRUSTUM_TINT, HELP, Hud, HudFrame, LEVEL_COLOURS, OCCLUSION_TINT};
 use crate::present::{PresentPass, Source};
 use crate::report::{Spread, kept_by_light_view, print_gpu_summary, print_savings, print_summary};
 use crate::validation::Validation;
 use crate::{Args, Prepared};
-use cullet::Camera;
 use cullet::draw_cost::{DrawSavings, SlotTriangles};
 use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuFrameOutput};
+use cullet::lod::LodSelection;
 use cullet::pipeline::{CameraCuller, CullStats};
+use cullet::{BoundsStore, Camera};
 use glam::Vec3;
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -398,6 +399,16 @@ impl Game {
                     (true, true) => None,
                 }
             });
+        } else if self.view == View::Levels && world.contains_resource::<LodSelection>() {
+            // Every object drawn at its level, coloured by it.
+            let levels: Vec<Option<u8>> = {
+                let selection = world.resource::<LodSelection>();
+                (0..world.resource::<BoundsStore>().len()).map(|slot| selection.level(slot)).collect()
+            };
+            culler.debug().recolored(context, world, &camera, |slot| {
+                let level = levels.get(slot).copied().flatten()?;
+                Some(LEVEL_COLOURS[(level as usize).min(LEVEL_COLOURS.len() - 1)])
+            });
         } else {
             match culler.debug().run_world_from(context, world, &camera, &self.gpu_settings) {
                 Ok(output) => gpu_output = Some(output),
@@ -424,7 +435,7 @@ impl Game {
         let levels = state.pyramid().level_count();
         self.pyramid_level = self.pyramid_level.min(levels.saturating_sub(1));
         let source = match self.view {
-            View::Shaded | View::Tinted => Source::Color(&color),
+            View::Shaded | View::Tinted | View::Levels => Source::Color(&color),
             View::Pyramid if levels > 0 => Source::Depth(state.pyramid().level(self.pyramid_level)),
             View::OcclusionBuffer | View::Pyramid => Source::Depth(state.depth()),
         };

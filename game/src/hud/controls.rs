@@ -4,6 +4,7 @@
 use bevy_ecs::world::World;
 use cullet::detail::DetailSettings;
 use cullet::gpu::GpuCullSettings;
+use cullet::lod::LodSettings;
 use cullet::pipeline::FrustumSettings;
 
 use cullet::culler::OcclusionSettings;
@@ -20,11 +21,13 @@ pub enum View {
     OcclusionBuffer,
     /// One level of its farthest-depth pyramid.
     Pyramid,
+    /// Every object drawn, coloured by the level of detail it draws (with levels of detail on).
+    Levels,
 }
 
 impl View {
     /// Every view, in the order V cycles through them.
-    pub const ALL: [View; 4] = [View::Shaded, View::Tinted, View::OcclusionBuffer, View::Pyramid];
+    pub const ALL: [View; 5] = [View::Shaded, View::Tinted, View::OcclusionBuffer, View::Pyramid, View::Levels];
 
     /// The view after this one.
     pub fn next(self) -> Self {
@@ -39,6 +42,7 @@ impl View {
             Self::Tinted => "tinted by culling stage",
             Self::OcclusionBuffer => "occlusion buffer",
             Self::Pyramid => "occlusion pyramid",
+            Self::Levels => "coloured by level of detail",
         }
     }
 }
@@ -52,6 +56,8 @@ pub struct Controls {
     pub occlusion: OcclusionSettings,
     /// Detail culling (lossy): objects projecting under its pixels dropped.
     pub detail: DetailSettings,
+    /// Levels of detail (lossy), where the world has them ([`cullet::lod::install`]).
+    pub lod: Option<LodSettings>,
     /// Which GPU tests run.
     pub gpu: GpuCullSettings,
     /// Culling frozen at the camera of the frame it was frozen in.
@@ -69,6 +75,7 @@ impl Controls {
             frustum: *world.resource::<FrustumSettings>(),
             occlusion: *world.resource::<OcclusionSettings>(),
             detail: world.get_resource::<DetailSettings>().copied().unwrap_or_default(),
+            lod: world.get_resource::<LodSettings>().copied(),
             gpu,
             frozen,
             view,
@@ -87,6 +94,11 @@ impl Controls {
         }
         if world.get_resource::<DetailSettings>().copied().unwrap_or_default() != self.detail {
             world.insert_resource(self.detail);
+        }
+        if let Some(lod) = self.lod
+            && world.get_resource::<LodSettings>() != Some(&lod)
+        {
+            world.insert_resource(lod);
         }
     }
 

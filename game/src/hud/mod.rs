@@ -559,6 +559,16 @@ fn validation_lines(ui: &mut egui::Ui, labels: &Labels, validation: &Validation)
     );
 }
 
+/// The levels view's colours, finest first (a coarser level than these takes the last).
+pub const LEVEL_COLOURS: [[u8; 4]; 6] = [
+    [235, 235, 235, 255],
+    [90, 170, 255, 255],
+    [80, 200, 120, 255],
+    [250, 210, 60, 255],
+    [250, 130, 40, 255],
+    [220, 50, 50, 255],
+];
+
 /// The legend of the tinted view, or the buffer and level the depth views show.
 fn view_help(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls: &Controls) {
     ui.separator();
@@ -574,6 +584,14 @@ fn view_help(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls: &Co
             let (width, height) = frame.buffer;
             ui.label(format!("occlusion buffer: {width}x{height} texels"));
             ui.label("brighter is nearer; black is empty (nothing rasterized)");
+        }
+        View::Levels => {
+            for (level, colour) in LEVEL_COLOURS.iter().enumerate() {
+                let [r, g, b, _] = *colour;
+                let name = if level == 0 { "level 0: full detail".to_string() } else { format!("level {level}") };
+                labels.swatch(ui, Color32::from_rgb(r, g, b), &name);
+            }
+            labels.swatch(ui, Color32::from_gray(200), "own colour: no levels (or levels of detail off)");
         }
         View::Pyramid => {
             let levels = frame.pyramid.len();
@@ -612,6 +630,28 @@ fn settings(ui: &mut egui::Ui, frame: &HudFrame, controls: &mut Controls) {
         }
         ui.checkbox(&mut controls.gpu.two_phase, "two-phase occlusion (5)");
     });
+    if let Some(lod) = &mut controls.lod {
+        ui.horizontal(|ui| {
+            let mut on = lod.max_error_pixels > 0.0;
+            if ui.checkbox(&mut on, "levels of detail (lossy)").changed() {
+                lod.max_error_pixels = if on { 1.0 } else { 0.0 };
+            }
+            // Pixels of the frame the player sees.
+            lod.viewport_height = frame.viewport.1;
+            if on {
+                ui.add(egui::Slider::new(&mut lod.max_error_pixels, 0.25..=8.0).logarithmic(true).suffix(" px"));
+            }
+        });
+        ui.horizontal(|ui| {
+            let mut on = lod.triangle_budget.is_some();
+            if ui.checkbox(&mut on, "triangle budget (lossy)").changed() {
+                lod.triangle_budget = on.then_some(100_000);
+            }
+            if let Some(budget) = &mut lod.triangle_budget {
+                ui.add(egui::Slider::new(budget, 1_000..=10_000_000).logarithmic(true));
+            }
+        });
+    }
     ui.horizontal(|ui| {
         ui.checkbox(&mut controls.frozen, "freeze culling (F)");
         let detail = &mut controls.detail;
