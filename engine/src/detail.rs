@@ -2,7 +2,7 @@
 //! in pixels are dropped. Lossy by design and off by default: an object that small may still cover pixels,
 //! and the judge measures what dropping it costs in image error.
 
-use crate::bounds::BoundsStore;
+use crate::bounds::{BoundsStore, GroupBounds};
 use crate::camera::Camera;
 use crate::parallel;
 use crate::visible::VisibleSet;
@@ -54,11 +54,13 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
         return 0;
     }
     let soa = store.soa();
+    let groups = store.groups();
     let eye = camera.position;
-    // Under the threshold: 2 f r / sqrt(d^2 - r^2) < min, squared as 4 f^2 r^2 < min^2 (d^2 - r^2) with
-    // d^2 > r^2, with no root or division per object.
+    // Under the threshold: 2 f r / sqrt(d^2 - r^2) < min, which is r^2 (4 f^2 + min^2) < min^2 d^2, or
+    // r^2 < k^2 d^2: one compare, no root or division per object.
     let focal = 0.5 * settings.viewport_height as f32 / (0.5 * camera.fov_y).tan();
-    let (four_focal_squared, min_squared) = (4.0 * focal * focal, settings.min_pixels * settings.min_pixels);
+    let min_squared = settings.min_pixels * settings.min_pixels;
+    let k_squared = min_squared / (4.0 * focal * focal + min_squared);
     parallel::region(|region| {
         visible
             .words_mut()
@@ -71,25 +73,32 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
                         if *word == 0 {
                             continue;
                         }
-                        let base = (chunk * WORDS_PER_TASK + i) * 64;
-                        // The whole word at once, over fixed 64-lane runs of the SoA bounds (padded to whole
-                        // words) so that it vectorizes; then packed, bit `i` set where object `base + i` is
-                        // under the threshold.
-                        let lanes = base..base + 64;
-                        let (xs, ys, zs, radii) = (
-                            &soa.center_x[lanes.clone()],
-                            &soa.center_y[lanes.clone()],
-                            &soa.center_z[lanes.clone()],
-                            &soa.radius[lanes],
-                        );
-                        let mut under = [false; 64];
+                        // A word is a group of the store: every member's centre lies in the group's box, so
+                        // between its nearest and farthest distances from the eye. Objects whose radius alone
+                        // decides against those bounds need no centre read; only where one lies between are
+                        // the distances computed.
+                        let group = chunk * WORDS_PER_TASK + i;
+                        let lanes = group * 64..group * 64 + 64;
+                        let (nearest, farthest) = distance_range(&groups[group], eye);
+                        let (surely_small, surely_big) =
+                            (k_squared * nearest * nearest, k_squared * farthest * farthest);
+                        let radii = &soa.radius[lanes.clone()];
+                        // Fixed 64-lane loops over the SoA bounds (padded to whole words), so that they vectorize.
+                        let (mut under, mut undecided) = ([false; 64], [false; 64]);
                         for lane in 0..64 {
-                            let (dx, dy, dz) = (xs[lane] - eye.x, ys[lane] - eye.y, zs[lane] - eye.z);
                             let radius_squared = radii[lane] * radii[lane];
-                            let beyond = dx * dx + dy * dy + dz * dz - radius_squared;
-                            under[lane] = beyond > 0.0 && four_focal_squared * radius_squared < min_squared * beyond;
+                            under[lane] = radius_squared < surely_small;
+                            undecided[lane] = !under[lane] && radius_squared < surely_big;
                         }
-                        let small = under.iter().rev().fold(0u64, |bits, &u| bits << 1 | u as u64);
+                        if (*word & pack(&undecided)) != 0 {
+                            let (xs, ys, zs) =
+                                (&soa.center_x[lanes.clone()], &soa.center_y[lanes.clone()], &soa.center_z[lanes]);
+                            for lane in 0..64 {
+                                let (dx, dy, dz) = (xs[lane] - eye.x, ys[lane] - eye.y, zs[lane] - eye.z);
+                                under[lane] = radii[lane] * radii[lane] < k_squared * (dx * dx + dy * dy + dz * dz);
+                            }
+                        }
+                        let small = pack(&under);
                         cleared += (*word & small).count_ones() as usize;
                         *word &= !small;
                     }
@@ -98,4 +107,16 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
             })
             .sum()
     })
+}
+
+/// The bits of `lanes`, lane `i` in bit `i`.
+fn pack(lanes: &[bool; 64]) -> u64 {
+    lanes.iter().rev().fold(0u64, |bits, &lane| bits << 1 | lane as u64)
+}
+
+/// The nearest and farthest distances from `eye` of the points of `group`'s box (0 nearest for an eye inside).
+fn distance_range(group: &GroupBounds, eye: glam::Vec3) -> (f32, f32) {
+    let nearest = (group.min - eye).max(eye - group.max).max(glam::Vec3::ZERO);
+    let farthest = (eye - group.min).abs().max((group.max - eye).abs());
+    (nearest.length(), farthest.length())
 }
