@@ -110,6 +110,7 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
 }
 
 /// The bits of `lanes`, lane `i` in bit `i`.
+#[inline(always)]
 fn pack(lanes: &[bool; 64]) -> u64 {
     lanes.iter().rev().fold(0u64, |bits, &lane| bits << 1 | lane as u64)
 }
