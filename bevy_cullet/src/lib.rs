@@ -34,6 +34,13 @@
 //! [`OccluderMesh`], or name it (or its glTF node) `*_occluder`, and the plugin turns its mesh into its
 //! occluder and stops drawing it ([`CulletSystems::Occluders`]).
 //!
+//! # Levels of detail
+//! Insert a [`CulletLod`] resource (each mesh's levels and the pixel error, hysteresis and triangle budget)
+//! and give entities a [`cullet::MeshRef`] naming their mesh's chain: after culling, [`CulletSystems::Lod`]
+//! chooses a level for each entity the main camera (the active perspective camera of lowest order) keeps and
+//! writes it as a [`LodLevel`] component where it changed; swap the entity's mesh on `Changed<LodLevel>`.
+//! [`CulletLodStats`] holds what the last frame chose. Lossy, and off without the resource.
+//!
 //! # Conservative
 //! The frustum test keeps every box the exact test keeps (Cullet's planes add a slack that bounds their f32
 //! rounding); it tests each object's world box, which for rotated objects is looser than Bevy's oriented box,
@@ -81,11 +88,13 @@
 
 mod convert;
 mod cull;
+mod lod;
 mod mirror;
 mod occluders;
 mod scene;
 
 pub use cull::{CulletView, ViewStats};
+pub use lod::{CulletLod, CulletLodStats, LodLevel};
 pub use mirror::CulletStore;
 pub use occluders::{GLTF_EXTRAS, OCCLUDER_SUFFIX, OccluderMesh};
 pub use scene::spawn_scene;
@@ -168,6 +177,8 @@ pub enum CulletSystems {
     AutoOccluders,
     /// Culls every camera's view and writes visibility (inside `VisibilitySystems::CheckVisibility`).
     Cull,
+    /// Chooses each kept entity's level of detail, where a [`CulletLod`] resource asks for it.
+    Lod,
 }
 
 /// Run condition: [`CulletSettings::enabled`].
@@ -188,6 +199,7 @@ impl Plugin for CulletPlugin {
         );
         app.init_resource::<CulletSettings>()
             .init_resource::<CulletStore>()
+            .init_resource::<CulletLodStats>()
             .register_required_components::<Camera, CulletView>()
             .configure_sets(
                 PostUpdate,
@@ -199,6 +211,7 @@ impl Plugin for CulletPlugin {
                         .before(VisibilitySystems::CheckVisibility),
                     CulletSystems::AutoOccluders.after(CulletSystems::Mirror).before(CulletSystems::Cull),
                     CulletSystems::Cull.in_set(VisibilitySystems::CheckVisibility),
+                    CulletSystems::Lod.after(CulletSystems::Cull),
                 ),
             )
             .add_systems(
@@ -214,6 +227,7 @@ impl Plugin for CulletPlugin {
                     mirror::mirror_bounds.in_set(CulletSystems::Mirror),
                     occluders::add_auto_occluders.in_set(CulletSystems::AutoOccluders),
                     cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror).run_if(enabled),
+                    lod::choose_levels.in_set(CulletSystems::Lod).run_if(enabled),
                     // Bevy's check, where it was, for when the plugin is switched off.
                     check_visibility_cpu_culling.in_set(VisibilitySystems::CheckVisibility).run_if(not(enabled)),
                 ),
