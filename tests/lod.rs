@@ -2,6 +2,7 @@
 //! judged exactly against full detail on the city fly-through.
 
 use bevy_ecs::prelude::*;
+use cullet::VisibleSet;
 use cullet::culler::OcclusionSettings;
 use cullet::lod::{self, ChainSettings, LodError, LodLevel, LodLibrary, LodSelection, LodSettings};
 use cullet::mesh::Mesh;
@@ -140,4 +141,57 @@ fn given_levels_are_checked() {
     let library = LodLibrary::build(&[Mesh::unit_cube(8), broken], &ChainSettings::default());
     assert_eq!((library.levels(0), library.levels(1)), (2, 1));
     assert!(matches!(library.errors(), [(1, LodError::IndexOutOfRange { index: 1_000, .. })]));
+}
+
+#[test]
+fn degenerate_input_keeps_full_detail_and_never_panics() {
+    let library = LodLibrary::from_chains(vec![vec![
+        LodLevel { mesh: Mesh::unit_cube(8), error: 0.0 },
+        LodLevel { mesh: Mesh::unit_cube(1), error: 0.01 },
+    ]])
+    .unwrap();
+    let store = cullet_test_support::store_of(&[(Vec3::new(0.0, 0.0, -100.0), Vec3::splat(0.5)); 3]);
+    let mut selection = LodSelection::default();
+    // Slot 0 a zero scale, slot 1 a NaN scale, slot 2 no levels.
+    selection.set_object(0, Some(0), 0.0);
+    selection.set_object(1, Some(0), f32::NAN);
+    selection.set_object(2, None, 1.0);
+    let camera = Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z);
+    // A set longer than the store, every bit set.
+    let visible = VisibleSet::all(200);
+    for settings in [
+        LodSettings::pixels(1.0, 1080),
+        LodSettings::pixels(f32::INFINITY, 1080),
+        LodSettings { triangle_budget: Some(0), ..LodSettings::pixels(1.0, 1080) },
+        LodSettings { hysteresis: 7.0, ..LodSettings::pixels(1.0, 0) },
+    ] {
+        selection.select(&library, &store, &camera, &visible, &settings);
+        assert!(selection.stats().triangles <= settings.triangle_budget.unwrap_or(u64::MAX));
+    }
+    let mut camera = camera;
+    camera.position = Vec3::NAN;
+    selection.select(&library, &store, &camera, &visible, &LodSettings::pixels(1.0, 1080));
+    assert_eq!([selection.level(0), selection.level(1), selection.level(2)], [Some(0), Some(0), None]);
+    // Far from the origin, the same choice as near it.
+    let offset = Vec3::splat(1e6);
+    let far_store = cullet_test_support::store_of(&[(offset + Vec3::new(0.0, 0.0, -100.0), Vec3::splat(0.5))]);
+    let mut far = LodSelection::default();
+    far.set_object(0, Some(0), 1.0);
+    let far_camera = Camera::looking_at(offset, offset + Vec3::NEG_Z);
+    far.select(&library, &far_store, &far_camera, &VisibleSet::all(1), &LodSettings::pixels(1.0, 1080));
+    let mut near = LodSelection::default();
+    near.set_object(0, Some(0), 1.0);
+    let near_store = cullet_test_support::store_of(&[(Vec3::new(0.0, 0.0, -100.0), Vec3::splat(0.5))]);
+    near.select(
+        &library,
+        &near_store,
+        &Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z),
+        &VisibleSet::all(1),
+        &LodSettings::pixels(1.0, 1080),
+    );
+    assert_eq!(far.level(0), near.level(0));
+    // Detail culling too takes a set longer than the store.
+    let mut longer = VisibleSet::all(200);
+    let detail = cullet::detail::DetailSettings { min_pixels: 4.0, viewport_height: 1080 };
+    cullet::detail::cull_small(&store, &Camera::looking_at(Vec3::ZERO, Vec3::NEG_Z), &detail, &mut longer);
 }

@@ -78,6 +78,10 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
                         // decides against those bounds need no centre read; only where one lies between are
                         // the distances computed.
                         let group = chunk * WORDS_PER_TASK + i;
+                        // A set longer than the store (not the pipeline's) holds no object there.
+                        if group >= groups.len() {
+                            break;
+                        }
                         let lanes = group * 64..group * 64 + 64;
                         let (nearest, farthest) = distance_range(&groups[group], eye);
                         let (surely_small, surely_big) =

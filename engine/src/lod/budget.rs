@@ -71,7 +71,7 @@ impl LodSelection {
         let table = |slot: usize| library.chains.get(*self.chain.get(slot)? as usize);
         let mut candidates: Vec<Candidate> = visible
             .iter()
-            .filter(|&slot| table(slot).is_some())
+            .filter(|&slot| slot < store.len() && table(slot).is_some())
             .map(|slot| {
                 let centre = glam::Vec3::new(soa.center_x[slot], soa.center_y[slot], soa.center_z[slot]);
                 let nearest = ((centre - eye).length() - soa.radius[slot]).max(0.0);
@@ -127,7 +127,7 @@ impl LodSelection {
         // Stats and changes against the last frame, over every kept object (the dropped draw nothing).
         self.changed.clear();
         let (mut switches, mut triangles) = (0, 0);
-        for slot in visible.iter() {
+        for slot in visible.iter().take_while(|&slot| slot < store.len()) {
             let Some(t) = table(slot) else { continue };
             if !self.dropped.contains(slot) {
                 triangles += t.triangles[self.level[slot] as usize] as u64;

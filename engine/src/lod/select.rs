@@ -251,6 +251,10 @@ impl LodSelection {
                                 continue;
                             }
                             let base = (task * WORDS_PER_TASK + w) * 64;
+                            // A set longer than the store (not the pipeline's) holds no object there.
+                            if base >= len {
+                                break;
+                            }
                             // A dense word is computed whole, straight-line over the SoA bounds so that it
                             // vectorizes; a sparse one object by object.
                             let dense = word.count_ones() >= DENSE_WORD;
@@ -265,6 +269,10 @@ impl LodSelection {
                                 let i = bits.trailing_zeros() as usize;
                                 bits &= bits - 1;
                                 let slot = base + i;
+                                // A set longer than the store (not the pipeline's) holds no object there.
+                                if slot >= len {
+                                    break;
+                                }
                                 let Some(table) = chains.get(slot).and_then(|&c| library.chains.get(c as usize)) else {
                                     continue;
                                 };
