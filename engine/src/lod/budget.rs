@@ -7,12 +7,9 @@
 //! back towards the level an object had last frame counts for more (by the hysteresis), so that the choice
 //! stays put while the view does.
 
+use super::LodSelection;
 use super::library::ChainTable;
-use super::select::LodSettings;
-use super::{LodLibrary, LodSelection};
-use crate::bounds::BoundsStore;
-use crate::camera::Camera;
-use crate::visible::VisibleSet;
+use super::select::SelectionFrame;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
@@ -53,18 +50,8 @@ impl Ord for Refinement {
 impl LodSelection {
     /// Rechooses the levels of `visible` so that their triangles come to at most `budget`; `previous` holds
     /// every slot's level before this frame's selection. Fills the stats and changed slots again.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn fit_budget(
-        &mut self,
-        library: &LodLibrary,
-        store: &BoundsStore,
-        camera: &Camera,
-        visible: &VisibleSet,
-        settings: &LodSettings,
-        focal: f32,
-        budget: u64,
-        previous: &[u8],
-    ) {
+    pub(super) fn fit_budget(&mut self, frame: &SelectionFrame<'_>, budget: u64, previous: &[u8]) {
+        let SelectionFrame { library, store, camera, visible, settings, focal } = *frame;
         let soa = store.soa();
         let eye = camera.position;
         let boost = 1.0 / (1.0 - settings.hysteresis.clamp(0.0, 0.99));

@@ -191,12 +191,12 @@ impl LodSelection {
         }
         self.active = true;
         let previous = settings.triangle_budget.map(|_| self.level.clone());
-        let focal = settings.focal_pixels(camera);
-        self.choose_within_threshold(library, store, camera, visible, settings, focal);
+        let frame = SelectionFrame { library, store, camera, visible, settings, focal: settings.focal_pixels(camera) };
+        self.choose_within_threshold(&frame);
         if let (Some(budget), Some(previous)) = (settings.triangle_budget, previous)
             && self.stats.triangles > budget
         {
-            self.fit_budget(library, store, camera, visible, settings, focal, budget, &previous);
+            self.fit_budget(&frame, budget, &previous);
         }
         (self.stats.time, self.stats.tables_time) = (start.elapsed(), tables_time);
     }
@@ -214,15 +214,8 @@ impl LodSelection {
 
     /// The threshold's choice with hysteresis, in parallel over runs of words; fills the stats and the
     /// changed slots.
-    fn choose_within_threshold(
-        &mut self,
-        library: &LodLibrary,
-        store: &BoundsStore,
-        camera: &Camera,
-        visible: &VisibleSet,
-        settings: &LodSettings,
-        focal: f32,
-    ) {
+    fn choose_within_threshold(&mut self, frame: &SelectionFrame<'_>) {
+        let SelectionFrame { library, store, camera, visible, settings, focal } = *frame;
         let soa = store.soa();
         let (chains, scales) = (&self.chain, &self.scale);
         let (eye, threshold) = (camera.position, settings.max_error_pixels.max(0.0));
@@ -300,6 +293,19 @@ impl LodSelection {
         }
         self.stats = stats;
     }
+}
+
+/// What one selection reads.
+#[derive(Clone, Copy)]
+pub(super) struct SelectionFrame<'a> {
+    pub library: &'a LodLibrary,
+    pub store: &'a BoundsStore,
+    pub camera: &'a Camera,
+    /// The objects to choose for (store slots).
+    pub visible: &'a VisibleSet,
+    pub settings: &'a LodSettings,
+    /// The camera's focal length in pixels ([`LodSettings::focal_pixels`]).
+    pub focal: f32,
 }
 
 /// The level an object at `previous` goes to: finer at once where `previous` is coarser than the coarsest
