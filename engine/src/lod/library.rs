@@ -129,7 +129,7 @@ impl LodLibrary {
         (level < table.levels).then(|| table.triangles[level as usize])
     }
 
-    /// The meshes [`LodLibrary::build`] could not simplify, with why.
+    /// The meshes `LodLibrary::build` (feature `lod`) could not simplify, with why.
     pub fn errors(&self) -> &[(u32, LodError)] {
         &self.errors
     }

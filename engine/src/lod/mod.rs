@@ -2,7 +2,7 @@
 //! frame that keeps a triangle budget. Lossy by design and off until asked for; the judge
 //! (`cullet_truth::lod`) measures the image error it costs.
 //!
-//! - [`chain`] (feature `lod`): each mesh's levels, simplified by meshoptimizer, with each level's geometric
+//! - `chain` (feature `lod`): each mesh's levels, simplified by meshoptimizer, with each level's geometric
 //!   error in the mesh's own units.
 //! - [`LodLibrary`]: every mesh's levels as one flat mesh list (what the GPU culler clusters and draws) with
 //!   each level's error and triangle count.
