@@ -2,7 +2,7 @@
 //! in pixels are dropped. Lossy by design and off by default: an object that small may still cover pixels,
 //! and the judge measures what dropping it costs in image error.
 
-use crate::bounds::{BoundsStore, GroupBounds};
+use crate::bounds::{BoundsStore, GroupBounds, SoaSlices};
 use crate::camera::Camera;
 use crate::parallel;
 use crate::visible::VisibleSet;
@@ -61,6 +61,7 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
     let focal = 0.5 * settings.viewport_height as f32 / (0.5 * camera.fov_y).tan();
     let min_squared = settings.min_pixels * settings.min_pixels;
     let k_squared = min_squared / (4.0 * focal * focal + min_squared);
+    let test = WordTest { soa, eye, k_squared };
     parallel::region(|region| {
         visible
             .words_mut()
@@ -82,27 +83,10 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
                         if group >= groups.len() {
                             break;
                         }
-                        let lanes = group * 64..group * 64 + 64;
                         let (nearest, farthest) = distance_range(&groups[group], eye);
                         let (surely_small, surely_big) =
                             (k_squared * nearest * nearest, k_squared * farthest * farthest);
-                        let radii = &soa.radius[lanes.clone()];
-                        // Fixed 64-lane loops over the SoA bounds (padded to whole words), so that they vectorize.
-                        let (mut under, mut undecided) = ([false; 64], [false; 64]);
-                        for lane in 0..64 {
-                            let radius_squared = radii[lane] * radii[lane];
-                            under[lane] = radius_squared < surely_small;
-                            undecided[lane] = !under[lane] && radius_squared < surely_big;
-                        }
-                        if (*word & pack(&undecided)) != 0 {
-                            let (xs, ys, zs) =
-                                (&soa.center_x[lanes.clone()], &soa.center_y[lanes.clone()], &soa.center_z[lanes]);
-                            for lane in 0..64 {
-                                let (dx, dy, dz) = (xs[lane] - eye.x, ys[lane] - eye.y, zs[lane] - eye.z);
-                                under[lane] = radii[lane] * radii[lane] < k_squared * (dx * dx + dy * dy + dz * dz);
-                            }
-                        }
-                        let small = pack(&under);
+                        let small = test.small(group * 64, *word, surely_small, surely_big);
                         cleared += (*word & small).count_ones() as usize;
                         *word &= !small;
                     }
@@ -113,10 +97,52 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
     })
 }
 
-/// The bits of `lanes`, lane `i` in bit `i`.
+/// Detail culling's test of one word of the store.
+struct WordTest<'a> {
+    soa: SoaSlices<'a>,
+    eye: glam::Vec3,
+    /// An object is small where its radius squared is under this times its distance squared.
+    k_squared: f32,
+}
+
+impl WordTest<'_> {
+    /// The bits of the objects in the word of slots from `first` that are small, of those set in `word`
+    /// (others may be set too), given that every member's distance squared times `k_squared` lies between
+    /// `surely_small` and `surely_big`. Objects the radius alone decides need no centre read.
+    #[inline(always)]
+    fn small(&self, first: usize, word: u64, surely_small: f32, surely_big: f32) -> u64 {
+        let lanes = first..first + 64;
+        let radii = &self.soa.radius[lanes.clone()];
+        // Fixed 64-lane loops over the SoA bounds (padded to whole words), so that they vectorize.
+        let radius_squared = |lane: usize| radii[lane] * radii[lane];
+        let under = mask(|lane| radius_squared(lane) < surely_small);
+        let undecided = mask(|lane| radius_squared(lane) < surely_big) & !under;
+        if word & undecided == 0 {
+            return under;
+        }
+        let (xs, ys, zs) =
+            (&self.soa.center_x[lanes.clone()], &self.soa.center_y[lanes.clone()], &self.soa.center_z[lanes]);
+        let eye = self.eye;
+        mask(|lane| {
+            let (dx, dy, dz) = (xs[lane] - eye.x, ys[lane] - eye.y, zs[lane] - eye.z);
+            radius_squared(lane) < self.k_squared * (dx * dx + dy * dy + dz * dz)
+        })
+    }
+}
+
+/// The bits of `condition` over the 64 lanes of a word, lane `i` in bit `i`: eight lanes a byte, which
+/// compiles to vector compares and byte masks.
 #[inline(always)]
-fn pack(lanes: &[bool; 64]) -> u64 {
-    lanes.iter().rev().fold(0u64, |bits, &lane| bits << 1 | lane as u64)
+fn mask(condition: impl Fn(usize) -> bool) -> u64 {
+    let mut bits = 0u64;
+    for byte in 0..8 {
+        let mut packed = 0u8;
+        for bit in 0..8 {
+            packed |= (condition(byte * 8 + bit) as u8) << bit;
+        }
+        bits |= (packed as u64) << (byte * 8);
+    }
+    bits
 }
 
 /// The nearest and farthest distances from `eye` of the points of `group`'s box (0 nearest for an eye inside).
