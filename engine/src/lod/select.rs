@@ -92,8 +92,8 @@ pub struct LodStats {
 pub struct LodSelection {
     /// Per slot, the object's chain ([`MeshRef`]), or [`NO_CHAIN`].
     pub(super) chain: Vec<u32>,
-    /// Per slot, the largest axis scale of the object's transform: what turns the mesh's error into the
-    /// world's.
+    /// Per slot (padded to whole words), the largest axis scale of the object's transform: what turns the
+    /// mesh's error into the world's.
     pub(super) scale: Vec<f32>,
     /// Per slot (padded to whole words), the level, or [`UNCHOSEN`].
     pub(super) level: Vec<u8>,
@@ -157,11 +157,13 @@ impl LodSelection {
     fn resize(&mut self, len: usize) {
         if len > self.chain.len() {
             self.chain.resize(len, NO_CHAIN);
-            self.scale.resize(len, 1.0);
         }
         let padded = len.div_ceil(64) * 64;
         if padded > self.level.len() {
             self.level.resize(padded, UNCHOSEN);
+        }
+        if padded > self.scale.len() {
+            self.scale.resize(padded, 1.0);
         }
     }
 
@@ -252,9 +254,18 @@ impl LodSelection {
                             // vectorizes; a sparse one object by object.
                             let dense = word.count_ones() >= DENSE_WORD;
                             if dense {
-                                let end = (base + 64).min(len);
-                                for (i, allowed) in allowed[..end - base].iter_mut().enumerate() {
-                                    *allowed = allowed_at(base + i);
+                                // Fixed 64-lane runs of the SoA bounds and scales (both padded to whole words).
+                                let lanes = base..base + 64;
+                                let (xs, ys, zs) = (
+                                    &soa.center_x[lanes.clone()],
+                                    &soa.center_y[lanes.clone()],
+                                    &soa.center_z[lanes.clone()],
+                                );
+                                let (radii, word_scales) = (&soa.radius[lanes.clone()], &scales[lanes]);
+                                for lane in 0..64 {
+                                    let (dx, dy, dz) = (xs[lane] - eye.x, ys[lane] - eye.y, zs[lane] - eye.z);
+                                    let nearest = ((dx * dx + dy * dy + dz * dz).sqrt() - radii[lane]).max(0.0);
+                                    allowed[lane] = threshold * nearest / (focal * word_scales[lane]);
                                 }
                             }
                             let mut bits = word;
