@@ -9,6 +9,7 @@ use bevy_camera::{Camera, Projection};
 use bevy_ecs::prelude::*;
 use bevy_transform::components::GlobalTransform;
 use cullet::MeshRef;
+use cullet::bounds::largest_axis_scale;
 use cullet::lod::{LodLibrary, LodSelection, LodSettings, LodStats};
 use cullet::visible::VisibleSet;
 
@@ -77,8 +78,7 @@ pub(crate) fn choose_levels(
     };
     for slot in slots {
         let (mesh, scale) = objects.get(store.entities()[slot]).map_or((None, 1.0), |(mesh, transform)| {
-            let m = convert::affine(transform).matrix3;
-            (mesh.map(|m| m.0), m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length()))
+            (mesh.map(|m| m.0), largest_axis_scale(&convert::affine(transform)))
         });
         state.selection.set_object(slot, mesh, scale);
     }

@@ -40,6 +40,12 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// The focal length in pixels in a frame `viewport_height` pixels tall: a length at distance `d` straight
+    /// ahead spans `length * focal / d` pixels.
+    pub fn focal_pixels(&self, viewport_height: u32) -> f32 {
+        0.5 * viewport_height as f32 / (0.5 * self.fov_y).tan()
+    }
+
     /// A camera at `position` looking at `target`, with 60 degrees vertical field of view, 16:9, near 0.1, an
     /// infinite far plane and reversed depth.
     pub fn looking_at(position: Vec3, target: Vec3) -> Self {

@@ -42,7 +42,7 @@ impl DetailSettings {
 /// focal length in pixels. Infinite for an eye inside the sphere. Off the view axis a sphere projects larger,
 /// never smaller.
 pub fn projected_diameter(camera: &Camera, viewport_height: u32, radius: f32, distance: f32) -> f32 {
-    let focal = 0.5 * viewport_height as f32 / (0.5 * camera.fov_y).tan();
+    let focal = camera.focal_pixels(viewport_height);
     let beyond = distance * distance - radius * radius;
     if beyond <= 0.0 { f32::INFINITY } else { 2.0 * focal * radius / beyond.sqrt() }
 }
@@ -58,7 +58,7 @@ pub fn cull_small(store: &BoundsStore, camera: &Camera, settings: &DetailSetting
     let eye = camera.position;
     // Under the threshold: 2 f r / sqrt(d^2 - r^2) < min, which is r^2 (4 f^2 + min^2) < min^2 d^2, or
     // r^2 < k^2 d^2: one compare, no root or division per object.
-    let focal = 0.5 * settings.viewport_height as f32 / (0.5 * camera.fov_y).tan();
+    let focal = camera.focal_pixels(settings.viewport_height);
     let min_squared = settings.min_pixels * settings.min_pixels;
     let k_squared = min_squared / (4.0 * focal * focal + min_squared);
     let test = WordTest { soa, eye, k_squared };

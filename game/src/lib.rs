@@ -419,18 +419,21 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
     if let Some(min_pixels) = args.detail_pixels {
         flight.world.insert_resource(DetailSettings { min_pixels, viewport_height: height });
     }
-    // Levels of detail for every mesh, made at load; off unless asked for (the HUD switches them on).
-    let library = LodLibrary::build(&scene.meshes, &ChainSettings::default());
-    for (mesh, error) in library.errors() {
-        println!("mesh {mesh} keeps full detail only: {error}");
+    // Levels of detail for every mesh, made at load where asked for, and in a window, where the HUD switches
+    // them on (off until then). A headless run without them neither simplifies nor clusters the levels.
+    if !args.headless || args.lod_pixels.is_some() || args.triangle_budget.is_some() {
+        let library = LodLibrary::build(&scene.meshes, &ChainSettings::default());
+        for (mesh, error) in library.errors() {
+            println!("mesh {mesh} keeps full detail only: {error}");
+        }
+        let lod = LodSettings {
+            max_error_pixels: args.lod_pixels.unwrap_or(0.0),
+            viewport_height: height,
+            triangle_budget: args.triangle_budget,
+            ..LodSettings::default()
+        };
+        cullet::lod::install(&mut flight.world, &mut flight.schedule, library, lod);
     }
-    let lod = LodSettings {
-        max_error_pixels: args.lod_pixels.unwrap_or(0.0),
-        viewport_height: height,
-        triangle_budget: args.triangle_budget,
-        ..LodSettings::default()
-    };
-    cullet::lod::install(&mut flight.world, &mut flight.schedule, library, lod);
     if args.fixed_pipeline {
         flight.world.insert_resource(AdaptiveSettings::fixed());
         flight.world.insert_resource(GpuGating::fixed());

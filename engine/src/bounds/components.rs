@@ -43,6 +43,14 @@ impl LocalBounds {
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct ObjectTransform(pub Affine3A);
 
+/// The largest length a unit vector of an object's space takes in the world under `transform`: its longest
+/// column, exact for a transform without shear. What scales a length of the mesh (a bounding sphere's radius,
+/// a level of detail's error) into the world.
+pub fn largest_axis_scale(transform: &Affine3A) -> f32 {
+    let m = transform.matrix3;
+    m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length())
+}
+
 /// Marks an object that never moves: bounds stage ([`crate::pipeline::CullStage::Bounds`]) never scans it, and later stages skip per-frame work for
 /// it. To move a static object anyway, insert a new [`ObjectTransform`] (an insert, not a mutation).
 #[derive(Component, Clone, Copy, Debug, Default)]

@@ -34,7 +34,9 @@ pub mod components;
 pub mod groups;
 pub mod store;
 
-pub use components::{BoundsError, BoundsRejected, LocalBounds, ObjectTransform, Static, WorldBounds};
+pub use components::{
+    BoundsError, BoundsRejected, LocalBounds, ObjectTransform, Static, WorldBounds, largest_axis_scale,
+};
 pub use groups::{GROUPS_PER_SUPERGROUP, GroupBounds};
 pub(crate) use store::UpdatePiece;
 pub use store::{BoundsStore, SOA_PADDING, SoaSlices, StoreMoves};

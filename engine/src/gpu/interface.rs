@@ -194,7 +194,7 @@ impl GpuView {
             viewport: [width as f32, height as f32],
             near: camera.near,
             depth_from_negative_one: u32::from(camera.depth == crate::camera::DepthConvention::NegativeOneToOne),
-            focal_pixels: 0.5 * height as f32 / (0.5 * camera.fov_y).tan(),
+            focal_pixels: camera.focal_pixels(height),
             ..GpuView::zeroed()
         }
     }

@@ -71,7 +71,7 @@ impl GpuInstance {
             [m.x_axis.y, m.y_axis.y, m.z_axis.y, t.y],
             [m.x_axis.z, m.y_axis.z, m.z_axis.z, t.z],
         ];
-        let max_scale = m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length());
+        let max_scale = crate::bounds::largest_axis_scale(transform);
         let determinant = m.determinant();
         let cone_safe = determinant > 0.0 && determinant.is_finite();
         Self { rows, mesh, flags: if cone_safe { INSTANCE_CONE_SAFE } else { 0 }, max_scale, color: 0 }

@@ -3,7 +3,7 @@
 
 use super::LodLibrary;
 use super::library::ChainTable;
-use crate::bounds::{BoundsStore, ObjectTransform};
+use crate::bounds::{BoundsStore, ObjectTransform, largest_axis_scale};
 use crate::camera::Camera;
 use crate::mesh::MeshRef;
 use crate::parallel::{self, Stage};
@@ -62,7 +62,7 @@ impl LodSettings {
     /// The focal length in pixels of `camera` in a frame of this height: what turns a length at a distance
     /// into pixels.
     pub(crate) fn focal_pixels(&self, camera: &Camera) -> f32 {
-        0.5 * self.viewport_height as f32 / (0.5 * camera.fov_y).tan()
+        camera.focal_pixels(self.viewport_height)
     }
 }
 
@@ -432,13 +432,6 @@ struct LodRemeshed(bool);
 /// Observer: an object's mesh changed.
 fn on_mesh_inserted(_event: On<Insert<MeshRef>>, mut remeshed: ResMut<LodRemeshed>) {
     remeshed.0 = true;
-}
-
-/// The largest length a unit vector of the mesh's space takes in the world, for a transform without shear:
-/// the longest column.
-fn largest_axis_scale(transform: &glam::Affine3A) -> f32 {
-    let m = transform.matrix3;
-    m.x_axis.length().max(m.y_axis.length()).max(m.z_axis.length())
 }
 
 /// Chooses the levels of the camera's kept objects ([`LodSelection::select`]).
