@@ -10,9 +10,10 @@
 //! `cargo bench -p cullet-benches --bench light_occlusion [objects]` (1e5 by default; 2 threads as on the CI
 //! machine unless `RAYON_NUM_THREADS` says otherwise).
 
+use cullet::culler::LightOcclusionSettings;
 use cullet::draw_cost::SlotTriangles;
 use cullet::frustum::LightSource;
-use cullet::pipeline::{CullStats, LightOcclusionSettings, LightViews, LightViewsVisible};
+use cullet::pipeline::{CullStats, LightViews, LightViewsVisible};
 
 use cullet::culler::{AdaptiveSettings, OcclusionSettings};
 use cullet::scene::city::{CityParams, CityScene};

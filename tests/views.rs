@@ -303,8 +303,9 @@ fn cull_with_light_occlusion(
     splits: Vec<f32>,
     judge_size: u32,
 ) -> usize {
+    use cullet::culler::LightOcclusionSettings;
     use cullet::frustum::LightSource;
-    use cullet::pipeline::{CullStats, LightOcclusionSettings, LightViews};
+    use cullet::pipeline::{CullStats, LightViews};
 
     use cullet::culler::OcclusionSettings;
     use cullet::scene::flight::Flight;

@@ -2,6 +2,7 @@
 //! and occlusion test, then the survivors written to Bevy's `ViewVisibility` and `VisibleEntities`.
 
 use crate::convert;
+use crate::lights::{CameraLights, LightSources, keep_within_reach};
 use crate::mirror::CulletStore;
 use crate::{CulletSettings, NoCulletOcclusion};
 use bevy_camera::primitives::{Aabb, Frustum as BevyFrustum, Sphere};
@@ -12,12 +13,17 @@ use bevy_camera::visibility::{
 use bevy_camera::{Camera, Projection};
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::NonSendMarker;
+use bevy_light::{DirectionalLight, NotShadowCaster, PointLight, SpotLight};
 use bevy_math::UVec2;
+use bevy_mesh::Mesh3d;
 use bevy_transform::components::GlobalTransform;
 use bevy_utils::Parallel;
 use cullet::Occluder;
-use cullet::culler::{OcclusionSettings, ViewCuller, ViewFrame, ViewSettings, ViewStats as CullStats};
+use cullet::culler::{
+    LightViewVisible, OcclusionSettings, ViewCuller, ViewFrame, ViewSettings, ViewStats as CullStats,
+};
 use cullet::depth::DepthBuffer;
+use cullet::frustum::{LightView, View};
 use cullet::occluders::OccluderInstance;
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
@@ -35,6 +41,18 @@ pub struct ViewStats {
     pub visible: usize,
     /// Time spent writing `ViewVisibility` and `VisibleEntities`.
     pub write_time: Duration,
+    /// The camera's light views this frame (each cascade of a directional light, each face of a point light,
+    /// each spot light's map), culled with it.
+    pub light_views: usize,
+    /// Shadow casters the light views keep, summed over the views, before Bevy's per-entity rules.
+    pub light_casters: usize,
+    /// Casters the light views' occlusion hid from their lights, summed (already left out of
+    /// `light_casters`).
+    pub light_occluded: usize,
+    /// Light views whose occlusion was skipped this frame for removing too little lately.
+    pub light_occlusion_gated: usize,
+    /// Time spent on the light views' occlusion.
+    pub light_occlusion_time: Duration,
 }
 
 impl std::ops::Deref for ViewStats {
@@ -50,6 +68,7 @@ impl std::ops::Deref for ViewStats {
 #[derive(Component, Default, Debug)]
 pub struct CulletView {
     culler: ViewCuller,
+    lights: CameraLights,
     stats: ViewStats,
 }
 
@@ -69,6 +88,17 @@ impl CulletView {
     /// per-entity rules.
     pub fn kept(&self) -> &VisibleSet {
         self.culler.visible()
+    }
+
+    /// The camera's light views of the last frame that culled them, each with the store slots of the shadow
+    /// casters it keeps, before Bevy's per-entity rules.
+    pub fn light_views(&self) -> &[LightViewVisible] {
+        &self.lights.views
+    }
+
+    /// What the light views' write reads.
+    pub(crate) fn lights(&self) -> &CameraLights {
+        &self.lights
     }
 }
 
@@ -210,6 +240,12 @@ pub(crate) fn cull_views(
         (),
         (With<Occluder>, Or<(Changed<Occluder>, Changed<InheritedVisibility>, Changed<RenderLayers>)>),
     >,
+    light_sources: LightSources,
+    light_layers: Query<Option<&RenderLayers>, Or<(With<DirectionalLight>, With<PointLight>, With<SpotLight>)>>,
+    casting_occluders: Query<
+        (&Occluder, &GlobalTransform, &InheritedVisibility, Option<&RenderLayers>),
+        (With<Mesh3d>, Without<NotShadowCaster>),
+    >,
     ranges: Option<Res<VisibleEntityRanges>>,
     mut queues: Local<Parallel<Shown>>,
     mut order: Local<Vec<(usize, usize, usize)>>,
@@ -246,20 +282,95 @@ pub(crate) fn cull_views(
             adaptive: settings.adaptive,
             ..ViewSettings::default()
         };
+        let view = &mut *view;
+        let lights = &mut view.lights;
+        lights.unculled.clear();
+        let lit = if settings.lights {
+            let (origin, receivers) = (convert::vec3(transform.translation()), culled.frustum.as_ref().ok());
+            light_sources.views_of(camera_entity, origin, receivers, view_layers, bevy_frustum, &mut lights.unculled)
+        } else {
+            Vec::new()
+        };
+        let (maps, lit): (Vec<_>, Vec<LightView>) = lit.into_iter().unzip();
+        let also: Vec<View> = lit.iter().map(|light| light.view.clone()).collect();
+        let lights_changed = maps != lights.maps || lit.iter().ne(lights.views.iter().map(|culled| &culled.view));
+
         let same_view = view.culler.last_view() == Some(culled);
         let frame = ViewFrame {
             view: culled,
             settings: frame_settings,
             moves: cullet.moves.as_ref(),
-            changed: same_view && *occluders_changed.get_or_insert_with(|| !changed_occluders.is_empty()),
+            changed: lights_changed
+                || (same_view && *occluders_changed.get_or_insert_with(|| !changed_occluders.is_empty())),
         };
-        let view = &mut *view;
-        view.stats.cull = *view.culler.cull(&cullet.store, &frame, |slot| {
+        let mut sets = std::mem::take(&mut lights.spare);
+        let light_kept = view.culler.cull_frustum(&cullet.store, &frame, &also, &mut sets);
+        view.culler.cull_occlusion(&cullet.store, |slot| {
             let (occluder, transform, inherited, layers) = occluders.get(cullet.store.entities()[slot]).ok()?;
             let shown =
                 inherited.is_none_or(|inherited| inherited.get()) && view_layers.intersects(layers.unwrap_or_default());
             shown.then(|| OccluderInstance { occluder, transform: convert::affine(transform) })
         });
+        view.stats.cull = *view.culler.stats();
+        let stats = &mut view.stats;
+        match light_kept {
+            Some(counts) => {
+                let culled = lit.into_iter().zip(sets.drain(..also.len())).zip(counts).enumerate();
+                let fresh = culled.map(|(index, ((view, visible), kept))| LightViewVisible {
+                    light: index,
+                    view,
+                    visible,
+                    kept,
+                    occluded: 0,
+                });
+                let old = std::mem::replace(&mut lights.views, fresh.collect());
+                sets.extend(old.into_iter().map(|view| view.visible));
+                for (view, map) in lights.views.iter_mut().zip(&maps) {
+                    if let Some(reach) = map.reach {
+                        keep_within_reach(&cullet.store, view, reach);
+                    }
+                }
+                // An occluder hides casters from a light only where it is drawn into that light's maps: a
+                // visible shadow caster in the layers of every light culled here.
+                let layers_of_lights: Vec<&RenderLayers> =
+                    maps.iter().map(|map| light_layers.get(map.light).ok().flatten().unwrap_or_default()).collect();
+                let occluded = lights.occlusion.occlude(
+                    &cullet.store,
+                    &mut lights.views,
+                    &settings.light_occlusion,
+                    &settings.adaptive,
+                    |slot| {
+                        let entity = cullet.store.entities()[slot];
+                        let (occluder, transform, inherited, layers) = casting_occluders.get(entity).ok()?;
+                        let layers = layers.unwrap_or_default();
+                        let drawn = inherited.get() && layers_of_lights.iter().all(|light| light.intersects(layers));
+                        drawn.then(|| OccluderInstance { occluder, transform: convert::affine(transform) })
+                    },
+                );
+                (stats.light_occluded, stats.light_occlusion_gated) = (occluded.occluded, occluded.gated);
+                stats.light_occlusion_time = occluded.time;
+                lights.maps = maps;
+            }
+            // Last frame's light views stand, with the camera's result.
+            None if stats.cull.reused => {}
+            // Not culled this frame (the stage is off, the camera has no frustum): every view keeps everything.
+            None => {
+                let every = |(index, view)| LightViewVisible {
+                    light: index,
+                    view,
+                    visible: VisibleSet::all(cullet.store.len()),
+                    kept: cullet.store.len(),
+                    occluded: 0,
+                };
+                lights.views = lit.into_iter().enumerate().map(every).collect();
+                lights.maps = maps;
+                (stats.light_occluded, stats.light_occlusion_gated) = (0, 0);
+                stats.light_occlusion_time = Duration::ZERO;
+            }
+        }
+        lights.spare = sets;
+        stats.light_views = lights.views.len() + lights.unculled.len();
+        stats.light_casters = lights.views.iter().map(|view| view.kept).sum();
 
         let start = Instant::now();
         let in_range = |entity: Entity, has_range: bool| {

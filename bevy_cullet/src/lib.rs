@@ -15,7 +15,9 @@
 //!    occluder raster and occlusion test, then the survivors' `ViewVisibility` and the camera's
 //!    `VisibleEntities`, honouring `InheritedVisibility`, `RenderLayers` and `VisibilityRange` as Bevy does.
 //!    Entities Cullet does not mirror get Bevy's own rules: a bounding `Sphere` is tested against the camera's
-//!    frustum, anything else is visible.
+//!    frustum, anything else is visible. Each camera's light views are culled in the same pass (see "Lights").
+//! 3. [`CulletSystems::Lights`], in Bevy's `SimulationLightSystems::CheckLightVisibility`: each light's shadow
+//!    casters written to Bevy's per-light lists, and made visible so that Bevy draws them into its shadow maps.
 //!
 //! # How it takes over from Bevy's check
 //! [`CulletPlugin`] removes Bevy's `check_visibility_cpu_culling` from `PostUpdate`
@@ -33,6 +35,35 @@
 //! that must not be drawn is an entity without a mesh, not a hidden one: mark a `Mesh3d` entity with
 //! [`OccluderMesh`], or name it (or its glTF node) `*_occluder`, and the plugin turns its mesh into its
 //! occluder and stops drawing it ([`CulletSystems::Occluders`]).
+//!
+//! # Lights
+//! With Bevy's `LightPlugin` in the app (part of `DefaultPlugins`; add [`CulletPlugin`] after it), the plugin
+//! also takes over Bevy's `check_dir_light_mesh_visibility` and `check_point_light_mesh_visibility`, which
+//! run again while [`CulletSettings::lights`] (or [`CulletSettings::enabled`]) is off. For each active camera
+//! it builds, from Bevy's own matrices:
+//! - every cascade Bevy built for the camera of each visible `DirectionalLight` with shadows;
+//! - each cube face of each `PointLight`, and the map of each `SpotLight`, with shadows, whose range meets
+//!   the camera's frustum (the lights Bevy's own check takes), cut at the light's range.
+//!
+//! These light views are culled in the camera's frustum pass, one pass over the bounds for the camera and all
+//! its lights, and each keeps only the casters whose shadows can fall inside the camera's frustum
+//! ([`cullet::frustum::View::shadow_casters`]): a caster behind the camera whose shadow falls away from it is
+//! dropped, one between the light and the map's near plane kept. Each view is then occlusion culled from its
+//! light ([`CulletSettings::light_occlusion`], with its own benefit gate): a caster hidden from the light behind
+//! occluders that are themselves drawn into that light's maps (visible `Mesh3d` shadow casters in its layers)
+//! changes no texel of the map. [`CulletSystems::Lights`] then writes a directional light's
+//! `CascadesVisibleEntities` per camera and cascade, a point light's `CubemapVisibleEntities` and a spot light's
+//! `VisibleMeshEntities` (a lamp seen by several cameras gets the union), each sorted, after Bevy's rules:
+//! `Mesh3d` casters without `NotShadowCaster` or `NoCpuCulling`, visible, in the light's `RenderLayers`, in
+//! `VisibilityRange` of the camera (of the shadow LOD origin for lamps); entities the plugin does not mirror
+//! are in every map of a light it culls, as in Bevy. A light with `shadow_maps_enabled` off lists nothing.
+//! [`CulletView::light_views`] and [`ViewStats`] give each camera's light views and counts,
+//! [`CulletLightStats`] the write's.
+//!
+//! What the plugin lists is a subset of what Bevy's checks list (up to boxes touching a map's edge, which the
+//! plugin's rounding slack keeps, and rotated boxes, whose world box is looser than Bevy's oriented one), and
+//! it holds every caster whose shadow can reach the camera's view: `tests/lights.rs` checks both against the
+//! exact judge, from Bevy's own matrices, over a camera path with cuts.
 //!
 //! # Levels of detail
 //! Insert a [`CulletLod`] resource (each mesh's levels and the pixel error, hysteresis and triangle budget)
@@ -88,12 +119,14 @@
 
 mod convert;
 mod cull;
+mod lights;
 mod lod;
 mod mirror;
 mod occluders;
 mod scene;
 
 pub use cull::{CulletView, ViewStats};
+pub use lights::CulletLightStats;
 pub use lod::{CulletLod, CulletLodStats, LodLevel};
 pub use mirror::CulletStore;
 pub use occluders::{GLTF_EXTRAS, OCCLUDER_SUFFIX, OccluderMesh};
@@ -104,8 +137,9 @@ use bevy_camera::Camera;
 use bevy_camera::visibility::{VisibilitySystems, check_visibility_cpu_culling};
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleCleanupPolicy;
+use bevy_light::{SimulationLightSystems, check_dir_light_mesh_visibility, check_point_light_mesh_visibility};
 use bevy_transform::TransformSystems;
-use cullet::culler::{AdaptiveSettings, OcclusionSettings};
+use cullet::culler::{AdaptiveSettings, LightOcclusionSettings, OcclusionSettings};
 use cullet::scene::auto_occluders::AutoOccluderSettings;
 
 /// Replaces Bevy's CPU visibility check with Cullet's culling; see the [crate documentation](crate).
@@ -144,10 +178,17 @@ pub struct CulletSettings {
     /// `plane_coherence`, and `min_occlusion_benefit` with
     /// `low_benefit_frames` and `reprobe_every` (a camera whose occlusion removed under 1% of its frustum
     /// survivors for 8 frames in a row skips it for 30 frames, then tries again:
-    /// [`cullet::culler::ViewStats::occlusion_gated`]). It has no light views and always selects hidden occluders, so
-    /// `min_light_occlusion_benefit` and `skip_hidden_occluders` do nothing here. Skipping only ever keeps more
-    /// entities visible.
+    /// [`cullet::culler::ViewStats::occlusion_gated`]), and `min_light_occlusion_benefit` for each light view.
+    /// It always selects hidden occluders, so `skip_hidden_occluders` does nothing here. Skipping only ever keeps
+    /// more entities visible.
     pub adaptive: AdaptiveSettings,
+    /// Whether the plugin culls the lights' shadow maps too (see the crate's "Lights"). Off, Bevy's own
+    /// `check_dir_light_mesh_visibility` and `check_point_light_mesh_visibility` run in their place.
+    pub lights: bool,
+    /// The light views' occlusion: each cascade, cube face or spot map gets a conservative depth buffer of the
+    /// occluders among its casters, as its light sees them, and drops the casters hidden behind them (gated by
+    /// [`AdaptiveSettings::min_light_occlusion_benefit`]).
+    pub light_occlusion: LightOcclusionSettings,
 }
 
 impl Default for CulletSettings {
@@ -158,6 +199,8 @@ impl Default for CulletSettings {
             auto_occluders: None,
             occlusion: OcclusionSettings::for_frame(1920, 1080),
             adaptive: AdaptiveSettings::default(),
+            lights: true,
+            light_occlusion: LightOcclusionSettings::default(),
         }
     }
 }
@@ -175,8 +218,12 @@ pub enum CulletSystems {
     Mirror,
     /// Gives large meshes automatic occluders, where [`CulletSettings::auto_occluders`] is set.
     AutoOccluders,
-    /// Culls every camera's view and writes visibility (inside `VisibilitySystems::CheckVisibility`).
+    /// Culls every camera's view, its light views with it, and writes the camera's visibility (inside
+    /// `VisibilitySystems::CheckVisibility`).
     Cull,
+    /// Writes each light's shadow casters and makes them visible (inside Bevy's
+    /// `SimulationLightSystems::CheckLightVisibility`).
+    Lights,
     /// Chooses each kept entity's level of detail, where a [`CulletLod`] resource asks for it.
     Lod,
 }
@@ -184,6 +231,11 @@ pub enum CulletSystems {
 /// Run condition: [`CulletSettings::enabled`].
 fn enabled(settings: Res<CulletSettings>) -> bool {
     settings.enabled
+}
+
+/// Run condition: [`CulletSettings::enabled`] and [`CulletSettings::lights`].
+fn lights_enabled(settings: Res<CulletSettings>) -> bool {
+    settings.enabled && settings.lights
 }
 
 impl Plugin for CulletPlugin {
@@ -197,8 +249,35 @@ impl Plugin for CulletPlugin {
             removed.is_ok_and(|count| count > 0),
             "CulletPlugin replaces Bevy's check_visibility_cpu_culling: add it after bevy_camera's CameraPlugin"
         );
+        // Bevy's light checks, where its `LightPlugin` added them, give way to the plugin's in the same way.
+        let light_checks = [
+            app.remove_systems_in_set(
+                PostUpdate,
+                check_dir_light_mesh_visibility,
+                ScheduleCleanupPolicy::RemoveSystemsOnly,
+            ),
+            app.remove_systems_in_set(
+                PostUpdate,
+                check_point_light_mesh_visibility,
+                ScheduleCleanupPolicy::RemoveSystemsOnly,
+            ),
+        ];
+        if light_checks.iter().all(|removed| removed.as_ref().is_ok_and(|count| *count > 0)) {
+            app.add_systems(
+                PostUpdate,
+                (check_dir_light_mesh_visibility, check_point_light_mesh_visibility)
+                    .in_set(SimulationLightSystems::CheckLightVisibility)
+                    .after(VisibilitySystems::CalculateBounds)
+                    .after(TransformSystems::Propagate)
+                    .after(SimulationLightSystems::UpdateLightFrusta)
+                    .after(VisibilitySystems::CheckVisibility)
+                    .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible)
+                    .run_if(not(lights_enabled)),
+            );
+        }
         app.init_resource::<CulletSettings>()
             .init_resource::<CulletStore>()
+            .init_resource::<CulletLightStats>()
             .init_resource::<CulletLodStats>()
             .register_required_components::<Camera, CulletView>()
             .configure_sets(
@@ -210,7 +289,13 @@ impl Plugin for CulletPlugin {
                         .after(VisibilitySystems::CalculateBounds)
                         .before(VisibilitySystems::CheckVisibility),
                     CulletSystems::AutoOccluders.after(CulletSystems::Mirror).before(CulletSystems::Cull),
-                    CulletSystems::Cull.in_set(VisibilitySystems::CheckVisibility),
+                    CulletSystems::Cull
+                        .in_set(VisibilitySystems::CheckVisibility)
+                        .after(SimulationLightSystems::UpdateDirectionalLightCascades),
+                    CulletSystems::Lights
+                        .in_set(SimulationLightSystems::CheckLightVisibility)
+                        .after(CulletSystems::Cull)
+                        .before(VisibilitySystems::MarkNewlyHiddenEntitiesInvisible),
                     CulletSystems::Lod.after(CulletSystems::Cull),
                 ),
             )
@@ -227,6 +312,7 @@ impl Plugin for CulletPlugin {
                     mirror::mirror_bounds.in_set(CulletSystems::Mirror),
                     occluders::add_auto_occluders.in_set(CulletSystems::AutoOccluders),
                     cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror).run_if(enabled),
+                    lights::write_light_views.in_set(CulletSystems::Lights).run_if(lights_enabled),
                     lod::choose_levels.in_set(CulletSystems::Lod).run_if(enabled),
                     // Bevy's check, where it was, for when the plugin is switched off.
                     check_visibility_cpu_culling.in_set(VisibilitySystems::CheckVisibility).run_if(not(enabled)),

@@ -105,8 +105,8 @@ pub mod prelude {
     pub use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static};
     pub use crate::camera::{Camera, CameraPath, DepthConvention};
     pub use crate::culler::{
-        AdaptiveSettings, CullScene, Culled, Culler, OcclusionSettings, StageCuller, ViewCuller, ViewFrame, ViewInput,
-        ViewSettings, ViewStats,
+        AdaptiveSettings, CullScene, Culled, Culler, LightOcclusion, LightOcclusionSettings, LightViewVisible,
+        OcclusionSettings, StageCuller, ViewCuller, ViewFrame, ViewInput, ViewSettings, ViewStats,
     };
     pub use crate::frustum::{Light, LightSource, View, cull_views};
     #[cfg(feature = "gpu")]
@@ -114,8 +114,7 @@ pub mod prelude {
     pub use crate::mesh::{Mesh, MeshRef, ObjectColor};
     pub use crate::occluders::Occluder;
     pub use crate::pipeline::{
-        CameraCuller, CullStage, CullStats, FrustumSettings, LightOcclusionSettings, LightViews, LightViewsVisible,
-        PipelineSettings, install,
+        CameraCuller, CullStage, CullStats, FrustumSettings, LightViews, LightViewsVisible, PipelineSettings, install,
     };
     pub use crate::raster::RasterMode;
     pub use crate::visible::VisibleSet;

@@ -9,7 +9,7 @@
 //! in f64: by one plane that the whole sweep lies outside of, by a point of the box inside `V ∩ C`, and
 //! otherwise by enumerating the vertices of the feasible region. Nothing is sampled.
 //!
-//! A light view's occlusion (`cullet::pipeline::LightOcclusionSettings`) also drops casters hidden from the
+//! A light view's occlusion (`cullet::culler::LightOcclusionSettings`) also drops casters hidden from the
 //! light: [`light_view_false_negatives`] counts an object as needed only when, besides the above, it owns a
 //! texel of the exact rendering from the light, at the shadow map's texel centres. The needed object, visible
 //! from the light at a texel whose ray goes on into `V ∩ C`, meets both conditions, so the two together judge

@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use bevy_app::prelude::*;
-use bevy_asset::Assets;
+use bevy_asset::{AssetApp, Assets};
 use bevy_camera::visibility::{ViewVisibility, VisibilityClass};
 use bevy_camera::{Camera3d, PerspectiveProjection, Projection};
 use bevy_cullet::{CulletPlugin, CulletSettings};
@@ -22,6 +22,24 @@ pub fn app(settings: Option<CulletSettings>) -> App {
     app.add_plugins((TaskPoolPlugin::default(), TransformPlugin, bevy_camera::CameraPlugin));
     // Bevy's bounds systems read these assets; the test entities bring their own `Aabb`.
     app.init_resource::<Assets<Mesh>>().init_resource::<Assets<SkinnedMeshInverseBindposes>>();
+    if let Some(settings) = settings {
+        app.add_plugins(CulletPlugin).insert_resource(settings);
+    }
+    app
+}
+
+/// [`app`] with Bevy's asset and light plugins too: directional, point and spot lights, their cascades and
+/// Bevy's own light visibility checks (which the plugin replaces where it is added).
+pub fn app_with_lights(settings: Option<CulletSettings>) -> App {
+    let mut app = App::new();
+    app.add_plugins((
+        TaskPoolPlugin::default(),
+        TransformPlugin,
+        bevy_asset::AssetPlugin::default(),
+        bevy_camera::CameraPlugin,
+        bevy_light::LightPlugin,
+    ));
+    app.init_asset::<Mesh>().init_asset::<SkinnedMeshInverseBindposes>().init_asset::<bevy_image::Image>();
     if let Some(settings) = settings {
         app.add_plugins(CulletPlugin).insert_resource(settings);
     }

@@ -3,7 +3,9 @@
 //! [`ViewCuller`] is the per-view core: the frustum stage, then the occluder selection, raster and occlusion
 //! test, with the state they keep from frame to frame. The ECS pipeline ([`crate::pipeline`]) wraps one for
 //! its camera, the Bevy plugin one per camera; anything else that culls a view against a [`BoundsStore`]
-//! can too.
+//! can too. A camera's light views (shadow cascades, a lamp's faces) are culled in its frustum pass
+//! ([`ViewCuller::cull_frustum`]), then each from its own light by [`LightOcclusion`]: the pipeline's light
+//! views and the plugin's lights alike.
 //!
 //! [`Culler`] is what the judge, the benches and the sample game run to compare ways of culling over the
 //! same scenes, paths and frames: given the scene and a camera, a culler returns the store slots it keeps
@@ -16,6 +18,7 @@
 
 mod adaptive;
 mod hierarchy;
+mod light;
 mod portals;
 mod settings;
 mod shadow_frusta;
@@ -23,6 +26,7 @@ mod view;
 
 pub use adaptive::{BenefitGate, RetestCost};
 pub use hierarchy::{Bvh, HierarchyCuller, HierarchySettings};
+pub use light::{LightOcclusion, LightOcclusionSettings, LightOcclusionStats, LightViewVisible};
 pub use portals::{PortalCuller, PortalSettings, PortalStats};
 pub use settings::{
     AdaptiveSettings, MAX_OCCLUSION_SAMPLES, MAX_OCCLUSION_SIDE, OcclusionSettings, SettingsError, ViewSettings,

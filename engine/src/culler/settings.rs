@@ -18,7 +18,7 @@ pub struct AdaptiveSettings {
     /// [`AdaptiveSettings::low_benefit_frames`] frames in a row (an open field), then run again to re-probe
     /// every [`AdaptiveSettings::reprobe_every`] frames. 0 never skips.
     pub min_occlusion_benefit: f32,
-    /// The same for each light view's occlusion ([`crate::pipeline::LightOcclusionSettings`]), as a fraction of the view's
+    /// The same for each light view's occlusion ([`super::LightOcclusionSettings`]), as a fraction of the view's
     /// casters: a higher bar than the camera's, since a hidden caster saves a shadow map less than a hidden
     /// object saves the frame (docs/design.md measures what light views hide under a high and a low sun). 0
     /// never skips.

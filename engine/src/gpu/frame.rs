@@ -22,10 +22,11 @@ use super::{GpuContext, GpuError};
 use crate::bounds::BoundsStore;
 use crate::camera::Camera;
 use crate::camera::DepthConvention;
+use crate::culler::LightViewVisible;
 use crate::depth::DepthBuffer;
 use crate::frustum::LightSource;
 use crate::mesh::Mesh;
-use crate::pipeline::{CameraCuller, LightViewVisible, LightViews, LightViewsVisible};
+use crate::pipeline::{CameraCuller, LightViews, LightViewsVisible};
 
 use crate::culler::{BenefitGate, OcclusionSettings};
 use bevy_ecs::prelude::*;

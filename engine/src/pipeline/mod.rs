@@ -10,10 +10,12 @@ mod systems;
 use systems::{frustum_stage, light_occlusion_stage, occlusion_stage};
 
 use crate::bounds::BoundsStore;
-use crate::culler::{AdaptiveSettings, BenefitGate, OcclusionSettings, SettingsError, ViewCuller};
-use crate::depth::DepthPyramid;
+use crate::culler::{
+    AdaptiveSettings, LightOcclusion, LightOcclusionSettings, LightViewVisible, OcclusionSettings, SettingsError,
+    ViewCuller,
+};
 use crate::detail::DetailSettings;
-use crate::frustum::{FrustumError, LightSource, LightView, ViewError};
+use crate::frustum::{FrustumError, LightSource, ViewError};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use bounds::{on_bounds_inserted, on_bounds_removed, on_occluder_inserted, on_occluder_removed, sync_bounds};
@@ -58,22 +60,6 @@ impl std::ops::DerefMut for CameraCuller {
 /// Empty by default.
 #[derive(Resource, Clone, Debug, Default, PartialEq)]
 pub struct LightViews(pub Vec<LightSource>);
-
-/// One light view's result of the frame.
-#[derive(Clone, Debug, PartialEq)]
-pub struct LightViewVisible {
-    /// The light in [`LightViews`] it belongs to.
-    pub light: usize,
-    /// Its view and the matrix to draw its shadow map with.
-    pub view: LightView,
-    /// Store slots of the shadow casters it keeps.
-    pub visible: VisibleSet,
-    /// How many.
-    pub kept: usize,
-    /// How many of the casters its frustum kept its occlusion then hid from the light
-    /// ([`LightOcclusionSettings`]); already left out of `visible` and `kept`.
-    pub occluded: usize,
-}
 
 /// Output of the frustum stage for the [`LightViews`], narrowed by each view's occlusion
 /// (in [`CullStage::Occlusion`]): every light view of the frame, lights in order. Where the frustum stage does
@@ -187,59 +173,6 @@ impl Default for FrustumSettings {
     }
 }
 
-/// Settings of the light views' occlusion: each light view of [`LightViews`] (a sun's cascade, a lamp's face)
-/// gets a conservative depth buffer of its own, seen from its light, of the occluders among its casters that
-/// face the light, and its casters hidden behind them are dropped.
-///
-/// A caster hidden from the light at every point of its box changes no texel of the shadow map: wherever it
-/// would be drawn, a nearer occluder, inside geometry that is drawn (or whose own shadow cannot reach the
-/// camera's view), already is. Each view has its own benefit gate
-/// ([`AdaptiveSettings::min_light_occlusion_benefit`]),
-/// so a view whose occlusion hides too little soon costs only its occluder selection.
-#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct LightOcclusionSettings {
-    /// Whether light views are occlusion culled; when off, each keeps every caster its frustum kept.
-    pub enabled: bool,
-    /// Width and height of each light view's depth buffer, in texels (the buffer is always
-    /// [`crate::raster::RasterMode::Conservative`]: it never hides what a shadow map of any resolution shows).
-    pub size: u32,
-    /// Most occluder triangles rasterized per light view and frame.
-    pub triangle_budget: usize,
-    /// A light view with fewer casters than this is not occlusion culled: too little to gain for a raster.
-    pub min_casters: usize,
-}
-
-impl LightOcclusionSettings {
-    /// Whether each light view's buffer, `size` x `size` texels, is within the bounds of
-    /// [`OcclusionSettings::validate`]. Where it is not, the light views keep their casters and
-    /// [`CullStats::light_occlusion_error`] says why.
-    ///
-    /// # Errors
-    /// [`SettingsError`] says which bound is broken.
-    pub fn validate(&self) -> Result<(), SettingsError> {
-        OcclusionSettings { width: self.size, height: self.size, ..OcclusionSettings::default() }.validate()
-    }
-}
-
-impl Default for LightOcclusionSettings {
-    /// On, 128x128 texels, 2048 triangles a view, views of 64 casters or more.
-    fn default() -> Self {
-        Self { enabled: true, size: 128, triangle_budget: 2048, min_casters: 64 }
-    }
-}
-
-/// Output and working memory of the light views' occlusion, in [`LightViewsVisible`]'s order.
-#[derive(Resource, Default, Debug, Clone)]
-pub struct LightOcclusionState {
-    /// Each light view's farthest-depth pyramid this frame; empty where it rasterized nothing.
-    pub pyramids: Vec<DepthPyramid>,
-    /// Each light view's casters that its frustum kept and its occlusion hid this frame (empty where its
-    /// occlusion did not run).
-    pub occluded: Vec<VisibleSet>,
-    /// Reused for each view's survivors.
-    survivors: Vec<VisibleSet>,
-}
-
 /// The settings of every CPU stage, installed together by [`install`]; each is a resource of the world
 /// afterwards, to change between frames.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -261,8 +194,6 @@ pub struct PipelineSettings {
 struct PipelineMemory {
     /// The light views and their occlusion settings of the last frame, to tell a frame that changed them.
     last_lights: Option<(LightViews, LightOcclusionSettings)>,
-    /// Each light view's occlusion benefit gate, in [`LightViewsVisible`]'s order.
-    light_occlusion: Vec<BenefitGate>,
     /// Visible sets of light views gone, reused for the next frame's.
     spare_sets: Vec<VisibleSet>,
 }
@@ -326,7 +257,7 @@ fn init_world(world: &mut World) {
     world.init_resource::<LightViewsVisible>();
     world.init_resource::<CullStats>();
     world.init_resource::<PipelineMemory>();
-    world.init_resource::<LightOcclusionState>();
+    world.init_resource::<LightOcclusion>();
     world.add_observer(on_bounds_inserted);
     world.add_observer(on_bounds_removed);
     world.add_observer(on_occluder_inserted);

@@ -1,24 +1,19 @@
 //! The pipeline's stages as systems: the bounds are synced by [`super::bounds::sync_bounds`], then the
 //! camera's [`ViewCuller`](crate::culler::ViewCuller) culls in two systems (frustum, occlusion), the light views with it.
 
-use super::{
-    CameraCuller, CullStats, FrustumSettings, LightOcclusionSettings, LightOcclusionState, LightViewVisible,
-    LightViews, LightViewsVisible, PipelineMemory,
-};
+use super::{CameraCuller, CullStats, FrustumSettings, LightViews, LightViewsVisible, PipelineMemory};
 use crate::bounds::{BoundsStore, ObjectTransform};
 use crate::camera::Camera;
-use crate::culler::{AdaptiveSettings, BenefitGate, OcclusionSettings, ViewFrame, ViewInput, ViewSettings};
-use crate::depth::{DepthPyramid, ScreenView};
+use crate::culler::{
+    AdaptiveSettings, LightOcclusion, LightOcclusionSettings, LightViewVisible, OcclusionSettings, ViewFrame,
+    ViewInput, ViewSettings,
+};
 use crate::detail::DetailSettings;
 use crate::frustum::{LightView, View, ViewError};
-use crate::occluders::{Occluder, OccluderInstance, select_occluders_for_view};
-use crate::occlusion::occlude;
-use crate::parallel::{self, Stage};
-use crate::raster::RasterMode;
+use crate::occluders::{Occluder, OccluderInstance};
 use crate::visible::VisibleSet;
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::SystemParam;
-use rayon::prelude::*;
 use std::time::Instant;
 
 /// The settings of every stage, as the systems read them.
@@ -174,98 +169,26 @@ pub(super) fn occlusion_stage(
     (stats.raster_time, stats.occlusion_time) = (view.raster_time, view.occlusion_time);
 }
 
-/// Occlusion culls each light view of [`LightViewsVisible`] (see [`LightOcclusionSettings`]): selects the
-/// occluders among its casters, best first within the budget, rasterizes them as its light sees them
-/// ([`ScreenView::of_light_view`]) and drops its casters hidden behind them, updating the view's `visible`,
-/// `kept` and `occluded`, [`LightOcclusionState`] and [`CullStats`]. Runs only on frames whose frustum stage
-/// culled the light views afresh. A view with fewer casters than [`LightOcclusionSettings::min_casters`] or no
-/// occluder among them rasterizes nothing, and one whose occlusion keeps hiding too little is skipped for a
-/// while, each view with its own gate. The views are rasterized and tested in parallel.
+/// Occlusion culls each light view of [`LightViewsVisible`] from its light ([`LightOcclusion::occlude`],
+/// with [`LightOcclusionSettings`]), recording its counts in [`CullStats`]. Runs only on frames whose frustum
+/// stage culled the light views afresh.
 pub(super) fn light_occlusion_stage(
     store: Res<BoundsStore>,
     stage_settings: StageSettings,
-    mut lights: Lights,
-    mut state: ResMut<LightOcclusionState>,
+    mut light_views: ResMut<LightViewsVisible>,
+    mut occlusion: ResMut<LightOcclusion>,
     mut stats: ResMut<CullStats>,
     occluders: Query<(&Occluder, &ObjectTransform)>,
 ) {
-    let (settings, adaptive) = (&*stage_settings.light_occlusion, &*stage_settings.adaptive);
-    let Lights { views: light_views, memory, .. } = &mut lights;
     if stats.reused {
         return; // Last frame's light views, occlusion included, stand.
     }
-    let start = Instant::now();
-    let _stage = Stage::LightOcclusion.enter();
-    let views = light_views.0.len();
-    let state = &mut *state;
-    state.pyramids.resize_with(views, DepthPyramid::default);
-    state.occluded.resize_with(views, VisibleSet::default);
-    state.survivors.resize_with(views, VisibleSet::default);
-    if memory.light_occlusion.len() != views {
-        memory.light_occlusion = vec![BenefitGate::default(); views];
-    }
-    stats.light_occlusion_error = settings.validate().err().filter(|_| settings.enabled);
-    if let Some(error) = stats.light_occlusion_error {
-        tracing::warn!("light views' occlusion skipped: {error}");
-    }
-    let enabled = settings.enabled && stats.light_occlusion_error.is_none();
-    // Each view's screen and occluders (those among its casters), where its occlusion runs this frame.
-    let mut gated = 0;
-    let chosen: Vec<Option<(ScreenView, Vec<OccluderInstance>)>> = light_views
-        .0
-        .iter()
-        .zip(&mut memory.light_occlusion)
-        .map(|(view, gate)| {
-            if !enabled || view.kept < settings.min_casters {
-                return None;
-            }
-            if gate.skip_this_frame() {
-                gated += 1;
-                return None;
-            }
-            // A light view not made by `light_views` may have no screen; it keeps its casters.
-            let screen = ScreenView::of_light_view(&view.view, settings.size)?;
-            let instances: Vec<OccluderInstance> =
-                select_occluders_for_view(&store, &view.visible, &screen, settings.triangle_budget, |slot| {
-                    let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
-                    Some(OccluderInstance { occluder, transform: transform.0 })
-                })
-                .into_iter()
-                .map(|(_, instance)| instance)
-                .collect();
-            (!instances.is_empty()).then_some((screen, instances))
-        })
-        .collect();
-    stats.light_occlusion_gated = gated;
-    let views = light_views.0.par_iter_mut().zip(&mut state.pyramids).zip(&mut state.occluded);
-    let views = views.zip(&mut state.survivors).zip(&chosen);
-    parallel::region(|region| {
-        views.for_each(|((((view, pyramid), occluded), survivors), chosen)| {
-            region.task(|| {
-                view.occluded = 0;
-                let Some((screen, chosen)) = chosen else {
-                    *pyramid = DepthPyramid::default();
-                    occluded.reset(0);
-                    return;
-                };
-                let tested = view.kept;
-                let mode = RasterMode::Conservative;
-                view.kept = occlude(&store, &view.visible, Some(screen), chosen, mode, pyramid, survivors, occluded)
-                    .test
-                    .visible;
-                std::mem::swap(&mut view.visible, survivors);
-                view.occluded = tested - view.kept;
-            })
-        })
+    let (settings, adaptive) = (&*stage_settings.light_occlusion, &*stage_settings.adaptive);
+    let light = occlusion.occlude(&store, &mut light_views.0, settings, adaptive, |slot| {
+        let (occluder, transform) = occluders.get(store.entities()[slot]).ok()?;
+        Some(OccluderInstance { occluder, transform: transform.0 })
     });
-    for ((view, gate), chosen) in light_views.0.iter().zip(&mut memory.light_occlusion).zip(&chosen) {
-        if chosen.is_some() {
-            let (min_benefit, low_frames, reprobe) =
-                (adaptive.min_light_occlusion_benefit, adaptive.low_benefit_frames, adaptive.reprobe_every);
-            gate.record(view.occluded, view.kept + view.occluded, min_benefit, low_frames, reprobe);
-        }
-    }
-    stats.light_view_occluded = light_views.0.iter().map(|view| view.occluded).sum();
+    (stats.light_view_occluded, stats.light_occlusion_gated) = (light.occluded, light.gated);
+    (stats.light_occlusion_error, stats.light_occlusion_time) = (light.error, light.time);
     stats.light_view_casters = light_views.0.iter().map(|view| view.kept).sum();
-    stats.light_occlusion_time = start.elapsed();
 }
