@@ -2,6 +2,8 @@
 
 #![allow(dead_code)]
 
+pub mod bevy_city;
+
 use bevy_app::prelude::*;
 use bevy_asset::{AssetApp, Assets};
 use bevy_camera::visibility::{ViewVisibility, VisibilityClass};
