@@ -44,6 +44,9 @@ struct Args {
     /// Circle the city once instead of keeping the example's start view.
     #[arg(long)]
     orbit: bool,
+    /// Run only this configuration (`bevy` or `cullet`), for a profiler.
+    #[arg(long)]
+    only: Option<String>,
     #[arg(long, hide = true)]
     bench: bool,
 }
@@ -91,6 +94,9 @@ struct Run {
     frame: Vec<Duration>,
     visible: f64,
     casters: f64,
+    /// The plugin's stage times, summed: frustum (camera and light views), occlusion (raster and test), light
+    /// views' occlusion, the camera's write, the lights' write.
+    stages: [Duration; 5],
 }
 
 fn fly(settings: Option<CulletSettings>, orbit: bool) -> (Run, usize, usize) {
@@ -123,6 +129,18 @@ fn fly(settings: Option<CulletSettings>, orbit: bool) -> (Run, usize, usize) {
         let visible = world.query::<&ViewVisibility>().iter(world).filter(|v| v.get()).count();
         let cascades = world.get::<CascadesVisibleEntities>(city.sun).unwrap();
         let casters: usize = cascades.entities.values().flatten().map(|list| list.entities.len()).sum();
+        if let Some(view) = world.get::<bevy_cullet::CulletView>(camera) {
+            let stats = view.stats();
+            let light_write = world.resource::<bevy_cullet::CulletLightStats>().write_time;
+            let times = [
+                stats.frustum_time,
+                stats.raster_time + stats.occlusion_time,
+                stats.light_occlusion_time,
+                stats.write_time,
+                light_write,
+            ];
+            run.stages.iter_mut().zip(times).for_each(|(sum, time)| *sum += time);
+        }
         run.visible += visible as f64 / FRAMES as f64;
         run.casters += casters as f64 / FRAMES as f64;
     }
@@ -159,6 +177,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let mut bevy_total = None;
     for (name, settings) in &configurations {
+        if args.only.as_ref().is_some_and(|only| only != name) {
+            continue;
+        }
         let (run, meshes, cars) = fly(*settings, args.orbit);
         if bevy_total.is_none() {
             println!("{meshes} mesh entities, {cars} of them cars");
@@ -182,6 +203,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             run.casters,
             100.0 * total / bevy,
         );
+        if settings.is_some() {
+            let [frustum, occlusion, light_occlusion, write, light_write] =
+                run.stages.map(|t| t.as_secs_f64() * 1e3 / FRAMES as f64);
+            println!(
+                "{:>8} frustum {frustum:.3}, occlusion {occlusion:.3}, light occlusion {light_occlusion:.3}, write \
+                 {write:.3}, light write {light_write:.3}",
+                "stages:"
+            );
+        }
         writeln!(
             csv,
             "{name},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.0},{:.0}",

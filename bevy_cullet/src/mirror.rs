@@ -7,9 +7,9 @@ use bevy_camera::visibility::{NoCpuCulling, NoFrustumCulling};
 use bevy_ecs::entity::EntityHashSet;
 use bevy_ecs::prelude::*;
 use bevy_transform::components::GlobalTransform;
-use bevy_utils::Parallel;
 use cullet::Occluder;
-use cullet::bounds::{BoundsStore, StoreMoves};
+use cullet::bounds::{BoundsStore, StoreMoves, UpdatePiece};
+use rayon::prelude::*;
 
 /// The objects the plugin culls: the bounds of every mirrored entity, and the entities Cullet refused.
 #[derive(Resource, Default, Debug)]
@@ -40,7 +40,14 @@ impl CulletStore {
     /// Stores `objects` (entity, local bounds, transform, has an occluder), or records their rejection.
     fn update(&mut self, objects: &[(Entity, cullet::LocalBounds, glam::Affine3A)], occluders: &[bool]) {
         let outcomes = self.store.update_many(objects);
-        for ((&(entity, ..), outcome), &has_occluder) in objects.iter().zip(outcomes).zip(occluders) {
+        let outcomes = objects.iter().map(|&(entity, ..)| entity).zip(outcomes).collect();
+        self.record(outcomes, occluders);
+    }
+
+    /// Records what storing each entity gave, in order, with whether it carries an occluder: its occluder mark,
+    /// or its rejection.
+    fn record(&mut self, outcomes: Vec<(Entity, Result<usize, cullet::bounds::BoundsError>)>, occluders: &[bool]) {
+        for ((entity, outcome), &has_occluder) in outcomes.into_iter().zip(occluders) {
             match outcome {
                 Ok(slot) => {
                     self.rejected.remove(&entity);
@@ -70,36 +77,85 @@ type Mirrored = (Without<NoFrustumCulling>, Without<NoCpuCulling>);
 
 /// Mirrors the bounds of entities whose `Aabb` or `GlobalTransform` changed (or that were just spawned), and of
 /// those waiting after an opt-out was removed. A frame where nothing moved writes nothing.
+///
+/// The tables' change ticks are walked in parallel, row ranges at a time, each task computing the new bounds of
+/// its changed rows straight into a piece of updates ([`BoundsStore::compute_piece`]); where every one moves
+/// an entity already stored, the pieces are written in place, in parallel. Otherwise (new entities, refused
+/// bounds) they are stored one by one, in the tables' order, which is the order entities were spawned in
+/// within each table: a scene spawned in spatial order stays grouped for the frustum's hierarchy.
 #[allow(clippy::type_complexity)]
 pub(crate) fn mirror_bounds(
     mut cullet: ResMut<CulletStore>,
-    changed: Query<
-        (Entity, &Aabb, &GlobalTransform, Has<Occluder>),
-        (Or<(Changed<Aabb>, Changed<GlobalTransform>)>, Mirrored),
-    >,
+    changed: MirroredRows,
     all: Query<(Entity, &Aabb, &GlobalTransform, Has<Occluder>), Mirrored>,
-    mut queues: Local<Parallel<Vec<Mirror>>>,
 ) {
     let mirror = |(entity, aabb, transform, has_occluder): (Entity, &Aabb, &GlobalTransform, bool)| {
         ((entity, convert::local_bounds(aabb), convert::affine(transform)), has_occluder)
     };
-    // The change scan reads a tick per entity: in parallel, as Bevy's own visibility passes are.
-    changed.par_iter().for_each_init(|| queues.borrow_local_mut(), |queue, item| queue.push(mirror(item)));
-    let mut changed: Vec<Mirror> = queues.iter_mut().flat_map(|queue| queue.drain(..)).collect();
+    let pieces = changed_pieces(&cullet.store, &changed);
+    let occluders: Vec<bool> = pieces.iter().flat_map(|(_, occluders)| occluders.iter().copied()).collect();
+    let pieces: Vec<UpdatePiece> = pieces.into_iter().map(|(piece, _)| piece).collect();
+    if let Some(outcomes) = cullet.store.apply_pieces(pieces) {
+        cullet.record(outcomes, &occluders);
+    }
     let pending = std::mem::take(&mut cullet.pending);
-    changed.extend(pending.into_iter().filter_map(|entity| all.get(entity).ok()).map(mirror));
-    if !changed.is_empty() {
-        // In entity order, whatever the threads did: new objects take slots in the order they were spawned,
-        // which keeps a scene spawned in spatial order grouped for the frustum's hierarchy. An entity pending
-        // and changed is stored once.
-        changed.sort_unstable_by_key(|((entity, ..), _)| *entity);
-        changed.dedup_by_key(|((entity, ..), _)| *entity);
-        let (objects, occluders): (Vec<_>, Vec<_>) = changed.into_iter().unzip();
+    let mut waiting: Vec<Mirror> = pending.into_iter().filter_map(|entity| all.get(entity).ok()).map(mirror).collect();
+    if !waiting.is_empty() {
+        // An entity pending and changed is stored again: the same bounds.
+        waiting.sort_unstable_by_key(|((entity, ..), _)| *entity);
+        waiting.dedup_by_key(|((entity, ..), _)| *entity);
+        let (objects, occluders): (Vec<_>, Vec<_>) = waiting.into_iter().unzip();
         cullet.update(&objects, &occluders);
     }
     // Taken every frame, so that the list covers exactly the changes since the last mirroring (removals in
     // between change the layout, which the cameras compare too).
     cullet.moves = cullet.store.take_moves();
+}
+
+/// The mirrored entities as the change walk reads them.
+type MirroredRows<'w, 's> =
+    Query<'w, 's, (Entity, Ref<'static, Aabb>, Ref<'static, GlobalTransform>, Has<Occluder>), Mirrored>;
+
+/// Rows of a table one task of the mirroring walks.
+const WALK_ROWS: usize = 1024;
+
+/// The updates of every mirrored entity whose `Aabb` or `GlobalTransform` changed since the mirroring last
+/// ran, computed in parallel over ranges of table rows, in the query's order, each with whether each of its
+/// entities carries an occluder.
+fn changed_pieces(
+    store: &BoundsStore,
+    changed: &MirroredRows,
+) -> Vec<(UpdatePiece, Vec<bool>)> {
+    let object = |entity, aabb: &Aabb, transform: &GlobalTransform| {
+        (entity, convert::local_bounds(aabb), convert::affine(transform))
+    };
+    let Ok(tables) = changed.contiguous_iter() else {
+        // Not stored in tables (not the case of Bevy's components): one walk on this thread.
+        let moved = changed.iter().filter(|(_, aabb, transform, _)| aabb.is_changed() || transform.is_changed());
+        let (objects, occluders): (Vec<_>, Vec<_>) =
+            moved.map(|(entity, aabb, transform, occluder)| (object(entity, &aabb, &transform), occluder)).unzip();
+        return vec![(store.compute_piece(objects), occluders)];
+    };
+    let mut ranges = Vec::new();
+    for (entities, aabbs, transforms, occluders) in tables {
+        let (last_run, this_run) = (aabbs.last_run_tick(), aabbs.this_run_tick());
+        let ticks = [aabbs.changed_ticks_slice(), transforms.changed_ticks_slice()];
+        let (aabbs, transforms) = (aabbs.into_inner(), transforms.into_inner());
+        for first in (0..entities.len()).step_by(WALK_ROWS) {
+            let rows = first..(first + WALK_ROWS).min(entities.len());
+            ranges.push((entities, aabbs, transforms, occluders, ticks, rows, last_run, this_run));
+        }
+    }
+    ranges
+        .into_par_iter()
+        .map(|(entities, aabbs, transforms, occluders, ticks, rows, last_run, this_run)| {
+            let newer = |row: &usize| ticks.iter().any(|ticks| ticks[*row].is_newer_than(last_run, this_run));
+            let rows: Vec<usize> = rows.filter(newer).collect();
+            let objects = rows.iter().map(|&row| object(entities[row], &aabbs[row], &transforms[row]));
+            // `Has` is the table's: every row of it carries an occluder, or none does.
+            (store.compute_piece(objects), vec![occluders; rows.len()])
+        })
+        .collect()
 }
 
 /// One entity to mirror: entity, local bounds, transform; and whether it carries an occluder.

@@ -38,5 +38,4 @@ pub use components::{
     BoundsError, BoundsRejected, LocalBounds, ObjectTransform, Static, WorldBounds, largest_axis_scale,
 };
 pub use groups::{GROUPS_PER_SUPERGROUP, GroupBounds};
-pub(crate) use store::UpdatePiece;
-pub use store::{BoundsStore, SOA_PADDING, SoaSlices, StoreMoves};
+pub use store::{BoundsStore, SOA_PADDING, SoaSlices, StoreMoves, UpdatePiece};

@@ -41,7 +41,7 @@ const MAX_UPDATE_PIECES: usize = 64;
 /// Updates computed apart from the store ([`BoundsStore::compute_piece`]) by one task, to be applied with the
 /// other tasks' in order ([`BoundsStore::apply_pieces`]).
 #[derive(Debug, Default)]
-pub(crate) struct UpdatePiece {
+pub struct UpdatePiece {
     /// Each `(entity, its slot as looked up, its world bounds or why they were refused)`, in order.
     pub(crate) updates: Vec<(Entity, Option<usize>, Result<WorldBounds, BoundsError>)>,
     /// Every update has a slot and valid bounds.
@@ -50,6 +50,57 @@ pub(crate) struct UpdatePiece {
     by_supergroup: Vec<u32>,
     /// Where `in_place`: each supergroup's first index in `by_supergroup`, and one past the last.
     starts: Vec<u32>,
+}
+
+/// Each stored entity's slot. Looked up once per moved object a frame, so by the entity's index in a dense
+/// table where indices are small (a world numbers its entities from 0, reusing freed numbers), instead of
+/// hashing; an entity whose index is large, or whose index another stored entity (of another generation)
+/// holds in the table, goes in a hash map instead.
+#[derive(Clone, Debug, Default)]
+struct EntitySlots {
+    /// At each index, the stored entity of that index and its slot; [`Entity::PLACEHOLDER`] for none.
+    dense: Vec<(Entity, u32)>,
+    sparse: EntityHashMap<u32>,
+}
+
+/// Indices below this always go in the dense table; above it, those below four times the number stored.
+const DENSE_INDICES: usize = 1 << 16;
+
+impl EntitySlots {
+    fn get(&self, entity: Entity) -> Option<usize> {
+        match self.dense.get(entity.index_u32() as usize) {
+            Some(&(stored, slot)) if stored == entity => Some(slot as usize),
+            _ if self.sparse.is_empty() => None,
+            _ => self.sparse.get(&entity).map(|&slot| slot as usize),
+        }
+    }
+
+    /// Records `entity` (of `count` stored) in `slot`, replacing its slot if it has one.
+    fn insert(&mut self, entity: Entity, slot: usize, count: usize) {
+        let index = entity.index_u32() as usize;
+        if index < DENSE_INDICES.max(4 * count) {
+            if index >= self.dense.len() {
+                self.dense.resize(index + 1, (Entity::PLACEHOLDER, 0));
+            }
+            let held = &mut self.dense[index];
+            if held.0 == Entity::PLACEHOLDER || held.0 == entity {
+                *held = (entity, slot as u32);
+                return;
+            }
+        }
+        self.sparse.insert(entity, slot as u32);
+    }
+
+    fn remove(&mut self, entity: Entity) -> Option<usize> {
+        match self.dense.get_mut(entity.index_u32() as usize) {
+            Some(held) if held.0 == entity => {
+                let slot = held.1 as usize;
+                *held = (Entity::PLACEHOLDER, 0);
+                Some(slot)
+            }
+            _ => self.sparse.remove(&entity).map(|slot| slot as usize),
+        }
+    }
 }
 
 /// Slots of one supergroup.
@@ -185,7 +236,7 @@ pub struct BoundsStore {
     /// AND against the frustum stage's output instead of a scan of every occluder. Sized to the padded length.
     occluders: VisibleSet,
     entities: Vec<Entity>,
-    slots: EntityHashMap<u32>,
+    slots: EntitySlots,
     /// Slots written (inserted, updated, or filled by a swap-remove) since the last
     /// [`BoundsStore::take_written_slots`]: what a consumer mirroring the store (the GPU instances) must copy.
     written: VisibleSet,
@@ -246,7 +297,7 @@ impl BoundsStore {
 
     /// The slot of `entity`, if it is stored.
     pub fn slot_of(&self, entity: Entity) -> Option<usize> {
-        self.slots.get(&entity).map(|&slot| slot as usize)
+        self.slots.get(entity)
     }
 
     /// The seven SoA arrays, each [`BoundsStore::padded_len`] long.
@@ -512,7 +563,7 @@ impl BoundsStore {
         let slot = self.entities.len();
         self.layout_generation += 1;
         self.entities.push(entity);
-        self.slots.insert(entity, slot as u32);
+        self.slots.insert(entity, slot, slot + 1);
         if slot == self.padded_len() {
             let padded = slot + SOA_PADDING;
             for array in self.arrays_mut() {
@@ -533,14 +584,13 @@ impl BoundsStore {
 
     /// Removes `entity` by moving the last object into its slot. Returns whether it was stored. O(1).
     pub fn remove(&mut self, entity: Entity) -> bool {
-        let Some(slot) = self.slots.remove(&entity) else { return false };
+        let Some(slot) = self.slots.remove(entity) else { return false };
         self.generation += 1;
         self.layout_generation += 1;
-        let slot = slot as usize;
         let last = self.entities.len() - 1;
         self.entities.swap_remove(slot);
         if slot != last {
-            self.slots.insert(self.entities[slot], slot as u32);
+            self.slots.insert(self.entities[slot], slot, last);
         }
         for array in self.arrays_mut() {
             array[slot] = array[last];
@@ -610,11 +660,8 @@ impl BoundsStore {
         // Few enough pieces that each supergroup's writer looks through all of them cheaply.
         let per_piece = objects.len().div_ceil(MAX_UPDATE_PIECES).max(UPDATES_PER_TASK);
         let pieces: Vec<UpdatePiece> = parallel::region(|region| {
-            let piece = |chunk: &[(Entity, LocalBounds, Affine3A)]| {
-                region.task(|| {
-                    self.compute_piece(chunk.iter().map(|(entity, local, transform)| (*entity, local, transform)))
-                })
-            };
+            let piece =
+                |chunk: &[(Entity, LocalBounds, Affine3A)]| region.task(|| self.compute_piece(chunk.iter().copied()));
             objects.par_chunks(per_piece).map(piece).collect()
         });
         let slots: Vec<Option<usize>> =
@@ -626,16 +673,16 @@ impl BoundsStore {
         }
     }
 
-    /// The updates of `objects` (each `(entity, local bounds, transform)`), computed without changing the store,
-    /// as one task of [`BoundsStore::update_many`] or of the bounds stage does: to be applied with the other
-    /// tasks' pieces, in order, by [`BoundsStore::apply_pieces`].
-    pub(crate) fn compute_piece<'a>(
-        &self,
-        objects: impl Iterator<Item = (Entity, &'a LocalBounds, &'a Affine3A)>,
-    ) -> UpdatePiece {
+    /// The updates of `objects` (each `(entity, local bounds, transform)`), computed without changing the store:
+    /// their world bounds, and their slots looked up. Many tasks may compute pieces at once (it reads the store
+    /// only), as [`BoundsStore::update_many`] and the bounds stage do, each over some of the objects; then
+    /// [`BoundsStore::apply_pieces`] stores them all. The same entity must not appear twice among the pieces
+    /// applied together.
+    pub fn compute_piece(&self, objects: impl IntoIterator<Item = (Entity, LocalBounds, Affine3A)>) -> UpdatePiece {
         let updates: Vec<_> = objects
+            .into_iter()
             .map(|(entity, local, transform)| {
-                (entity, self.slot_of(entity), WorldBounds::from_local(entity, local, transform))
+                (entity, self.slot_of(entity), WorldBounds::from_local(entity, &local, &transform))
             })
             .collect();
         let in_place = updates.iter().all(|(_, slot, bounds)| slot.is_some() && bounds.is_ok());
@@ -665,10 +712,10 @@ impl BoundsStore {
     /// would one by one. Where there are many and every one has a slot and valid bounds, they are written in
     /// parallel, each task a supergroup's slots, and `None` is returned (each object is in the slot looked up);
     /// otherwise they are applied one by one and each object's outcome returned, in order.
-    pub(crate) fn apply_pieces(
-        &mut self,
-        pieces: Vec<UpdatePiece>,
-    ) -> Option<Vec<(Entity, Result<usize, BoundsError>)>> {
+    ///
+    /// The pieces must have been computed from the store as it is now: a change in between (an update, an
+    /// insertion, a removal) may have moved the slots they looked up.
+    pub fn apply_pieces(&mut self, pieces: Vec<UpdatePiece>) -> Option<Vec<(Entity, Result<usize, BoundsError>)>> {
         let total: usize = pieces.iter().map(|piece| piece.updates.len()).sum();
         let supergroups = self.padded_len().div_ceil(SUPERGROUP_SLOTS);
         // Every object stored already, none refused, and the store's layout as when they were looked up: each
@@ -846,5 +893,37 @@ impl BoundsStore {
             &mut self.extent_z,
             &mut self.radius,
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bevy_ecs::entity::{EntityGeneration, EntityIndex};
+
+    fn entity(index: u32, generation: u32) -> Entity {
+        let index = EntityIndex::from_raw_u32(index).unwrap();
+        Entity::from_index_and_generation(index, EntityGeneration::FIRST.after_versions(generation))
+    }
+
+    /// Two entities of one index (different generations) both stored, a large index, removals and the swap
+    /// that a removal makes: each entity finds its own slot.
+    #[test]
+    fn entities_sharing_an_index_or_with_large_ones_keep_their_slots() {
+        let mut store = BoundsStore::default();
+        let (old, new, far) = (entity(5, 0), entity(5, 1), entity(3_000_000, 0));
+        let at = |e: Entity, x: f32| WorldBounds::new(e, Vec3::new(x, 0.0, 0.0), Vec3::ONE).unwrap();
+        for (i, e) in [old, new, far, entity(6, 0)].into_iter().enumerate() {
+            assert_eq!(store.insert(e, &at(e, i as f32)), Ok(i));
+        }
+        assert_eq!([old, new, far].map(|e| store.slot_of(e)), [Some(0), Some(1), Some(2)]);
+        assert_eq!(store.slot_of(entity(5, 2)), None);
+        assert!(store.remove(old));
+        // The last object moved into slot 0.
+        assert_eq!([old, new, far, entity(6, 0)].map(|e| store.slot_of(e)), [None, Some(1), Some(2), Some(0)]);
+        assert!(store.remove(new) && store.remove(far) && !store.remove(far));
+        assert_eq!(store.len(), 1);
+        assert_eq!(store.insert(old, &at(old, 0.0)), Ok(1));
+        assert_eq!(store.slot_of(old), Some(1));
     }
 }

@@ -108,7 +108,7 @@ fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdateP
                 previous.insert(entity, rejected.clone());
             }
         }
-        let piece = store.compute_piece(moved.iter().map(|(entity, local, transform)| (*entity, local, transform)));
+        let piece = store.compute_piece(moved);
         return (vec![piece], previous);
     };
     let mut ranges = Vec::new();
@@ -128,8 +128,7 @@ fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdateP
                     table.changed.iter().any(|ticks| ticks[*row].is_newer_than(table.last_run, table.this_run))
                 };
                 let rows: Vec<usize> = table.rows.clone().filter(newer).collect();
-                let objects =
-                    rows.iter().map(|&row| (table.entities[row], &table.locals[row], &table.transforms[row].0));
+                let objects = rows.iter().map(|&row| (table.entities[row], table.locals[row], table.transforms[row].0));
                 let previous: Vec<(Entity, BoundsRejected)> = match table.rejected {
                     Some(rejected) => rows.iter().map(|&row| (table.entities[row], rejected[row].clone())).collect(),
                     None => Vec::new(),
