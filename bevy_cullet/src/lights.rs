@@ -27,6 +27,7 @@ use cullet::frustum::{Frustum, Light, LightView, View, ViewError};
 use cullet::visible::{VisibleSet, set_slots};
 use glam::{DMat4, Vec3};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 /// Which of a light's shadow maps a light view draws.
@@ -244,8 +245,109 @@ type CasterFilter = (With<Mesh3d>, Without<NotShadowCaster>, Without<Directional
 /// Shadow casters the plugin does not mirror: in every map of a light, as in Bevy.
 type OtherCasterFilter = (CasterFilter, Or<(Without<Aabb>, With<NoFrustumCulling>)>);
 
-/// Words of a light view's casters in one chunk of the write.
-const WRITE_WORDS: usize = 16;
+/// A shadow caster as the classification walks its table.
+type CasterRow<'a> = (Entity, &'a InheritedVisibility, Has<RenderLayers>, Has<VisibilityRange>);
+
+/// The store's slots by what Bevy's rules for shadow casters say of them, before any light: `plain` for a
+/// visible caster in the default layer only and without a visibility range (a caster of every light in that
+/// layer), `special` for a visible caster with layers or a range of its own (each light checks it).
+struct CasterClasses {
+    plain: VisibleSet,
+    special: VisibleSet,
+}
+
+/// Rows of a table one task of the classification walks.
+const CLASSIFY_ROWS: usize = 4096;
+
+/// Classifies every stored entity ([`CasterClasses`]), walking the casters' tables in parallel; an entity
+/// that is not a caster, or not visible, is in neither set.
+fn classify_casters(store: &BoundsStore, rows: &Query<CasterRow, CasterFilter>) -> CasterClasses {
+    let words = store.len().div_ceil(64);
+    let marks: [Vec<AtomicU64>; 2] = std::array::from_fn(|_| (0..words).map(|_| AtomicU64::new(0)).collect());
+    let mark = |class: usize, slot: usize| {
+        marks[class][slot / 64].fetch_or(1 << (slot % 64), Ordering::Relaxed);
+    };
+    match rows.contiguous_iter() {
+        Ok(tables) => {
+            let mut ranges = Vec::new();
+            for (entities, inherited, has_layers, has_range) in tables {
+                let class = usize::from(has_layers || has_range);
+                for first in (0..entities.len()).step_by(CLASSIFY_ROWS) {
+                    let end = (first + CLASSIFY_ROWS).min(entities.len());
+                    ranges.push((&entities[first..end], &inherited[first..end], class));
+                }
+            }
+            ranges.into_par_iter().for_each(|(entities, inherited, class)| {
+                for (&entity, inherited) in entities.iter().zip(inherited) {
+                    if let Some(slot) = store.slot_of(entity).filter(|_| inherited.get()) {
+                        mark(class, slot);
+                    }
+                }
+            });
+        }
+        // Not stored in tables (not the case of Bevy's components): one walk on this thread.
+        Err(_) => {
+            for (entity, inherited, has_layers, has_range) in rows {
+                if let Some(slot) = store.slot_of(entity).filter(|_| inherited.get()) {
+                    mark(usize::from(has_layers || has_range), slot);
+                }
+            }
+        }
+    }
+    let [plain, special] = marks.map(|words| {
+        let mut set = VisibleSet::new(store.len());
+        set.words_mut().iter_mut().zip(words).for_each(|(word, mark)| *word = mark.into_inner());
+        set
+    });
+    CasterClasses { plain, special }
+}
+
+/// How the store's slots run against the order of their entities (Bevy's `Entity` order, which Bevy sorts its
+/// lists in), kept while the store's layout stays.
+#[derive(Default)]
+pub(crate) struct EntityOrder {
+    layout: Option<u64>,
+    order: SlotOrder,
+}
+
+/// The order of a store's slots by their entities.
+#[derive(Default)]
+enum SlotOrder {
+    /// Increasing.
+    #[default]
+    Slots,
+    /// Decreasing: as the mirroring leaves entities spawned together (Bevy orders entities of increasing
+    /// index the other way).
+    Reversed,
+    /// Neither: the slots in the order of their entities.
+    Ranked(Vec<u32>),
+}
+
+impl EntityOrder {
+    /// The order of the slots of `store` by their entities.
+    fn of(&mut self, store: &BoundsStore) -> &SlotOrder {
+        if self.layout != Some(store.layout_generation()) {
+            self.layout = Some(store.layout_generation());
+            let entities = store.entities();
+            self.order = if entities.is_sorted() {
+                SlotOrder::Slots
+            } else if entities.is_sorted_by(|a, b| a >= b) {
+                SlotOrder::Reversed
+            } else {
+                let mut slots: Vec<u32> = (0..store.len() as u32).collect();
+                slots.par_sort_unstable_by_key(|&slot| entities[slot as usize]);
+                SlotOrder::Ranked(slots)
+            };
+        }
+        &self.order
+    }
+}
+
+/// Slots of a light view's list gathered by one task, in entity order.
+const ORDER_RUN: usize = 8192;
+
+/// Words of a light view's casters in one task of the write: a rayon task costs microseconds to hand out here.
+const WRITE_WORDS: usize = 64;
 
 /// One shadow map's casters gathered over the cameras: the union of their store slots, or every caster.
 enum Gathered {
@@ -279,12 +381,14 @@ pub(crate) fn write_light_views(
     cameras: Query<(Entity, &Camera, &CulletView)>,
     mut lists: LightLists,
     casters: Query<CasterItem, CasterFilter>,
+    caster_rows: Query<CasterRow, CasterFilter>,
     others: Query<(Entity, CasterItem), OtherCasterFilter>,
     mut visibility: Query<&mut ViewVisibility>,
     ranges: Option<Res<VisibleEntityRanges>>,
     lod_origins: Query<Entity, With<ShadowLodOrigin>>,
     targets: Query<(Entity, &RenderTarget), With<Camera>>,
     mut stats: ResMut<CulletLightStats>,
+    mut entity_order: Local<EntityOrder>,
 ) {
     let start = Instant::now();
     let store = &cullet.store;
@@ -318,6 +422,8 @@ pub(crate) fn write_light_views(
         }
     }
     let lod_origin = shadow_lod_origin(&lod_origins, &targets);
+    let classes = classify_casters(store, &caster_rows);
+    let order = entity_order.of(store);
     let ranges = ranges.as_deref();
     let mut shown = VisibleSet::new(store.len());
     let mut unmirrored_shown = Vec::new();
@@ -341,28 +447,51 @@ pub(crate) fn write_light_views(
             Gathered::Every => &every,
         };
         let entities = store.entities();
-        let chunks: Vec<(Vec<Entity>, Vec<u64>)> = set
-            .words()
-            .par_chunks(WRITE_WORDS)
+        // The casters by the rules that are the same for every light, a word at a time; the others one by one.
+        let plain_lit = layers.intersects(&RenderLayers::default());
+        let mut accepted = VisibleSet::new(store.len());
+        (accepted.words_mut().par_chunks_mut(WRITE_WORDS))
+            .zip(set.words().par_chunks(WRITE_WORDS))
+            .zip(classes.plain.words().par_chunks(WRITE_WORDS))
+            .zip(classes.special.words().par_chunks(WRITE_WORDS))
             .enumerate()
-            .map(|(chunk, words)| {
-                let mut kept = Vec::new();
-                let mut marks = vec![0u64; words.len()];
-                for slot in set_slots(chunk * WRITE_WORDS, words) {
-                    let entity = entities[slot];
-                    if casters.get(entity).is_ok_and(|item| passes(entity, item)) {
-                        kept.push(entity);
-                        marks[slot / 64 - chunk * WRITE_WORDS] |= 1 << (slot % 64);
+            .for_each(|(chunk, (((accepted, words), plain), special))| {
+                let words = words.iter().zip(plain).zip(special);
+                for (index, (out, ((&word, &plain), &special))) in accepted.iter_mut().zip(words).enumerate() {
+                    *out = if plain_lit { word & plain } else { 0 };
+                    for slot in set_slots(chunk * WRITE_WORDS + index, &[word & special]) {
+                        let entity = entities[slot];
+                        if casters.get(entity).is_ok_and(|item| passes(entity, item)) {
+                            *out |= 1 << (slot % 64);
+                        }
                     }
                 }
-                (kept, marks)
-            })
-            .collect();
-        for (chunk, (kept, marks)) in chunks.into_iter().enumerate() {
-            out.extend(kept);
-            let words = &mut shown.words_mut()[chunk * WRITE_WORDS..];
-            words.iter_mut().zip(marks).for_each(|(word, mark)| *word |= mark);
-        }
+            });
+        shown.words_mut().iter_mut().zip(accepted.words()).for_each(|(word, accepted)| *word |= accepted);
+        // Listed in entity order, as Bevy sorts its lists: in slot order, or its reverse, where the store holds
+        // its entities so (as the mirroring leaves entities spawned together), else the slots walked in their
+        // entities' order.
+        let in_slot_order = || -> Vec<Vec<Entity>> {
+            (accepted.words().par_chunks(ORDER_RUN / 64).enumerate())
+                .map(|(chunk, words)| set_slots(chunk * ORDER_RUN / 64, words).map(|slot| entities[slot]).collect())
+                .collect()
+        };
+        let runs = match order {
+            SlotOrder::Slots => in_slot_order(),
+            SlotOrder::Reversed => {
+                let mut runs = in_slot_order();
+                runs.reverse();
+                runs.iter_mut().for_each(|run| run.reverse());
+                runs
+            }
+            SlotOrder::Ranked(order) => (order.par_chunks(ORDER_RUN))
+                .map(|run| {
+                    let kept = run.iter().map(|&slot| slot as usize).filter(|&slot| accepted.contains(slot));
+                    kept.map(|slot| entities[slot]).collect()
+                })
+                .collect(),
+        };
+        runs.into_iter().for_each(|run| out.extend(run));
         // Entities Cullet does not mirror, or whose bounds it refused, are in every map, as Bevy has them.
         let before = out.len();
         out.extend(others.iter().filter(|&(entity, item)| passes(entity, item)).map(|(entity, _)| entity));
@@ -370,6 +499,7 @@ pub(crate) fn write_light_views(
         out.extend(refused);
         unmirrored_shown.extend_from_slice(&out[before..]);
         if !out.is_sorted() {
+            eprintln!("sorting {} ({:?})", out.len(), matches!(order, SlotOrder::Reversed));
             out.sort_unstable();
         }
         maps += 1;

@@ -122,10 +122,7 @@ const WALK_ROWS: usize = 1024;
 /// The updates of every mirrored entity whose `Aabb` or `GlobalTransform` changed since the mirroring last
 /// ran, computed in parallel over ranges of table rows, in the query's order, each with whether each of its
 /// entities carries an occluder.
-fn changed_pieces(
-    store: &BoundsStore,
-    changed: &MirroredRows,
-) -> Vec<(UpdatePiece, Vec<bool>)> {
+fn changed_pieces(store: &BoundsStore, changed: &MirroredRows) -> Vec<(UpdatePiece, Vec<bool>)> {
     let object = |entity, aabb: &Aabb, transform: &GlobalTransform| {
         (entity, convert::local_bounds(aabb), convert::affine(transform))
     };
