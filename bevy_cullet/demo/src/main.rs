@@ -1,7 +1,8 @@
 //! The built-in city in a real Bevy window (`DefaultPlugins`), flown along its fly-through and culled by
 //! `bevy_cullet`. On screen: frames per second, the visibility systems' CPU time, and what the plugin kept.
 //!
-//! Keys: C switches the plugin (off: Bevy's own visibility check), O switches occlusion, Esc quits.
+//! Keys: C switches the plugin (off: Bevy's own visibility check), O switches occlusion, L the plugin's culling of
+//! the sun's shadow cascades (off: Bevy's light checks), Esc quits.
 //!
 //! `cargo run --release -p bevy_cullet_demo -- --objects 20000` (under Xvfb and lavapipe in a headless
 //! machine: `xvfb-run -a ...`). `--frames N` spreads N frames along the path, quits and prints the means;
@@ -20,7 +21,8 @@ use bevy::render::view::screenshot::{Screenshot, save_to_disk};
 use bevy::render::{Render, RenderApp, RenderSystems};
 use bevy::window::ExitCondition;
 use bevy::winit::WinitPlugin;
-use bevy_cullet::{CulletPlugin, CulletSettings, CulletSystems, CulletView, spawn_scene};
+use bevy::light::CascadeShadowConfigBuilder;
+use bevy_cullet::{CulletLightStats, CulletPlugin, CulletSettings, CulletSystems, CulletView, spawn_scene};
 use clap::Parser;
 use cullet::scene::city::{CityParams, CityScene};
 use std::any::TypeId;
@@ -164,8 +166,10 @@ fn setup(world: &mut World) {
         let target = world.resource_mut::<Assets<Image>>().add(target);
         world.entity_mut(camera).insert(RenderTarget::Image(target.into()));
     }
+    // A sun with shadows: the plugin culls its cascades with the camera (L switches to Bevy's light checks).
     world.spawn((
-        DirectionalLight { illuminance: 12000.0, ..default() },
+        DirectionalLight { illuminance: 12000.0, shadow_maps_enabled: true, ..default() },
+        CascadeShadowConfigBuilder { first_cascade_far_bound: 60.0, maximum_distance: 800.0, ..default() }.build(),
         Transform::from_xyz(300.0, 800.0, 200.0).looking_at(Vec3::ZERO, Vec3::Y),
     ));
     world.spawn((
@@ -224,6 +228,9 @@ fn keys(keys: Res<ButtonInput<KeyCode>>, mut settings: ResMut<CulletSettings>, m
     if keys.just_pressed(KeyCode::KeyO) {
         settings.occlusion.enabled = !settings.occlusion.enabled;
     }
+    if keys.just_pressed(KeyCode::KeyL) {
+        settings.lights = !settings.lights;
+    }
     if keys.just_pressed(KeyCode::Escape) {
         exit.write(AppExit::Success);
     }
@@ -249,6 +256,7 @@ fn show(
     time: Res<Time>,
     mut timing: ResMut<Timing>,
     camera: Single<(&CulletView, &VisibleEntities)>,
+    light_stats: Res<CulletLightStats>,
     mut text: Single<&mut Text, With<Hud>>,
     mut exit: MessageWriter<AppExit>,
 ) {
@@ -257,12 +265,14 @@ fn show(
     let fps = diagnostics.get(&FrameTimeDiagnosticsPlugin::FPS).and_then(|d| d.smoothed()).unwrap_or(0.0);
     let culling = if settings.enabled { "Cullet" } else { "Bevy's check" };
     let occlusion = if settings.occlusion.enabled { "on" } else { "off" };
+    let lights = if settings.enabled && settings.lights { "Cullet" } else { "Bevy's checks" };
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     text.0 = format!(
         "{fps:.0} fps   visibility systems {:.2} ms   culling: {culling} (C)   occlusion: {occlusion} (O)\n\
          meshes drawn: {}\n\
          Cullet: {} objects, frustum kept {}, occlusion kept {} ({} occluders)\n\
-         stages: frustum {:.2} ms, raster {:.2} ms, occlusion {:.2} ms, write {:.2} ms",
+         stages: frustum {:.2} ms, raster {:.2} ms, occlusion {:.2} ms, write {:.2} ms\n\
+         sun's cascades: {lights} (L), {} views keep {} casters ({} hidden from the sun), write {:.2} ms",
         ms(timing.visibility),
         visible.len(TypeId::of::<Mesh3d>()),
         stats.objects,
@@ -273,6 +283,10 @@ fn show(
         ms(stats.raster_time),
         ms(stats.occlusion_time),
         ms(stats.write_time),
+        stats.light_views,
+        stats.light_casters,
+        stats.light_occluded,
+        ms(light_stats.write_time),
     );
     let Some(frames) = args.frames else { return };
     // The first frames load and mirror everything.
