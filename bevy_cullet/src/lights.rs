@@ -378,7 +378,7 @@ pub(crate) struct LightLists<'w, 's> {
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 pub(crate) fn write_light_views(
     cullet: Res<CulletStore>,
-    cameras: Query<(Entity, &Camera, &CulletView)>,
+    cameras: Query<(Entity, &Camera, &CulletView, Option<&RenderLayers>)>,
     mut lists: LightLists,
     casters: Query<CasterItem, CasterFilter>,
     caster_rows: Query<CasterRow, CasterFilter>,
@@ -393,7 +393,7 @@ pub(crate) fn write_light_views(
     let start = Instant::now();
     let store = &cullet.store;
     let active: Vec<(Entity, &CulletView)> =
-        cameras.iter().filter(|(_, camera, _)| camera.is_active).map(|(entity, _, view)| (entity, view)).collect();
+        cameras.iter().filter(|(_, camera, ..)| camera.is_active).map(|(entity, _, view, _)| (entity, view)).collect();
     // Each map's casters: a cascade per camera; a lamp's maps as the union over the cameras.
     let mut cascades: EntityHashMap<Vec<(Entity, usize, Gathered)>> = EntityHashMap::default();
     let mut lamps: EntityHashMap<Vec<(ShadowMap, Gathered)>> = EntityHashMap::default();
@@ -542,7 +542,20 @@ pub(crate) fn write_light_views(
             visible.entities.clone_from(&out);
         }
     }
-    // Every listed caster is drawn into a shadow map, so Bevy must extract it.
+    // Every listed caster is drawn into a shadow map, so Bevy must extract it. A caster of the plain class that
+    // a camera in the default layer keeps was made visible by that camera's write already.
+    let default_layer = RenderLayers::default();
+    for (_, camera, view, layers) in &cameras {
+        let kept = view.kept();
+        if camera.is_active && layers.unwrap_or_default().intersects(&default_layer) && kept.len() == store.len() {
+            let shown_by_camera = kept.words().iter().zip(classes.plain.words());
+            shown
+                .words_mut()
+                .iter_mut()
+                .zip(shown_by_camera)
+                .for_each(|(word, (kept, plain))| *word &= !(kept & plain));
+        }
+    }
     let entities = store.entities();
     shown.words().par_chunks(WRITE_WORDS).enumerate().for_each(|(chunk, words)| {
         let stored = set_slots(chunk * WRITE_WORDS, words).map(|slot| entities[slot]);
