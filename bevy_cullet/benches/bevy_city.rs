@@ -35,6 +35,7 @@ use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 use support::app_with_lights;
 use support::bevy_city::{drive, example_camera, spawn_bevy_city};
+use support::timing::{Marks, mark, mean_ms, median_ms};
 
 const FRAMES: usize = 120;
 const WARM_UP: usize = 10;
@@ -51,36 +52,28 @@ struct Args {
     bench: bool,
 }
 
-/// The instants a frame's timer systems record.
-#[derive(Resource, Default)]
-struct Marks([Option<Instant>; 5]);
-
-fn mark<const I: usize>(mut marks: ResMut<Marks>) {
-    marks.0[I] = Some(Instant::now());
-}
-
 /// Adds the timer systems around the mirroring, the camera check and the light checks.
 fn add_timers(app: &mut App) {
     use SimulationLightSystems::*;
     use VisibilitySystems::*;
-    app.init_resource::<Marks>().add_systems(
+    app.init_resource::<Marks<5>>().add_systems(
         PostUpdate,
         (
-            mark::<0>
+            mark::<5, 0>
                 .after(TransformSystems::Propagate)
                 .after(CalculateBounds)
                 .after(UpdateFrusta)
                 .before(VisibilityPropagate)
                 .before(CulletSystems::Mirror),
-            mark::<1>.after(VisibilityPropagate).after(CulletSystems::Mirror).before(CheckVisibility),
-            mark::<2>.after(CheckVisibility).before(UpdateLightFrusta).before(AssignLightsToClusters),
-            mark::<3>
+            mark::<5, 1>.after(VisibilityPropagate).after(CulletSystems::Mirror).before(CheckVisibility),
+            mark::<5, 2>.after(CheckVisibility).before(UpdateLightFrusta).before(AssignLightsToClusters),
+            mark::<5, 3>
                 .after(CheckVisibility)
                 .after(UpdateLightFrusta)
                 .after(AssignLightsToClusters)
                 .after(UpdateDirectionalLightCascades)
                 .before(CheckLightVisibility),
-            mark::<4>.after(CheckLightVisibility).before(MarkNewlyHiddenEntitiesInvisible),
+            mark::<5, 4>.after(CheckLightVisibility).before(MarkNewlyHiddenEntitiesInvisible),
         ),
     );
 }
@@ -120,7 +113,7 @@ fn fly(settings: Option<CulletSettings>, orbit: bool) -> (Run, usize, usize) {
         if frame < WARM_UP {
             continue;
         }
-        let marks = app.world().resource::<Marks>().0.map(|m| m.expect("every timer ran"));
+        let marks = app.world().resource::<Marks<5>>().all();
         run.mirror.push(marks[1] - marks[0]);
         run.check.push(marks[2] - marks[1]);
         run.lights.push(marks[4] - marks[3]);
@@ -145,16 +138,6 @@ fn fly(settings: Option<CulletSettings>, orbit: bool) -> (Run, usize, usize) {
         run.casters += casters as f64 / FRAMES as f64;
     }
     (run, city.meshes.len(), city.cars.len())
-}
-
-fn mean_ms(times: &[Duration]) -> f64 {
-    times.iter().map(Duration::as_secs_f64).sum::<f64>() * 1e3 / times.len() as f64
-}
-
-fn median_ms(times: &[Duration]) -> f64 {
-    let mut sorted = times.to_vec();
-    sorted.sort_unstable();
-    sorted[sorted.len() / 2].as_secs_f64() * 1e3
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

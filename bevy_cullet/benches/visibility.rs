@@ -34,6 +34,7 @@ use cullet::culler::OcclusionSettings;
 use cullet::scene::city::{CityParams, CityScene};
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
+use support::timing::{Marks, mark, mean_ms, median_ms};
 use support::{app, drawn, set_camera, spawn_camera};
 
 const FRAMES: usize = 120;
@@ -53,29 +54,21 @@ struct Args {
     bench: bool,
 }
 
-/// The instants a frame's timer systems record.
-#[derive(Resource, Default)]
-struct Marks([Option<Instant>; 4]);
-
-fn mark<const I: usize>(mut marks: ResMut<Marks>) {
-    marks.0[I] = Some(Instant::now());
-}
-
 /// Adds the timer systems around the visibility systems and the check.
 fn add_timers(app: &mut App) {
     use VisibilitySystems::*;
-    app.init_resource::<Marks>().add_systems(
+    app.init_resource::<Marks<4>>().add_systems(
         PostUpdate,
         (
-            mark::<0>
+            mark::<4, 0>
                 .after(TransformSystems::Propagate)
                 .after(CalculateBounds)
                 .after(UpdateFrusta)
                 .before(VisibilityPropagate)
                 .before(CulletSystems::Mirror),
-            mark::<1>.after(VisibilityPropagate).after(CulletSystems::Mirror).before(CheckVisibility),
-            mark::<2>.after(CheckVisibility).before(MarkNewlyHiddenEntitiesInvisible),
-            mark::<3>.after(MarkNewlyHiddenEntitiesInvisible),
+            mark::<4, 1>.after(VisibilityPropagate).after(CulletSystems::Mirror).before(CheckVisibility),
+            mark::<4, 2>.after(CheckVisibility).before(MarkNewlyHiddenEntitiesInvisible),
+            mark::<4, 3>.after(MarkNewlyHiddenEntitiesInvisible),
         ),
     );
 }
@@ -118,7 +111,7 @@ fn fly(city: &CityScene, settings: Option<CulletSettings>, still_camera: bool) -
         if frame < WARM_UP {
             continue;
         }
-        let marks = app.world().resource::<Marks>().0.map(|m| m.expect("every timer ran"));
+        let marks = app.world().resource::<Marks<4>>().all();
         run.check.push(marks[2] - marks[1]);
         run.visibility.push(marks[3] - marks[0]);
         run.frame.push(elapsed);
@@ -137,16 +130,6 @@ fn fly(city: &CityScene, settings: Option<CulletSettings>, still_camera: bool) -
         } / FRAMES as f64;
     }
     run
-}
-
-fn mean_ms(times: &[Duration]) -> f64 {
-    times.iter().map(Duration::as_secs_f64).sum::<f64>() * 1e3 / times.len() as f64
-}
-
-fn median_ms(times: &[Duration]) -> f64 {
-    let mut sorted = times.to_vec();
-    sorted.sort_unstable();
-    sorted[sorted.len() / 2].as_secs_f64() * 1e3
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

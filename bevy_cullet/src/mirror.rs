@@ -116,8 +116,8 @@ pub(crate) fn mirror_bounds(
 type MirroredRows<'w, 's> =
     Query<'w, 's, (Entity, Ref<'static, Aabb>, Ref<'static, GlobalTransform>, Has<Occluder>), Mirrored>;
 
-/// Rows of a table one task of the mirroring walks: a rayon task costs microseconds to hand out, so few and large
-/// (1,024 rows took a tenth longer on the bevy_city bench).
+/// Rows of a table one task of the mirroring walks: few and large tasks, as a rayon task costs microseconds to
+/// hand out.
 const WALK_ROWS: usize = 8192;
 
 /// The updates of every mirrored entity whose `Aabb` or `GlobalTransform` changed since the mirroring last

@@ -14,6 +14,7 @@ use bevy::app::{AppExit, ScheduleRunnerPlugin};
 use bevy::camera::RenderTarget;
 use bevy::camera::visibility::{VisibilitySystems, VisibleEntities};
 use bevy::diagnostic::{DiagnosticsStore, FrameCount, FrameTimeDiagnosticsPlugin};
+use bevy::light::CascadeShadowConfigBuilder;
 use bevy::prelude::*;
 use bevy::render::render_resource::{PollType, TextureFormat};
 use bevy::render::renderer::RenderDevice;
@@ -21,7 +22,6 @@ use bevy::render::view::screenshot::{Screenshot, save_to_disk};
 use bevy::render::{Render, RenderApp, RenderSystems};
 use bevy::window::ExitCondition;
 use bevy::winit::WinitPlugin;
-use bevy::light::CascadeShadowConfigBuilder;
 use bevy_cullet::{CulletLightStats, CulletPlugin, CulletSettings, CulletSystems, CulletView, spawn_scene};
 use clap::Parser;
 use cullet::scene::city::{CityParams, CityScene};
@@ -291,7 +291,7 @@ fn show(
     let Some(frames) = args.frames else { return };
     // The first frames load and mirror everything.
     timing.frames += 1;
-    if timing.frames > 5 {
+    if timing.frames > 5 && timing.frames <= frames {
         let (visibility, delta) = (timing.visibility, time.delta());
         timing.visibility_sum += visibility;
         timing.frame_sum += delta;
@@ -301,7 +301,9 @@ fn show(
     {
         commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
     }
-    if timing.frames == frames + 2 {
+    // A screenshot is read back some frames after it is asked for.
+    let last = if args.screenshot.is_some() { frames + 8 } else { frames + 2 };
+    if timing.frames == last {
         let counted = (frames - 5) as f64;
         println!(
             "{} objects, {culling}: mean frame {:.2} ms, visibility systems {:.3} ms over {} frames",

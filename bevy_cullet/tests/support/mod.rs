@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod bevy_city;
+pub mod timing;
 
 use bevy_app::prelude::*;
 use bevy_asset::{AssetApp, Assets};
