@@ -119,6 +119,7 @@
 
 mod convert;
 mod cull;
+mod light_lists;
 mod lights;
 mod lod;
 mod mirror;
@@ -126,7 +127,7 @@ mod occluders;
 mod scene;
 
 pub use cull::{CulletView, ViewStats};
-pub use lights::CulletLightStats;
+pub use light_lists::CulletLightStats;
 pub use lod::{CulletLod, CulletLodStats, LodLevel};
 pub use mirror::CulletStore;
 pub use occluders::{GLTF_EXTRAS, OCCLUDER_SUFFIX, OccluderMesh};
@@ -312,7 +313,7 @@ impl Plugin for CulletPlugin {
                     mirror::mirror_bounds.in_set(CulletSystems::Mirror),
                     occluders::add_auto_occluders.in_set(CulletSystems::AutoOccluders),
                     cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror).run_if(enabled),
-                    lights::write_light_views.in_set(CulletSystems::Lights).run_if(lights_enabled),
+                    light_lists::write_light_views.in_set(CulletSystems::Lights).run_if(lights_enabled),
                     lod::choose_levels.in_set(CulletSystems::Lod).run_if(enabled),
                     // Bevy's check, where it was, for when the plugin is switched off.
                     check_visibility_cpu_culling.in_set(VisibilitySystems::CheckVisibility).run_if(not(enabled)),

@@ -1,0 +1,385 @@
+//! The last step of the light views in a Bevy app ([`crate::lights`] builds them, [`crate::cull`] culls them
+//! with each camera): each light's shadow casters written to Bevy's per-light lists, and made visible.
+
+use crate::cull::CulletView;
+use crate::lights::{LightMap, ShadowMap};
+use crate::mirror::CulletStore;
+use bevy_camera::primitives::Aabb;
+use bevy_camera::visibility::{
+    CascadesVisibleEntities, CubemapVisibleEntities, InheritedVisibility, NoCpuCulling, NoFrustumCulling, RenderLayers,
+    SetViewVisibility, ViewVisibility, VisibilityRange, VisibleEntityRanges, VisibleMeshEntities,
+};
+use bevy_camera::{Camera, RenderTarget, ShadowLodOrigin};
+use bevy_ecs::entity::EntityHashMap;
+use bevy_ecs::prelude::*;
+use bevy_ecs::system::SystemParam;
+use bevy_light::{DirectionalLight, NotShadowCaster, PointLight, SpotLight};
+use bevy_mesh::Mesh3d;
+use cullet::bounds::BoundsStore;
+use cullet::visible::{VisibleSet, set_slots};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+/// Counts and time of the last write of the lights' lists ([`crate::CulletSystems::Lights`]).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct CulletLightStats {
+    /// Shadow maps written (cascades per camera, cube faces, spot maps).
+    pub maps: usize,
+    /// Casters listed, summed over the maps.
+    pub casters: usize,
+    /// Time spent writing the maps' lists and the casters' `ViewVisibility`.
+    pub write_time: Duration,
+}
+
+/// What a shadow caster's entry in a light's lists reads: Bevy's rules for shadow casters.
+type CasterItem<'a> = (&'a InheritedVisibility, Option<&'a RenderLayers>, Has<VisibilityRange>);
+/// Shadow casters as Bevy's light checks find them.
+type CasterFilter = (With<Mesh3d>, Without<NotShadowCaster>, Without<DirectionalLight>, Without<NoCpuCulling>);
+/// Shadow casters the plugin does not mirror: in every map of a light, as in Bevy.
+type OtherCasterFilter = (CasterFilter, Or<(Without<Aabb>, With<NoFrustumCulling>)>);
+
+/// A shadow caster as the classification walks its table.
+type CasterRow<'a> = (Entity, &'a InheritedVisibility, Has<RenderLayers>, Has<VisibilityRange>);
+
+/// The store's slots by what Bevy's rules for shadow casters say of them, before any light: `plain` for a
+/// visible caster in the default layer only and without a visibility range (a caster of every light in that
+/// layer), `special` for a visible caster with layers or a range of its own (each light checks it).
+struct CasterClasses {
+    plain: VisibleSet,
+    special: VisibleSet,
+}
+
+/// Rows of a table one task of the classification walks.
+const CLASSIFY_ROWS: usize = 4096;
+
+/// Classifies every stored entity ([`CasterClasses`]), walking the casters' tables in parallel; an entity
+/// that is not a caster, or not visible, is in neither set.
+fn classify_casters(store: &BoundsStore, rows: &Query<CasterRow, CasterFilter>) -> CasterClasses {
+    let words = store.len().div_ceil(64);
+    let marks: [Vec<AtomicU64>; 2] = std::array::from_fn(|_| (0..words).map(|_| AtomicU64::new(0)).collect());
+    let mark = |class: usize, slot: usize| {
+        marks[class][slot / 64].fetch_or(1 << (slot % 64), Ordering::Relaxed);
+    };
+    match rows.contiguous_iter() {
+        Ok(tables) => {
+            let mut ranges = Vec::new();
+            for (entities, inherited, has_layers, has_range) in tables {
+                let class = usize::from(has_layers || has_range);
+                for first in (0..entities.len()).step_by(CLASSIFY_ROWS) {
+                    let end = (first + CLASSIFY_ROWS).min(entities.len());
+                    ranges.push((&entities[first..end], &inherited[first..end], class));
+                }
+            }
+            ranges.into_par_iter().for_each(|(entities, inherited, class)| {
+                for (&entity, inherited) in entities.iter().zip(inherited) {
+                    if let Some(slot) = store.slot_of(entity).filter(|_| inherited.get()) {
+                        mark(class, slot);
+                    }
+                }
+            });
+        }
+        // Not stored in tables (not the case of Bevy's components): one walk on this thread.
+        Err(_) => {
+            for (entity, inherited, has_layers, has_range) in rows {
+                if let Some(slot) = store.slot_of(entity).filter(|_| inherited.get()) {
+                    mark(usize::from(has_layers || has_range), slot);
+                }
+            }
+        }
+    }
+    let [plain, special] = marks.map(|words| {
+        let mut set = VisibleSet::new(store.len());
+        set.words_mut().iter_mut().zip(words).for_each(|(word, mark)| *word = mark.into_inner());
+        set
+    });
+    CasterClasses { plain, special }
+}
+
+/// How the store's slots run against the order of their entities (Bevy's `Entity` order, which Bevy sorts its
+/// lists in), kept while the store's layout stays.
+#[derive(Default)]
+pub(crate) struct EntityOrder {
+    layout: Option<u64>,
+    order: SlotOrder,
+}
+
+/// The order of a store's slots by their entities.
+#[derive(Default)]
+enum SlotOrder {
+    /// Increasing.
+    #[default]
+    Slots,
+    /// Decreasing: as the mirroring leaves entities spawned together (Bevy orders entities of increasing
+    /// index the other way).
+    Reversed,
+    /// Neither: the slots in the order of their entities.
+    Ranked(Vec<u32>),
+}
+
+impl EntityOrder {
+    /// The order of the slots of `store` by their entities.
+    fn of(&mut self, store: &BoundsStore) -> &SlotOrder {
+        if self.layout != Some(store.layout_generation()) {
+            self.layout = Some(store.layout_generation());
+            let entities = store.entities();
+            self.order = if entities.is_sorted() {
+                SlotOrder::Slots
+            } else if entities.is_sorted_by(|a, b| a >= b) {
+                SlotOrder::Reversed
+            } else {
+                let mut slots: Vec<u32> = (0..store.len() as u32).collect();
+                slots.par_sort_unstable_by_key(|&slot| entities[slot as usize]);
+                SlotOrder::Ranked(slots)
+            };
+        }
+        &self.order
+    }
+}
+
+/// Slots of a light view's list gathered by one task, in entity order.
+const ORDER_RUN: usize = 8192;
+
+/// Words of a light view's casters in one task of the write: a rayon task costs microseconds to hand out here.
+const WRITE_WORDS: usize = 64;
+
+/// One shadow map's casters gathered over the cameras: the union of their store slots, or every caster.
+enum Gathered {
+    Slots(VisibleSet),
+    Every,
+}
+
+/// The lights whose lists the write fills.
+#[derive(SystemParam)]
+pub(crate) struct LightLists<'w, 's> {
+    directional: Query<
+        'w,
+        's,
+        (Entity, &'static mut CascadesVisibleEntities, Option<&'static RenderLayers>),
+        With<DirectionalLight>,
+    >,
+    point:
+        Query<'w, 's, (Entity, &'static mut CubemapVisibleEntities, Option<&'static RenderLayers>), With<PointLight>>,
+    spot: Query<'w, 's, (Entity, &'static mut VisibleMeshEntities, Option<&'static RenderLayers>), With<SpotLight>>,
+}
+
+/// Writes every light's shadow casters from the cameras' light views: a directional light's
+/// `CascadesVisibleEntities` per camera and cascade, a point light's `CubemapVisibleEntities` and a spot
+/// light's `VisibleMeshEntities` (the union over the cameras that see its light), each sorted, after Bevy's
+/// rules (`InheritedVisibility`, the light's `RenderLayers`, `VisibilityRange` from the camera or the shadow
+/// LOD origin, `NotShadowCaster`); and makes each listed caster visible (`ViewVisibility`), so that Bevy
+/// extracts it for its shadow pass. A light no camera culled this frame lists nothing.
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+pub(crate) fn write_light_views(
+    cullet: Res<CulletStore>,
+    cameras: Query<(Entity, &Camera, &CulletView, Option<&RenderLayers>)>,
+    mut lists: LightLists,
+    casters: Query<CasterItem, CasterFilter>,
+    caster_rows: Query<CasterRow, CasterFilter>,
+    others: Query<(Entity, CasterItem), OtherCasterFilter>,
+    mut visibility: Query<&mut ViewVisibility>,
+    ranges: Option<Res<VisibleEntityRanges>>,
+    lod_origins: Query<Entity, With<ShadowLodOrigin>>,
+    targets: Query<(Entity, &RenderTarget), With<Camera>>,
+    mut stats: ResMut<CulletLightStats>,
+    mut entity_order: Local<EntityOrder>,
+) {
+    let start = Instant::now();
+    let store = &cullet.store;
+    let active: Vec<(Entity, &CulletView)> =
+        cameras.iter().filter(|(_, camera, ..)| camera.is_active).map(|(entity, _, view, _)| (entity, view)).collect();
+    // Each map's casters: a cascade per camera; a lamp's maps as the union over the cameras.
+    let mut cascades: EntityHashMap<Vec<(Entity, usize, Gathered)>> = EntityHashMap::default();
+    let mut lamps: EntityHashMap<Vec<(ShadowMap, Gathered)>> = EntityHashMap::default();
+    for &(camera, view) in &active {
+        let lights = view.lights();
+        let culled = lights.maps.iter().zip(&lights.views).map(|(map, view)| (map, Some(&view.visible)));
+        for (&LightMap { light, map, .. }, visible) in culled.chain(lights.unculled.iter().map(|map| (map, None))) {
+            let gathered = || visible.map_or(Gathered::Every, |set| Gathered::Slots(set.clone()));
+            match map {
+                ShadowMap::Cascade(index) => cascades.entry(light).or_default().push((camera, index, gathered())),
+                ShadowMap::Face(_) | ShadowMap::Spot => {
+                    let maps = lamps.entry(light).or_default();
+                    match maps.iter_mut().find(|(listed, _)| *listed == map) {
+                        None => maps.push((map, gathered())),
+                        Some((_, Gathered::Every)) => {}
+                        Some((_, gathered_so_far)) => match (gathered_so_far, visible) {
+                            (Gathered::Slots(union), Some(set)) => {
+                                union.words_mut().iter_mut().zip(set.words()).for_each(|(a, b)| *a |= b)
+                            }
+                            (slot, None) => *slot = Gathered::Every,
+                            (Gathered::Every, _) => {}
+                        },
+                    }
+                }
+            }
+        }
+    }
+    let lod_origin = shadow_lod_origin(&lod_origins, &targets);
+    let classes = classify_casters(store, &caster_rows);
+    let order = entity_order.of(store);
+    let ranges = ranges.as_deref();
+    let mut shown = VisibleSet::new(store.len());
+    let mut unmirrored_shown = Vec::new();
+    let (mut maps, mut listed) = (0, 0);
+    // Lists one map's casters, in entity order, marking the stored ones in `shown`.
+    let mut list = |gathered: &Gathered, layers: &RenderLayers, range_view: Option<Entity>, out: &mut Vec<Entity>| {
+        let passes =
+            |entity: Entity,
+             (inherited, entity_layers, has_range): (&InheritedVisibility, Option<&RenderLayers>, bool)| {
+                inherited.get()
+                    && layers.intersects(entity_layers.unwrap_or_default())
+                    && (!has_range
+                        || ranges.is_none_or(|ranges| {
+                            range_view.is_none_or(|view| ranges.entity_is_in_range_of_view(entity, view))
+                        }))
+            };
+        out.clear();
+        let every = VisibleSet::all(store.len());
+        let set = match gathered {
+            Gathered::Slots(set) => set,
+            Gathered::Every => &every,
+        };
+        let entities = store.entities();
+        // The casters by the rules that are the same for every light, a word at a time; the others one by one.
+        let plain_lit = layers.intersects(&RenderLayers::default());
+        let mut accepted = VisibleSet::new(store.len());
+        (accepted.words_mut().par_chunks_mut(WRITE_WORDS))
+            .zip(set.words().par_chunks(WRITE_WORDS))
+            .zip(classes.plain.words().par_chunks(WRITE_WORDS))
+            .zip(classes.special.words().par_chunks(WRITE_WORDS))
+            .enumerate()
+            .for_each(|(chunk, (((accepted, words), plain), special))| {
+                let words = words.iter().zip(plain).zip(special);
+                for (index, (out, ((&word, &plain), &special))) in accepted.iter_mut().zip(words).enumerate() {
+                    *out = if plain_lit { word & plain } else { 0 };
+                    for slot in set_slots(chunk * WRITE_WORDS + index, &[word & special]) {
+                        let entity = entities[slot];
+                        if casters.get(entity).is_ok_and(|item| passes(entity, item)) {
+                            *out |= 1 << (slot % 64);
+                        }
+                    }
+                }
+            });
+        shown.words_mut().iter_mut().zip(accepted.words()).for_each(|(word, accepted)| *word |= accepted);
+        // Listed in entity order, as Bevy sorts its lists: in slot order, or its reverse, where the store holds
+        // its entities so (as the mirroring leaves entities spawned together), else the slots walked in their
+        // entities' order.
+        let in_slot_order = || -> Vec<Vec<Entity>> {
+            (accepted.words().par_chunks(ORDER_RUN / 64).enumerate())
+                .map(|(chunk, words)| set_slots(chunk * ORDER_RUN / 64, words).map(|slot| entities[slot]).collect())
+                .collect()
+        };
+        let runs = match order {
+            SlotOrder::Slots => in_slot_order(),
+            SlotOrder::Reversed => {
+                let mut runs = in_slot_order();
+                runs.reverse();
+                runs.iter_mut().for_each(|run| run.reverse());
+                runs
+            }
+            SlotOrder::Ranked(order) => (order.par_chunks(ORDER_RUN))
+                .map(|run| {
+                    let kept = run.iter().map(|&slot| slot as usize).filter(|&slot| accepted.contains(slot));
+                    kept.map(|slot| entities[slot]).collect()
+                })
+                .collect(),
+        };
+        runs.into_iter().for_each(|run| out.extend(run));
+        // Entities Cullet does not mirror, or whose bounds it refused, are in every map, as Bevy has them.
+        let before = out.len();
+        out.extend(others.iter().filter(|&(entity, item)| passes(entity, item)).map(|(entity, _)| entity));
+        let refused = cullet.rejected.iter().filter(|&&entity| casters.get(entity).is_ok_and(|i| passes(entity, i)));
+        out.extend(refused);
+        unmirrored_shown.extend_from_slice(&out[before..]);
+        if !out.is_sorted() {
+            eprintln!("sorting {} ({:?})", out.len(), matches!(order, SlotOrder::Reversed));
+            out.sort_unstable();
+        }
+        maps += 1;
+        listed += out.len();
+    };
+    let mut out = Vec::new();
+    for (light, mut visible, layers) in &mut lists.directional {
+        let layers = layers.unwrap_or_default();
+        let culled = cascades.remove(&light).unwrap_or_default();
+        visible.entities.retain(|camera, _| culled.iter().any(|(culled, ..)| culled == camera));
+        for (camera, lists) in visible.entities.iter_mut() {
+            lists.iter_mut().for_each(|list| list.entities.clear());
+            let count = culled.iter().filter(|(culled, ..)| culled == camera).count();
+            lists.resize(count, VisibleMeshEntities::default());
+        }
+        for (camera, index, gathered) in &culled {
+            let lists = visible.entities.entry(*camera).or_default();
+            if lists.len() <= *index {
+                lists.resize(index + 1, VisibleMeshEntities::default());
+            }
+            list(gathered, layers, Some(*camera), &mut out);
+            lists[*index].entities.clone_from(&out);
+        }
+    }
+    let lamp_maps = |light: Entity| lamps.get(&light).map(Vec::as_slice).unwrap_or_default();
+    for (light, mut visible, layers) in &mut lists.point {
+        let gathered = lamp_maps(light);
+        for (face, target) in visible.iter_mut().enumerate() {
+            target.entities.clear();
+            if let Some((_, gathered)) = gathered.iter().find(|(map, _)| *map == ShadowMap::Face(face)) {
+                list(gathered, layers.unwrap_or_default(), lod_origin, &mut out);
+                target.entities.clone_from(&out);
+            }
+        }
+    }
+    for (light, mut visible, layers) in &mut lists.spot {
+        visible.entities.clear();
+        if let Some((_, gathered)) = lamp_maps(light).first() {
+            list(gathered, layers.unwrap_or_default(), lod_origin, &mut out);
+            visible.entities.clone_from(&out);
+        }
+    }
+    // Every listed caster is drawn into a shadow map, so Bevy must extract it. A caster of the plain class that
+    // a camera in the default layer keeps was made visible by that camera's write already.
+    let default_layer = RenderLayers::default();
+    for (_, camera, view, layers) in &cameras {
+        let kept = view.kept();
+        if camera.is_active && layers.unwrap_or_default().intersects(&default_layer) && kept.len() == store.len() {
+            let shown_by_camera = kept.words().iter().zip(classes.plain.words());
+            shown
+                .words_mut()
+                .iter_mut()
+                .zip(shown_by_camera)
+                .for_each(|(word, (kept, plain))| *word &= !(kept & plain));
+        }
+    }
+    let entities = store.entities();
+    shown.words().par_chunks(WRITE_WORDS).enumerate().for_each(|(chunk, words)| {
+        let stored = set_slots(chunk * WRITE_WORDS, words).map(|slot| entities[slot]);
+        // SAFETY: `iter_many_unsafe` may give two items the same entity's component: no chunk, and no two
+        // chunks, hold an entity twice, as chunks hold distinct slots and the store holds each entity in one
+        // slot at most. `visibility` is borrowed exclusively by this system until every chunk is done.
+        let mut items = unsafe { visibility.iter_many_unsafe(stored) };
+        while let Some(item) = items.fetch_next() {
+            if let Ok(mut view_visibility) = item {
+                view_visibility.set_visible();
+            }
+        }
+    });
+    let mut items = visibility.iter_many_mut(&unmirrored_shown);
+    while let Some(item) = items.fetch_next() {
+        if let Ok(mut view_visibility) = item {
+            view_visibility.set_visible();
+        }
+    }
+    *stats = CulletLightStats { maps, casters: listed, write_time: start.elapsed() };
+}
+
+/// The view point and spot lights' casters are in visibility range of, as Bevy chooses it: an entity with
+/// `ShadowLodOrigin`, else a camera drawing to a window, else any camera (the lowest entity of each kind).
+fn shadow_lod_origin(
+    origins: &Query<Entity, With<ShadowLodOrigin>>,
+    targets: &Query<(Entity, &RenderTarget), With<Camera>>,
+) -> Option<Entity> {
+    let windows = targets.iter().filter(|(_, target)| matches!(target, RenderTarget::Window(_)));
+    (origins.iter().min())
+        .or_else(|| windows.map(|(entity, _)| entity).min())
+        .or_else(|| targets.iter().map(|(entity, _)| entity).min())
+}
