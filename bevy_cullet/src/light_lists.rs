@@ -293,7 +293,6 @@ pub(crate) fn write_light_views(
         out.extend(refused);
         unmirrored_shown.extend_from_slice(&out[before..]);
         if !out.is_sorted() {
-            eprintln!("sorting {} ({:?})", out.len(), matches!(order, SlotOrder::Reversed));
             out.sort_unstable();
         }
         maps += 1;
