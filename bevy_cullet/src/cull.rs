@@ -334,9 +334,11 @@ pub(crate) fn cull_views(
                 // visible shadow caster in the layers of every light culled here.
                 let layers_of_lights: Vec<&RenderLayers> =
                     maps.iter().map(|map| light_layers.get(map.light).ok().flatten().unwrap_or_default()).collect();
+                // The views of lights with `NoCulletLightCulling` come last, and are not occluded.
+                let narrowed = maps.iter().take_while(|map| map.narrowed).count();
                 let occluded = lights.occlusion.occlude(
                     &cullet.store,
-                    &mut lights.views,
+                    &mut lights.views[..narrowed],
                     &settings.light_occlusion,
                     &settings.adaptive,
                     |slot| {

@@ -56,7 +56,8 @@
 //! `VisibleMeshEntities` (a lamp seen by several cameras gets the union), each sorted, after Bevy's rules:
 //! `Mesh3d` casters without `NotShadowCaster` or `NoCpuCulling`, visible, in the light's `RenderLayers`, in
 //! `VisibilityRange` of the camera (of the shadow LOD origin for lamps); entities the plugin does not mirror
-//! are in every map of a light it culls, as in Bevy. A light with `shadow_maps_enabled` off lists nothing.
+//! are in every map of a light it culls, as in Bevy. A light with `shadow_maps_enabled` off lists nothing; one
+//! with [`NoCulletLightCulling`] keeps every caster its own maps hold, as Bevy's checks do.
 //! [`CulletView::light_views`] and [`ViewStats`] give each camera's light views and counts,
 //! [`CulletLightStats`] the write's.
 //!
@@ -209,6 +210,13 @@ impl Default for CulletSettings {
 /// A camera with this component gets frustum culling only: its views skip the occlusion stage.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct NoCulletOcclusion;
+
+/// A light (directional, point or spot) with this component keeps every caster its own shadow maps hold, as
+/// Bevy's light checks do: its maps are still culled by the plugin, in the cameras' pass, but not narrowed to
+/// the casters whose shadows reach a camera's view, nor occluded from the light. For a map a renderer uses
+/// beyond the cameras' views.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct NoCulletLightCulling;
 
 /// The plugin's systems, in `PostUpdate`, in this order.
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -5,6 +5,7 @@
 //! is occlusion culled from its light ([`LightOcclusion`]). [`crate::light_lists`] then writes them to Bevy's
 //! per-light visible entities, which Bevy's shadow passes draw.
 
+use crate::NoCulletLightCulling;
 use crate::convert;
 use bevy_camera::primitives::{CUBE_MAP_FACES, Frustum as BevyFrustum, Sphere};
 use bevy_camera::visibility::{InheritedVisibility, RenderLayers};
@@ -39,6 +40,9 @@ pub(crate) struct LightMap {
     pub(crate) map: ShadowMap,
     /// A lamp's position and range: what lies wholly beyond it is not lit, so casts no shadow that matters.
     pub(crate) reach: Option<(Vec3, f32)>,
+    /// Whether the view keeps only the casters that shadow the camera's view, and is occluded from its light:
+    /// false for a light with [`crate::NoCulletLightCulling`], whose view keeps every caster of its own.
+    pub(crate) narrowed: bool,
 }
 
 /// One camera's light views of the frame and what it keeps of them from frame to frame.
@@ -57,9 +61,17 @@ pub(crate) struct CameraLights {
 }
 
 /// A directional light as the culling reads it.
-type DirectionalItem<'a> = (Entity, &'a DirectionalLight, &'a GlobalTransform, &'a Cascades, &'a InheritedVisibility);
+type DirectionalItem<'a> = (
+    Entity,
+    &'a DirectionalLight,
+    &'a GlobalTransform,
+    &'a Cascades,
+    &'a InheritedVisibility,
+    Has<NoCulletLightCulling>,
+);
 /// A point or spot light as the culling reads it.
-type LampItem<'a, L> = (Entity, &'a L, &'a GlobalTransform, &'a InheritedVisibility, Option<&'a RenderLayers>);
+type LampItem<'a, L> =
+    (Entity, &'a L, &'a GlobalTransform, &'a InheritedVisibility, Option<&'a RenderLayers>, Has<NoCulletLightCulling>);
 
 /// The lights a camera's light views are built from.
 #[derive(SystemParam)]
@@ -76,7 +88,8 @@ impl LightSources<'_, '_> {
     /// with shadows whose range meets the camera's frustum, as Bevy's own check chooses the lights.
     ///
     /// Each view keeps the casters whose shadows can fall inside `receivers` (where the camera has no frustum,
-    /// inside the light's own view). A map whose view cannot be built is listed in `unculled`.
+    /// or the light has [`crate::NoCulletLightCulling`], inside the light's own view). The views of such lights
+    /// come last. A map whose view cannot be built is listed in `unculled`.
     pub(crate) fn views_of(
         &self,
         camera: Entity,
@@ -95,15 +108,17 @@ impl LightSources<'_, '_> {
                 unculled.push(map);
             }
         };
-        for (entity, light, transform, cascades, inherited) in &self.directional {
+        let narrowed_to = |opted_out: bool| if opted_out { None } else { receivers };
+        for (entity, light, transform, cascades, inherited, opted_out) in &self.directional {
             if !(light.shadow_maps_enabled && inherited.get()) {
                 continue;
             }
             let direction = convert::vec3(transform.forward().into());
             for (index, cascade) in cascades.cascades.get(&camera).into_iter().flatten().enumerate() {
                 let clip_from_world = DMat4::from_cols_array(&cascade.clip_from_world.to_cols_array().map(f64::from));
-                let built = cascade_view(origin, clip_from_world, direction, receivers);
-                add(LightMap { light: entity, map: ShadowMap::Cascade(index), reach: None }, built);
+                let built = cascade_view(origin, clip_from_world, direction, narrowed_to(opted_out));
+                let map = LightMap { light: entity, map: ShadowMap::Cascade(index), reach: None, narrowed: !opted_out };
+                add(map, built);
             }
         }
         let lit = |transform: &GlobalTransform,
@@ -115,7 +130,7 @@ impl LightSources<'_, '_> {
                 && camera_layers.intersects(layers.unwrap_or_default())
                 && bevy_frustum.intersects_sphere(&sphere, false)
         };
-        for (entity, light, transform, inherited, layers) in &self.point {
+        for (entity, light, transform, inherited, layers, opted_out) in &self.point {
             if !(light.shadow_maps_enabled && lit(transform, light.range, inherited, layers)) {
                 continue;
             }
@@ -125,11 +140,11 @@ impl LightSources<'_, '_> {
                 let rotation = Transform::IDENTITY.looking_at(face.target, face.up).rotation;
                 let (forward, up) = (rotation * bevy_math::Vec3::NEG_Z, rotation * bevy_math::Vec3::Y);
                 let face = lamp_camera(position, forward, up, std::f32::consts::FRAC_PI_2, light.shadow_map_near_z);
-                let map = LightMap { light: entity, map: ShadowMap::Face(index), reach };
-                add(map, lamp_view(face, light.range, receivers));
+                let map = LightMap { light: entity, map: ShadowMap::Face(index), reach, narrowed: !opted_out };
+                add(map, lamp_view(face, light.range, narrowed_to(opted_out)));
             }
         }
-        for (entity, light, transform, inherited, layers) in &self.spot {
+        for (entity, light, transform, inherited, layers, opted_out) in &self.spot {
             if !(light.shadow_maps_enabled && lit(transform, light.range, inherited, layers)) {
                 continue;
             }
@@ -138,9 +153,11 @@ impl LightSources<'_, '_> {
             let (forward, up) = (-basis.z_axis, basis.y_axis);
             let cone =
                 lamp_camera(position, forward.into(), up.into(), 2.0 * light.outer_angle, light.shadow_map_near_z);
-            let map = LightMap { light: entity, map: ShadowMap::Spot, reach: Some((position, light.range)) };
-            add(map, lamp_view(cone, light.range, receivers));
+            let reach = Some((position, light.range));
+            let map = LightMap { light: entity, map: ShadowMap::Spot, reach, narrowed: !opted_out };
+            add(map, lamp_view(cone, light.range, narrowed_to(opted_out)));
         }
+        views.sort_by_key(|(map, _)| !map.narrowed);
         views
     }
 }

@@ -380,3 +380,34 @@ fn lights_without_shadows_list_nothing_and_switching_off_gives_bevys_lists() {
     bevy_app.update();
     assert_eq!(lists(app.world_mut(), &town), lists(bevy_app.world_mut(), &bevy_town));
 }
+
+/// A light with `NoCulletLightCulling` keeps every caster of its own maps, as Bevy's checks do: the same lists
+/// as Bevy's, up to boxes touching a map's edge, and none occluded.
+#[test]
+fn a_light_opted_out_keeps_what_bevy_keeps() {
+    let frames = frames();
+    let (mut cullet_app, mut bevy_app) = (app_with_lights(Some(CulletSettings::default())), app_with_lights(None));
+    let town = spawn_town(&mut cullet_app, &frames[0]);
+    let bevy_town = spawn_town(&mut bevy_app, &frames[0]);
+    cullet_app.world_mut().entity_mut(town.sun).insert(bevy_cullet::NoCulletLightCulling);
+    let mut listed = 0;
+    for camera in &frames[..6] {
+        for (app, town) in [(&mut cullet_app, &town), (&mut bevy_app, &bevy_town)] {
+            set_camera(app.world_mut(), town.camera, camera, FAR);
+            app.update();
+        }
+        let camera = cullet_camera(cullet_app.world(), town.camera, Some(FAR));
+        let maps = bevy_maps(bevy_app.world(), &bevy_town, &camera);
+        let (plugin, bevy) = (lists(cullet_app.world_mut(), &town), lists(bevy_app.world_mut(), &bevy_town));
+        for ((map, plugin), (_, bevy)) in plugin.iter().zip(&bevy).filter(|((map, _), _)| map.0 == 0) {
+            let judged = maps.iter().find(|judged| judged.key == *map).unwrap();
+            let differ = plugin.symmetric_difference(bevy).filter(|&&i| i < town.boxes.len());
+            let apart: Vec<_> = differ.filter(|&&i| !touches(bevy_app.world(), &bevy_town, &judged.view, i)).collect();
+            assert!(apart.is_empty(), "map {map:?}: {apart:?} listed by one and not the other");
+            listed += plugin.len();
+        }
+        let view = cullet_app.world().get::<CulletView>(town.camera).unwrap();
+        assert_eq!(view.stats().light_occluded, 0, "an opted-out light's maps are not occluded");
+    }
+    assert!(listed > 0);
+}
