@@ -50,6 +50,9 @@ pub struct UpdatePiece {
     by_supergroup: Vec<u32>,
     /// Where `in_place`: each supergroup's first index in `by_supergroup`, and one past the last.
     starts: Vec<u32>,
+    /// The store's layout generation the slots were looked up at: a piece of another is stored one by one,
+    /// each slot checked.
+    layout: u64,
 }
 
 /// Each stored entity's slot. Looked up once per moved object a frame, so by the entity's index in a dense
@@ -687,7 +690,7 @@ impl BoundsStore {
             .collect();
         let in_place = updates.iter().all(|(_, slot, bounds)| slot.is_some() && bounds.is_ok());
         if !in_place || updates.is_empty() {
-            return UpdatePiece { updates, in_place, ..UpdatePiece::default() };
+            return UpdatePiece { updates, in_place, layout: self.layout_generation, ..UpdatePiece::default() };
         }
         // The updates by supergroup, in order within each (a counting sort: no comparisons).
         let supergroup_of = |update: &(Entity, Option<usize>, _)| update.1.unwrap_or(0) / SUPERGROUP_SLOTS;
@@ -705,7 +708,7 @@ impl BoundsStore {
             by_supergroup[*next as usize] = index as u32;
             *next += 1;
         }
-        UpdatePiece { updates, in_place, by_supergroup, starts }
+        UpdatePiece { updates, in_place, by_supergroup, starts, layout: self.layout_generation }
     }
 
     /// Applies `pieces` of updates from [`BoundsStore::compute_piece`], in order, as [`BoundsStore::update`]
@@ -713,15 +716,16 @@ impl BoundsStore {
     /// parallel, each task a supergroup's slots, and `None` is returned (each object is in the slot looked up);
     /// otherwise they are applied one by one and each object's outcome returned, in order.
     ///
-    /// The pieces must have been computed from the store as it is now: a change in between (an update, an
-    /// insertion, a removal) may have moved the slots they looked up.
+    /// Pieces computed before an insertion or a removal (which may move slots) are applied one by one, each
+    /// slot looked up checked against its entity: the outcome is the same either way.
     pub fn apply_pieces(&mut self, pieces: Vec<UpdatePiece>) -> Option<Vec<(Entity, Result<usize, BoundsError>)>> {
         let total: usize = pieces.iter().map(|piece| piece.updates.len()).sum();
         let supergroups = self.padded_len().div_ceil(SUPERGROUP_SLOTS);
         // Every object stored already, none refused, and the store's layout as when they were looked up: each
         // write is an overwrite of the slot looked up.
         let in_place = total >= PARALLEL_WRITES_FROM
-            && pieces.iter().all(|p| p.in_place && (p.updates.is_empty() || p.starts.len() == supergroups + 1));
+            && pieces.iter().all(|p| p.in_place && p.layout == self.layout_generation)
+            && pieces.iter().all(|p| p.updates.is_empty() || p.starts.len() == supergroups + 1);
         if !in_place {
             let updates = pieces.into_iter().flat_map(|piece| piece.updates);
             return Some(
@@ -925,5 +929,27 @@ mod tests {
         assert_eq!(store.len(), 1);
         assert_eq!(store.insert(old, &at(old, 0.0)), Ok(1));
         assert_eq!(store.slot_of(old), Some(1));
+    }
+
+    /// Pieces computed before a removal moved a slot still store each object's bounds in its own slot.
+    #[test]
+    fn pieces_computed_before_a_removal_land_in_the_right_slots() {
+        let mut store = BoundsStore::default();
+        let count = 2 * PARALLEL_WRITES_FROM;
+        let local = LocalBounds { center: Vec3::ZERO, half_extent: Vec3::ONE };
+        let objects: Vec<(Entity, LocalBounds, Affine3A)> =
+            (0..count as u32).map(|i| (entity(i, 0), local, Affine3A::from_translation(Vec3::X * i as f32))).collect();
+        assert!(store.update_many(&objects).iter().all(Result::is_ok));
+        let moved: Vec<_> =
+            objects[1..].iter().map(|&(e, l, t)| (e, l, t * Affine3A::from_translation(Vec3::Y))).collect();
+        let piece = store.compute_piece(moved.iter().copied());
+        // The last object moves into slot 0.
+        assert!(store.remove(objects[0].0));
+        let outcomes = store.apply_pieces(vec![piece]).expect("applied one by one");
+        assert!(outcomes.iter().all(|(_, outcome)| outcome.is_ok()));
+        for (entity, _, transform) in &moved {
+            let bounds = store.get(store.slot_of(*entity).unwrap()).unwrap();
+            assert_eq!(bounds.center, transform.translation.into());
+        }
     }
 }
