@@ -18,6 +18,7 @@ use bevy_mesh::Mesh3d;
 use cullet::bounds::BoundsStore;
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -143,9 +144,10 @@ const ORDER_RUN: usize = 8192;
 /// Words of a light view's casters in one task of the write: a rayon task costs microseconds to hand out here.
 const WRITE_WORDS: usize = 64;
 
-/// One shadow map's casters gathered over the cameras: the union of their store slots, or every caster.
-enum Gathered {
-    Slots(VisibleSet),
+/// One shadow map's casters gathered over the cameras: their store slots (a camera's own set, or the union of
+/// several cameras'), or every caster.
+enum Gathered<'a> {
+    Slots(Cow<'a, VisibleSet>),
     Every,
 }
 
@@ -195,7 +197,7 @@ pub(crate) fn write_light_views(
         let lights = view.lights();
         let culled = lights.maps.iter().zip(&lights.views).map(|(map, view)| (map, Some(&view.visible)));
         for (&LightMap { light, map, .. }, visible) in culled.chain(lights.unculled.iter().map(|map| (map, None))) {
-            let gathered = || visible.map_or(Gathered::Every, |set| Gathered::Slots(set.clone()));
+            let gathered = || visible.map_or(Gathered::Every, |set| Gathered::Slots(Cow::Borrowed(set)));
             match map {
                 ShadowMap::Cascade(index) => cascades.entry(light).or_default().push((camera, index, gathered())),
                 ShadowMap::Face(_) | ShadowMap::Spot => {
@@ -205,7 +207,7 @@ pub(crate) fn write_light_views(
                         Some((_, Gathered::Every)) => {}
                         Some((_, gathered_so_far)) => match (gathered_so_far, visible) {
                             (Gathered::Slots(union), Some(set)) => {
-                                union.words_mut().iter_mut().zip(set.words()).for_each(|(a, b)| *a |= b)
+                                union.to_mut().words_mut().iter_mut().zip(set.words()).for_each(|(a, b)| *a |= b)
                             }
                             (slot, None) => *slot = Gathered::Every,
                             (Gathered::Every, _) => {}
@@ -235,10 +237,13 @@ pub(crate) fn write_light_views(
                         }))
             };
         out.clear();
-        let every = VisibleSet::all(store.len());
+        let every;
         let set = match gathered {
             Gathered::Slots(set) => set,
-            Gathered::Every => &every,
+            Gathered::Every => {
+                every = VisibleSet::all(store.len());
+                &every
+            }
         };
         let entities = store.entities();
         // The casters by the rules that are the same for every light, a word at a time; the others one by one.
