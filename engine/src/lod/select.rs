@@ -402,8 +402,11 @@ fn sync_objects(
             let mut slots = Vec::new();
             for (w, (stale, &kept)) in stale.iter_mut().zip(kept).enumerate() {
                 let refresh = *stale & kept;
-                *stale &= !refresh;
-                slots.extend(crate::visible::set_slots(w, &[refresh]).map(|slot| slot as u32));
+                // Most words hold nothing to refresh: no iterator built for them.
+                if refresh != 0 {
+                    *stale &= !refresh;
+                    slots.extend(crate::visible::set_slots(w, &[refresh]).map(|slot| slot as u32));
+                }
             }
             slots
         }
