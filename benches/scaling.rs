@@ -207,7 +207,7 @@ fn time_parts(city: &CityScene, flight: &Flight) -> [f64; 3] {
         rasterize(&view, &chosen, settings.mode, &mut pyramid);
     });
     let test_ns = fastest_ns(runs, || {
-        test_occlusion(store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded);
+        test_occlusion(store, &frustum_visible, &view, &pyramid, None, &mut visible, &mut occluded);
     });
     [select_ns, raster_ns, test_ns]
 }

@@ -3,6 +3,7 @@
 //! (city, field, cad) against the exact rendering.
 
 use cullet::camera::CameraPath;
+use cullet::detail::DetailSettings;
 use cullet::mesh::Mesh;
 use cullet::pipeline::CullStats;
 
@@ -204,18 +205,47 @@ fn plane_coherence_keeps_exactly_what_all_planes_keep() {
 }
 
 /// A static camera over the city while its cars move: after the first frame only the cars are re-tested, and
-/// both stages keep exactly what the full (fixed) pipeline keeps, frame after frame. An occluder that moves
-/// makes the next frame run in full.
+/// both stages keep exactly what the full (fixed) pipeline keeps, frame after frame, with detail culling too.
+/// An occluder that moves makes the next frame run in full.
 #[test]
 fn only_moved_objects_are_retested_and_keep_what_a_full_run_keeps() {
     let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(5000));
     let mut path = city.flythrough();
     path.keys.truncate(1);
+    for detail in [DetailSettings::default(), DetailSettings { min_pixels: 8.0, viewport_height: 360 }] {
+        retests_keep_what_a_full_run_keeps(&city, &path, detail);
+    }
+
+    // An occluder moves: the next frame runs in full.
+    let scene = wall_scene(8, 4);
+    let mut flight = flight(&scene, AdaptiveSettings::default());
+    flight.run_with_camera(camera(), 0.0);
+    let boxes: Vec<_> = flight
+        .world
+        .query::<(bevy_ecs::entity::Entity, &ObjectTransform)>()
+        .iter(&flight.world)
+        .map(|(e, _)| e)
+        .collect();
+    let wall = boxes.into_iter().find(|&e| flight.world.get::<Occluder>(e).is_some()).unwrap();
+    let mut moved_wall = *flight.world.get::<ObjectTransform>(wall).unwrap();
+    moved_wall.0.translation.x += 5.0;
+    flight.world.entity_mut(wall).insert(moved_wall);
+    let after = flight.run_with_camera(camera(), 0.0);
+    assert_eq!((after.reused, after.retested), (false, 0), "{after:?}");
+}
+
+/// [`only_moved_objects_are_retested_and_keep_what_a_full_run_keeps`] with `detail`.
+fn retests_keep_what_a_full_run_keeps(
+    city: &cullet::scene::city::CityScene,
+    path: &CameraPath,
+    detail: DetailSettings,
+) {
     let run = |adaptive: AdaptiveSettings, frames: u32| {
         let mut flight = Flight::new(path.clone(), 16.0 / 9.0, frames, OcclusionSettings::default(), |world| {
             city.spawn(world);
         });
         flight.world.insert_resource(adaptive);
+        flight.world.insert_resource(detail);
         (0..frames)
             .map(|frame| {
                 let stats = flight.run_frame(frame);
@@ -241,23 +271,9 @@ fn only_moved_objects_are_retested_and_keep_what_a_full_run_keeps() {
         }
     }
     assert!(adaptive[5].0.after_occlusion < adaptive[5].0.after_frustum, "occlusion does cull here");
-
-    // An occluder moves: the next frame runs in full.
-    let scene = wall_scene(8, 4);
-    let mut flight = flight(&scene, AdaptiveSettings::default());
-    flight.run_with_camera(camera(), 0.0);
-    let boxes: Vec<_> = flight
-        .world
-        .query::<(bevy_ecs::entity::Entity, &ObjectTransform)>()
-        .iter(&flight.world)
-        .map(|(e, _)| e)
-        .collect();
-    let wall = boxes.into_iter().find(|&e| flight.world.get::<Occluder>(e).is_some()).unwrap();
-    let mut moved_wall = *flight.world.get::<ObjectTransform>(wall).unwrap();
-    moved_wall.0.translation.x += 5.0;
-    flight.world.entity_mut(wall).insert(moved_wall);
-    let after = flight.run_with_camera(camera(), 0.0);
-    assert_eq!((after.reused, after.retested), (false, 0), "{after:?}");
+    if detail.enabled() {
+        assert!(adaptive[5].0.detail_culled > 0, "detail culling drops something here");
+    }
 }
 
 /// The pipeline's stages through the culler interface keep, frame after frame, exactly what the ECS pipeline

@@ -183,6 +183,47 @@ fn detail_culling_drops_exactly_what_projects_under_its_threshold() {
     assert_eq!(off.cull(&CullScene::new(&flight.world), &camera).stats.detail_culled, 0);
 }
 
+/// With occlusion on, detail culling runs inside the occlusion test: what the stages keep is what they keep
+/// without it, less the small objects (and small occluders hide nothing), and the counts add up.
+#[test]
+fn detail_culling_inside_the_occlusion_test_drops_only_small_objects() {
+    use cullet::culler::{StageCuller, ViewSettings};
+    use cullet::detail::{DetailSettings, DetailTest};
+    let city = cullet::scene::city::CityScene::generate(cullet::scene::city::CityParams::with_objects(20_000));
+    let mut flight = Flight::for_cullers(city.flythrough(), 16.0 / 9.0, 10, |world| {
+        city.spawn(world);
+    });
+    let settings = ViewSettings { adaptive: cullet::culler::AdaptiveSettings::fixed(), ..ViewSettings::default() };
+    let detail = DetailSettings { min_pixels: 4.0, viewport_height: 360 };
+    let mut plain = StageCuller::new("plain", settings);
+    let mut small_dropped = StageCuller::new("detail", ViewSettings { detail, ..settings });
+    let mut dropped = 0;
+    for frame in 0..10 {
+        let (plain_frustum, plain_kept) = {
+            let culled = flight.cull_frame(frame, &mut plain).1;
+            (culled.stages[0].1.clone(), culled.kept().clone())
+        };
+        let camera = *flight.world.resource::<cullet::Camera>();
+        let culled = small_dropped.cull(&CullScene::new(&flight.world), &camera);
+        let store = flight.world.resource::<cullet::BoundsStore>();
+        let test = DetailTest::new(&camera, &detail).expect("on");
+        let (frustum, kept) = (culled.stages[0].1, culled.kept());
+        for slot in plain_frustum.iter() {
+            let small = test.is_small(store, slot);
+            assert!(!(small && kept.contains(slot)), "frame {frame}: small object {slot} kept");
+            // Fewer occluders (none small) hide no more.
+            assert!(small || !plain_kept.contains(slot) || kept.contains(slot), "frame {frame}: {slot} dropped");
+        }
+        assert!(frustum.iter().all(|slot| plain_frustum.contains(slot)));
+        let stats = culled.stats;
+        assert_eq!(stats.after_frustum, frustum.count(), "frame {frame}");
+        assert_eq!(stats.after_frustum + stats.detail_culled, plain_frustum.count(), "frame {frame}");
+        assert_eq!(stats.after_occlusion, kept.count(), "frame {frame}");
+        dropped += stats.detail_culled;
+    }
+    assert!(dropped > 0, "nothing small outside the hidden groups on the city's path");
+}
+
 /// Flies `scene` along `path` over `frames` frames (640x360) with the query grid made for the flight's world,
 /// judging every frame. Returns each frame's false negatives (store slots), the metrics, and the objects the
 /// grid removed after the frustum; `None` without a GPU.

@@ -59,6 +59,6 @@ impl StreetView {
         visible: &mut VisibleSet,
         occluded: &mut VisibleSet,
     ) -> OcclusionStats {
-        test_occlusion(&self.store, &self.frustum_visible, view, pyramid, visible, occluded)
+        test_occlusion(&self.store, &self.frustum_visible, view, pyramid, None, visible, occluded)
     }
 }

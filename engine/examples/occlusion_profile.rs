@@ -50,12 +50,12 @@ fn main() {
             tris = rasterize(&view, &instances, RasterMode::Conservative, &mut pyramid).triangles_rasterized;
             times[1] = times[1].min(t.elapsed().as_secs_f64());
             let t = Instant::now();
-            kept = test_occlusion(&store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded).visible;
+            kept = test_occlusion(&store, &frustum_visible, &view, &pyramid, None, &mut visible, &mut occluded).visible;
             times[2] = times[2].min(t.elapsed().as_secs_f64());
         }
         if std::env::var("TEST_ONLY").is_ok() {
             for _ in 0..300 {
-                test_occlusion(&store, &frustum_visible, &view, &pyramid, &mut visible, &mut occluded);
+                test_occlusion(&store, &frustum_visible, &view, &pyramid, None, &mut visible, &mut occluded);
             }
         }
         let ms = times.map(|t| t * 1e3);

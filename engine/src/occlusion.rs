@@ -16,6 +16,7 @@
 
 use crate::bounds::{BoundsStore, GroupBounds};
 use crate::depth::{DepthPyramid, ScreenView, ceil, farther, floor};
+use crate::detail::DetailTest;
 use crate::frustum::SimdBackend;
 use crate::occluders::OccluderInstance;
 use crate::parallel::{self, Stage};
@@ -44,6 +45,8 @@ pub struct OcclusionStats {
     pub tested: usize,
     /// Objects found visible.
     pub visible: usize,
+    /// Objects detail culling dropped ([`DetailTest`]): neither visible nor occluded.
+    pub small: usize,
 }
 
 /// Where a box lands on the screen: texel rectangle `x0..x1`, `y0..y1` of level 0, and its nearest depth.
@@ -82,11 +85,11 @@ pub struct ViewOcclusion {
 
 /// The occluder raster and occlusion test of one view, for a caller that selected `occluders` itself:
 /// rasterizes them with `mode` into `pyramid`, then tests every object set in `frustum_visible` against it as
-/// [`test_occlusion`] does, into `visible` and `occluded`.
+/// [`test_occlusion`] does, into `visible` and `occluded`, dropping the small ones where `detail` is given.
 ///
 /// Where there is no screen (`view` is `None`, as for a projection the depth buffer cannot express) or no
 /// occluder, it rasterizes and tests nothing: `pyramid` is emptied, `visible` becomes a copy of
-/// `frustum_visible` and `occluded` is empty, sized to the store.
+/// `frustum_visible` (less the small objects) and `occluded` is empty, sized to the store.
 #[allow(clippy::too_many_arguments)]
 pub fn occlude(
     store: &BoundsStore,
@@ -94,6 +97,7 @@ pub fn occlude(
     view: Option<&ScreenView>,
     occluders: &[OccluderInstance<'_>],
     mode: RasterMode,
+    detail: Option<&DetailTest>,
     pyramid: &mut DepthPyramid,
     visible: &mut VisibleSet,
     occluded: &mut VisibleSet,
@@ -104,7 +108,8 @@ pub fn occlude(
         visible.clone_from(frustum_visible);
         occluded.reset(store.len());
         let tested = frustum_visible.count();
-        let test = OcclusionStats { tested, visible: tested };
+        let small = detail.map_or(0, |detail| detail.cull(store, visible));
+        let test = OcclusionStats { tested, visible: tested - small, small };
         return ViewOcclusion { test, test_time: start.elapsed(), ..Default::default() };
     };
     let start = Instant::now();
@@ -112,17 +117,22 @@ pub fn occlude(
     let raster_time = start.elapsed();
     let start = Instant::now();
     let _stage = Stage::Occlusion.enter();
-    let test = test_occlusion(store, frustum_visible, view, pyramid, visible, occluded);
+    let test = test_occlusion(store, frustum_visible, view, pyramid, detail, visible, occluded);
     ViewOcclusion { raster, test, raster_time, test_time: start.elapsed() }
 }
 
 /// Tests every object set in `frustum_visible` and writes the survivors to `visible` and the hidden ones to
 /// `occluded` (both resized to the store). Parallel over words of 64 objects.
+///
+/// With `detail`, detail culling runs in the same pass: an object it finds small is in neither set, and is
+/// not tested. It is applied to the objects of the groups the pyramid does not hide whole (whose bounds the
+/// test reads anyway); a small object in a hidden group is counted occluded.
 pub fn test_occlusion(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,
     view: &ScreenView,
     pyramid: &DepthPyramid,
+    detail: Option<&DetailTest>,
     visible: &mut VisibleSet,
     occluded: &mut VisibleSet,
 ) -> OcclusionStats {
@@ -130,7 +140,8 @@ pub fn test_occlusion(
         occluded.reset(store.len());
         visible.clone_from(frustum_visible);
         let tested = frustum_visible.count();
-        return OcclusionStats { tested, visible: tested };
+        let small = detail.map_or(0, |detail| detail.cull(store, visible));
+        return OcclusionStats { tested, visible: tested - small, small };
     }
     if frustum_visible.len() == store.len() {
         // Every word of both is written below, and counted there.
@@ -141,49 +152,55 @@ pub fn test_occlusion(
         visible.reset(store.len());
         occluded.reset(store.len());
     }
-    let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+    let test = WordTest::new(store, view, pyramid, detail);
     let chunks = visible
         .words_mut()
         .par_chunks_mut(WORDS_PER_TASK)
         .zip(occluded.words_mut().par_chunks_mut(WORDS_PER_TASK))
         .zip(frustum_visible.words().par_chunks(WORDS_PER_TASK))
         .enumerate();
-    let (tested, kept) = parallel::region(|region| {
+    parallel::region(|region| {
         chunks
             .map(|(chunk, ((visible_words, occluded_words), input_words))| {
                 region.task(|| {
-                    let (mut tested, mut visible) = (0, 0);
+                    let mut stats = OcclusionStats::default();
                     let words = visible_words.iter_mut().zip(occluded_words.iter_mut()).zip(input_words);
                     for (i, ((visible_word, occluded_word), &input)) in words.enumerate() {
                         let base = (chunk * WORDS_PER_TASK + i) * 64;
-                        let kept = test_word_with_backend(avx2, store, view, pyramid, base, input, input);
+                        let (kept, small) = test.word(base, input, input);
                         *visible_word = kept;
-                        *occluded_word = input & !kept;
-                        tested += input.count_ones() as usize;
-                        visible += kept.count_ones() as usize;
+                        *occluded_word = input & !kept & !small;
+                        stats.tested += input.count_ones() as usize;
+                        stats.visible += kept.count_ones() as usize;
+                        stats.small += small.count_ones() as usize;
                     }
-                    (tested, visible)
+                    stats
                 })
             })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
-    });
-    OcclusionStats { tested, visible: kept }
+            .reduce(OcclusionStats::default, |a, b| OcclusionStats {
+                tested: a.tested + b.tested,
+                visible: a.visible + b.visible,
+                small: a.small + b.small,
+            })
+    })
 }
 
-/// Re-tests only the objects in `slots` after their bounds changed, against the same view and pyramid as the
-/// [`test_occlusion`] call that filled `visible` and `occluded`; every other object keeps its result. Each
-/// listed object ends up visible, occluded, or (outside `frustum_visible`) neither, exactly as a full test
-/// would leave it.
+/// Re-tests only the objects in `slots` after their bounds changed, against the same view, pyramid and
+/// `detail` as the [`test_occlusion`] call that filled `visible` and `occluded`; every other object keeps its
+/// result. Each listed object ends up visible, occluded, or (outside `frustum_visible`, or small) neither,
+/// exactly as a full test would leave it.
+#[allow(clippy::too_many_arguments)]
 pub fn retest_occlusion(
     store: &BoundsStore,
     frustum_visible: &VisibleSet,
     view: &ScreenView,
     pyramid: &DepthPyramid,
+    detail: Option<&DetailTest>,
     slots: &[u32],
     visible: &mut VisibleSet,
     occluded: &mut VisibleSet,
 ) {
-    let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+    let test = WordTest::new(store, view, pyramid, detail);
     let mut sorted = slots.to_vec();
     if !sorted.is_sorted() {
         sorted.sort_unstable();
@@ -192,40 +209,57 @@ pub fn retest_occlusion(
         let word = run[0] as usize / 64;
         let listed = run.iter().fold(0u64, |bits, &slot| bits | 1 << (slot % 64));
         let input = frustum_visible.words()[word] & listed;
-        let base = word * 64;
-        let kept = if pyramid.level_count() == 0 {
-            input
-        } else {
-            test_word_with_backend(avx2, store, view, pyramid, base, input, frustum_visible.words()[word])
-        };
+        let (kept, small) = test.word(word * 64, input, frustum_visible.words()[word]);
         let (visible_word, occluded_word) = (&mut visible.words_mut()[word], &mut occluded.words_mut()[word]);
         *visible_word = (*visible_word & !listed) | kept;
-        *occluded_word = (*occluded_word & !listed) | (input & !kept);
+        *occluded_word = (*occluded_word & !listed) | (input & !kept & !small);
     }
 }
 
-/// [`test_word`], with the AVX2 projection where `avx2` (detected on this processor). A word whose frustum
-/// survivors (`survivors`, of which `input` is a subset) outnumber [`GROUP_TEST_ABOVE`] first tests its group's
-/// box: when that is hidden, so is every object in it. The choice depends on the survivors, not on `input`, so
-/// a re-test of some of them agrees with the full test.
-#[inline(always)]
-fn test_word_with_backend(
+/// One view's test of a word of objects: what [`test_occlusion`] and [`retest_occlusion`] share.
+struct WordTest<'a> {
+    store: &'a BoundsStore,
+    view: &'a ScreenView,
+    pyramid: &'a DepthPyramid,
+    detail: Option<&'a DetailTest>,
+    /// The AVX2 projection was detected on this processor.
     avx2: bool,
-    store: &BoundsStore,
-    view: &ScreenView,
-    pyramid: &DepthPyramid,
-    base: usize,
-    input: u64,
-    survivors: u64,
-) -> u64 {
-    if survivors.count_ones() as usize > GROUP_TEST_ABOVE && group_occluded(store, view, pyramid, base / 64) {
-        return 0;
+}
+
+impl<'a> WordTest<'a> {
+    fn new(
+        store: &'a BoundsStore,
+        view: &'a ScreenView,
+        pyramid: &'a DepthPyramid,
+        detail: Option<&'a DetailTest>,
+    ) -> Self {
+        let avx2 = SimdBackend::Auto.resolve() == SimdBackend::Avx2;
+        Self { store, view, pyramid, detail, avx2 }
     }
-    match avx2 {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `avx2` is set only where AVX2 was detected.
-        true => unsafe { test_word_avx2(store, view, pyramid, base, input) },
-        _ => test_word(store, view, pyramid, base, input),
+
+    /// Tests the objects set in `input`, the word of slots from `base`: returns the bits of those still
+    /// visible, and of those detail culling drops. An empty pyramid hides nothing. A word whose frustum
+    /// survivors (`survivors`, of which `input` is a subset) outnumber [`GROUP_TEST_ABOVE`] first tests its
+    /// group's box: when that is hidden, so is every object in it. The choice depends on the survivors, not on
+    /// `input`, so a re-test of some of them agrees with the full test.
+    #[inline(always)]
+    fn word(&self, base: usize, input: u64, survivors: u64) -> (u64, u64) {
+        let Self { store, view, pyramid, detail, avx2 } = *self;
+        let group = base / 64;
+        let hides = pyramid.level_count() > 0;
+        if hides && survivors.count_ones() as usize > GROUP_TEST_ABOVE && group_occluded(store, view, pyramid, group) {
+            return (0, 0);
+        }
+        let small = detail.map_or(0, |detail| detail.small_in_word(store, group, input));
+        let input = input & !small;
+        let kept = match avx2 {
+            _ if !hides => input,
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `avx2` is set only where AVX2 was detected.
+            true => unsafe { test_word_avx2(store, view, pyramid, base, input) },
+            _ => test_word(store, view, pyramid, base, input),
+        };
+        (kept, small)
     }
 }
 

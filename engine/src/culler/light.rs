@@ -164,9 +164,10 @@ impl LightOcclusion {
                     };
                     let tested = view.kept;
                     let mode = RasterMode::Conservative;
-                    view.kept = occlude(store, &view.visible, Some(screen), chosen, mode, pyramid, survivors, occluded)
-                        .test
-                        .visible;
+                    view.kept =
+                        occlude(store, &view.visible, Some(screen), chosen, mode, None, pyramid, survivors, occluded)
+                            .test
+                            .visible;
                     std::mem::swap(&mut view.visible, survivors);
                     view.occluded = tested - view.kept;
                 })

@@ -461,6 +461,7 @@ impl Culler for PortalCuller {
                 Some(&view),
                 &occluders,
                 occlusion.mode,
+                None,
                 &mut self.pyramid,
                 &mut self.kept,
                 &mut self.occluded,

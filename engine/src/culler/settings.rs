@@ -285,7 +285,8 @@ pub struct ViewSettings {
     pub occlusion: OcclusionSettings,
     /// What may be skipped or reused where it cannot pay off.
     pub adaptive: AdaptiveSettings,
-    /// Detail culling after the frustum (lossy; off by default).
+    /// Detail culling after the frustum (lossy; off by default): inside the occlusion test where that runs,
+    /// a pass of its own where it does not.
     pub detail: DetailSettings,
 }
 

@@ -5,7 +5,7 @@ use super::settings::{SettingsError, ViewSettings};
 use crate::bounds::{BoundsStore, StoreMoves};
 use crate::camera::Camera;
 use crate::depth::{DepthBuffer, DepthPyramid};
-use crate::detail::cull_small;
+use crate::detail::DetailTest;
 use crate::frustum::{Frustum, FrustumError, FrustumOptions, PlaneCoherence, View, cull_frustum, cull_views};
 use crate::occluders::{OccluderInstance, select_occluders};
 use crate::occlusion::{occlude, retest_occlusion};
@@ -82,7 +82,8 @@ pub struct ViewStats {
     /// ([`super::AdaptiveSettings::min_occlusion_benefit`]).
     pub occlusion_gated: bool,
     /// Objects the frustum kept that detail culling dropped ([`ViewSettings::detail`]; already left out of
-    /// `after_frustum`).
+    /// `after_frustum`). Inside the occlusion test it judges only the groups the pyramid does not hide whole:
+    /// a small object in a hidden group is counted occluded.
     pub detail_culled: usize,
     /// Time of the frustum stage (the whole call, where the result was reused).
     pub frustum_time: Duration,
@@ -163,7 +164,11 @@ enum Plan {
 /// ```
 #[derive(Clone, Debug, Default)]
 pub struct ViewCuller {
+    /// What the frustum kept: the occlusion stage's input.
     frustum_visible: VisibleSet,
+    /// `frustum_visible` less the objects detail culling dropped (in the occlusion test), where it ran: what
+    /// [`ViewCuller::frustum_visible`] gives then.
+    detail_visible: Option<VisibleSet>,
     coherence: PlaneCoherence,
     pyramid: DepthPyramid,
     visible: VisibleSet,
@@ -263,12 +268,6 @@ impl ViewCuller {
                 store.len()
             }
         };
-        // Detail culling, where asked, of what a valid view's frustum kept.
-        self.stats.detail_culled = match frame.view.camera.filter(|_| settings.frustum && frame.view.frustum.is_ok()) {
-            Some(camera) => cull_small(store, &camera, &settings.detail, &mut self.frustum_visible),
-            None => 0,
-        };
-        self.stats.after_frustum -= self.stats.detail_culled;
         self.stats.frustum_time = start.elapsed();
         also_kept
     }
@@ -299,6 +298,7 @@ impl ViewCuller {
         let stats = &mut self.stats;
         // Only where the frustum stage culled through a valid view: an invalid camera culls nothing anywhere.
         let camera = view.camera.filter(|_| view.frustum.is_ok());
+        let detail = detail_test(&view, settings);
         let runs = camera.is_some() && settings.occlusion.enabled && stats.occlusion_error.is_none();
         let chosen: Vec<(u32, OccluderInstance)> = match camera {
             Some(camera) if runs && !stats.occlusion_gated => {
@@ -312,7 +312,12 @@ impl ViewCuller {
                         Cow::Borrowed(&self.frustum_visible)
                     };
                 let budget = settings.occlusion.triangle_budget;
-                select_occluders(store, &candidates, camera.position, budget, occluder_of)
+                let mut chosen = select_occluders(store, &candidates, camera.position, budget, occluder_of);
+                // An object too small to draw hides nothing (few are chosen: they rank last).
+                if let Some(detail) = &detail {
+                    chosen.retain(|(slot, _)| !detail.is_small(store, *slot as usize));
+                }
+                chosen
             }
             _ => Vec::new(),
         };
@@ -329,6 +334,7 @@ impl ViewCuller {
             screen.as_ref(),
             &instances,
             settings.occlusion.mode,
+            detail.as_ref(),
             &mut self.pyramid,
             &mut self.visible,
             &mut self.occluded,
@@ -336,6 +342,16 @@ impl ViewCuller {
         (stats.occluder_triangles, stats.occluders_hidden) =
             (run.raster.triangles_rasterized, run.raster.occluders_hidden);
         stats.after_occlusion = run.test.visible;
+        // Detail culling ran in the test; the frustum stage's set and count leave out what it dropped.
+        stats.detail_culled = run.test.small;
+        stats.after_frustum -= run.test.small;
+        match detail {
+            Some(_) => {
+                let into = self.detail_visible.get_or_insert_default();
+                leave_out_dropped(&self.frustum_visible, &self.visible, &self.occluded, into, None);
+            }
+            None => self.detail_visible = None,
+        }
         (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
         // A frame that rasterized nothing says nothing of what occlusion is worth here.
         if !instances.is_empty() {
@@ -405,15 +421,25 @@ impl ViewCuller {
             Some(camera) => {
                 let screen = settings.occlusion.view(&camera);
                 let (visible, occluded) = (&mut self.visible, &mut self.occluded);
-                retest_occlusion(store, &self.frustum_visible, &screen, &self.pyramid, moved, visible, occluded);
+                let (frustum_visible, pyramid) = (&self.frustum_visible, &self.pyramid);
+                let detail = detail_test(view, settings);
+                retest_occlusion(store, frustum_visible, &screen, pyramid, detail.as_ref(), moved, visible, occluded);
             }
-            // Nothing was rasterized: what the frustum keeps is visible.
+            // Nothing was rasterized: what the frustum keeps is visible, less what detail culling drops.
             None => {
+                let detail = detail_test(view, settings);
                 for &slot in moved {
-                    self.visible.set(slot as usize, self.frustum_visible.contains(slot as usize));
+                    let slot = slot as usize;
+                    let small = detail.is_some_and(|detail| detail.is_small(store, slot));
+                    self.visible.set(slot, self.frustum_visible.contains(slot) && !small);
                 }
             }
         }
+        // The same settings as the last full cull: detail culling ran there too where it runs here.
+        if let Some(into) = &mut self.detail_visible {
+            leave_out_dropped(&self.frustum_visible, &self.visible, &self.occluded, into, Some(moved));
+        }
+        self.stats.after_frustum = self.frustum_visible().count();
         (self.stats.after_occlusion, self.stats.raster_time) = (self.visible.count(), Duration::ZERO);
     }
 
@@ -432,14 +458,14 @@ impl ViewCuller {
     /// [`Culler`](super::Culler)'s result is judged.
     pub fn culled(&self) -> super::Culled<'_> {
         super::Culled {
-            stages: vec![("frustum", &self.frustum_visible), ("occlusion", self.visible())],
+            stages: vec![("frustum", self.frustum_visible()), ("occlusion", self.visible())],
             stats: self.stats,
         }
     }
 
-    /// Store slots kept by the frustum stage.
+    /// Store slots kept by the frustum stage (less those detail culling dropped, where it runs).
     pub fn frustum_visible(&self) -> &VisibleSet {
-        &self.frustum_visible
+        self.detail_visible.as_ref().unwrap_or(&self.frustum_visible)
     }
 
     /// Store slots kept by both stages: the result.
@@ -468,5 +494,39 @@ impl ViewCuller {
     /// pyramid's level 0, or an empty (0x0) buffer where nothing was rasterized.
     pub fn depth(&self) -> &DepthBuffer {
         self.pyramid.base()
+    }
+}
+
+/// Detail culling's test for a cull of `view` with `settings`: only where a valid view's frustum culled, as
+/// with no frustum every object is kept.
+fn detail_test(view: &ViewInput, settings: &ViewSettings) -> Option<DetailTest> {
+    let camera = view.camera.filter(|_| settings.frustum && view.frustum.is_ok())?;
+    DetailTest::new(&camera, &settings.detail)
+}
+
+/// Writes to `into` the objects of `frustum_visible` that the occlusion stage left in `visible` or `occluded`,
+/// leaving out those detail culling dropped: every word, or only the words of the slots in `only` (the rest
+/// of `into` standing).
+fn leave_out_dropped(
+    frustum_visible: &VisibleSet,
+    visible: &VisibleSet,
+    occluded: &VisibleSet,
+    into: &mut VisibleSet,
+    only: Option<&[u32]>,
+) {
+    let (frustum, kept, hidden) = (frustum_visible.words(), visible.words(), occluded.words());
+    let word = |w: usize| frustum[w] & (kept.get(w).copied().unwrap_or(0) | hidden.get(w).copied().unwrap_or(0));
+    match only {
+        Some(slots) => {
+            for w in slots.iter().map(|&slot| slot as usize / 64) {
+                into.words_mut()[w] = word(w);
+            }
+        }
+        None => {
+            into.resize_for_overwrite(frustum_visible.len());
+            for (w, out) in into.words_mut().iter_mut().enumerate() {
+                *out = word(w);
+            }
+        }
     }
 }

@@ -94,7 +94,8 @@ pub struct CullStats {
     /// Objects left after frustum culling (and detail culling, where on).
     pub after_frustum: usize,
     /// Objects the frustum kept that detail culling dropped ([`DetailSettings`]; already left out of
-    /// `after_frustum`).
+    /// `after_frustum`). Inside the occlusion test it judges only the groups the pyramid does not hide whole:
+    /// a small object in a hidden group is counted occluded.
     pub detail_culled: usize,
     /// Time spent bringing bounds up to date.
     pub bounds_time: Duration,
@@ -185,7 +186,8 @@ pub struct PipelineSettings {
     pub light_occlusion: LightOcclusionSettings,
     /// What the pipeline may skip or reuse when it cannot pay off.
     pub adaptive: AdaptiveSettings,
-    /// Detail culling after the frustum stage (lossy; off by default).
+    /// Detail culling after the frustum stage (lossy; off by default): inside the occlusion test where that
+    /// runs, a pass of its own where it does not.
     pub detail: DetailSettings,
 }
 

@@ -116,7 +116,7 @@ pub(super) fn frustum_stage(
     }
     memory.spare_sets = sets;
     (stats.reused, stats.retested, stats.frustum_error) = (view.reused, view.retested, view.frustum_error);
-    (stats.objects, stats.after_frustum, stats.detail_culled) = (view.objects, view.after_frustum, view.detail_culled);
+    (stats.objects, stats.after_frustum) = (view.objects, view.after_frustum);
     if view.reused {
         (stats.raster_time, stats.occlusion_time) = (view.raster_time, view.occlusion_time);
     } else {
@@ -166,6 +166,8 @@ pub(super) fn occlusion_stage(
         (view.occluders, view.occluder_triangles, view.occluders_hidden);
     (stats.after_occlusion, stats.occlusion_gated, stats.occlusion_error) =
         (view.after_occlusion, view.occlusion_gated, view.occlusion_error);
+    // Detail culling runs in the occlusion test: the frustum's count leaves out what it dropped.
+    (stats.after_frustum, stats.detail_culled) = (view.after_frustum, view.detail_culled);
     (stats.raster_time, stats.occlusion_time) = (view.raster_time, view.occlusion_time);
 }
 
