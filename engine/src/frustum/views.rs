@@ -536,7 +536,7 @@ impl CasterVolume {
             let centers = [soa.center_x, soa.center_y, soa.center_z];
             let center = [0, 1, 2].map(|axis| _mm256_sub_ps(lanes(centers[axis], i), avx2::splat(self.origin[axis])));
             let extent = [soa.extent_x, soa.extent_y, soa.extent_z].map(|array| lanes(array, i));
-            let (outside, _) = avx2::test_lanes(self, center, extent);
+            let outside = avx2::outside_lanes(self, center, extent);
             word |= u64::from(!outside) << (block * SIMD_LANES);
         }
         word
@@ -624,6 +624,39 @@ mod avx2 {
     fn dot(a: glam::Vec3, v: &[__m256; 3]) -> __m256 {
         let xy = _mm256_add_ps(_mm256_mul_ps(splat(a.x), v[0]), _mm256_mul_ps(splat(a.y), v[1]));
         _mm256_add_ps(xy, _mm256_mul_ps(splat(a.z), v[2]))
+    }
+
+    /// The first half of [`CasterVolume::test_lanes`] (the bits of the boxes outside), the same operations,
+    /// stopping once every lane is outside.
+    #[target_feature(enable = "avx2")]
+    pub(super) fn outside_lanes(volume: &CasterVolume, center: [__m256; 3], extent: [__m256; 3]) -> u8 {
+        let zero = _mm256_setzero_ps();
+        let tolerance = splat(PLANE_TEST_TOLERANCE);
+        let centers = _mm256_add_ps(_mm256_add_ps(abs(center[0]), abs(center[1])), abs(center[2]));
+        let magnitude = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(centers, extent[0]), extent[1]), extent[2]);
+        let length = match volume.sweep {
+            Sweep::Directional { direction, reach } => {
+                let nearest = _mm256_sub_ps(dot(direction, &center), dot(direction.abs(), &extent));
+                let free = _mm256_max_ps(_mm256_sub_ps(splat(reach), nearest), zero);
+                let bound = _mm256_add_ps(_mm256_add_ps(free, splat(reach.abs())), magnitude);
+                _mm256_add_ps(free, _mm256_mul_ps(tolerance, bound))
+            }
+            Sweep::Point => zero,
+        };
+        let base_slack = _mm256_mul_ps(tolerance, magnitude);
+        let mut outside = zero;
+        for plane in &volume.planes[..volume.plane_count] {
+            let dist = _mm256_add_ps(dot(plane.normal, &center), splat(plane.d));
+            let reach = dot(plane.normal.abs(), &extent);
+            let slack = _mm256_add_ps(base_slack, splat(plane.slack_d));
+            let farthest = _mm256_add_ps(_mm256_add_ps(dist, reach), slack);
+            let swept = _mm256_add_ps(farthest, _mm256_mul_ps(splat(plane.climb), length));
+            outside = _mm256_or_ps(outside, _mm256_cmp_ps::<_CMP_LT_OQ>(swept, splat(plane.limit)));
+            if _mm256_movemask_ps(outside) == 0xFF {
+                break;
+            }
+        }
+        _mm256_movemask_ps(outside) as u8
     }
 
     /// [`CasterVolume::test_lanes`].
