@@ -75,6 +75,13 @@ impl VisibleSet {
         }
     }
 
+    /// Adds every slot of `other` (their union); slots past the shorter set are left as they are.
+    pub fn or(&mut self, other: &VisibleSet) {
+        for (word, &add) in self.words.iter_mut().zip(&other.words) {
+            *word |= add;
+        }
+    }
+
     /// Number of set slots.
     pub fn count(&self) -> usize {
         self.words.iter().map(|w| w.count_ones() as usize).sum()
@@ -109,16 +116,39 @@ impl VisibleSet {
 /// The slots set in `words`, a run of a set's [`VisibleSet::words`] starting at word `first_word`, in
 /// increasing order: for stages that read a set's words in parallel chunks.
 pub fn set_slots(first_word: usize, words: &[u64]) -> impl Iterator<Item = usize> + '_ {
-    words.iter().enumerate().flat_map(move |(index, &word)| {
-        let mut bits = word;
-        std::iter::from_fn(move || {
-            (bits != 0).then(|| {
-                let bit = bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                (first_word + index) * 64 + bit
-            })
-        })
-    })
+    SetSlots { words, next_word: 0, first_word, base: 0, bits: 0 }
+}
+
+/// The iterator of [`set_slots`]: one word's bits at a time, a branch and a bit scan a slot.
+struct SetSlots<'a> {
+    words: &'a [u64],
+    /// Index in `words` of the word after the one `bits` holds what is left of.
+    next_word: usize,
+    first_word: usize,
+    /// The first slot of the word `bits` comes from.
+    base: usize,
+    bits: u64,
+}
+
+impl Iterator for SetSlots<'_> {
+    type Item = usize;
+
+    #[inline]
+    fn next(&mut self) -> Option<usize> {
+        while self.bits == 0 {
+            self.bits = *self.words.get(self.next_word)?;
+            self.base = (self.first_word + self.next_word) * 64;
+            self.next_word += 1;
+        }
+        let bit = self.bits.trailing_zeros() as usize;
+        self.bits &= self.bits - 1;
+        Some(self.base + bit)
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let here = self.bits.count_ones() as usize;
+        (here, Some(here + 64 * (self.words.len() - self.next_word)))
+    }
 }
 
 /// A [`VisibleSet`] set from several threads at once (a traversal's tasks), copied into one when they are done.
@@ -164,5 +194,21 @@ mod tests {
         let chunked: Vec<usize> =
             set.words().chunks(1).enumerate().flat_map(|(chunk, words)| set_slots(chunk, words)).collect();
         assert_eq!(chunked, set.iter().collect::<Vec<_>>());
+    }
+
+    /// `set_slots` gives each set bit once, in order, from any first word, empty words between included.
+    #[test]
+    fn set_slots_gives_every_set_bit_in_order() {
+        let words = [0, 1 << 63 | 1, 0, 0, u64::MAX, 0b1010, 0];
+        for first_word in [0, 3] {
+            let expected: Vec<usize> = (0..words.len() * 64)
+                .filter(|&bit| words[bit / 64] >> (bit % 64) & 1 == 1)
+                .map(|bit| first_word * 64 + bit)
+                .collect();
+            let slots = set_slots(first_word, &words);
+            assert!(slots.size_hint().1.is_some_and(|most| most >= expected.len()));
+            assert_eq!(slots.collect::<Vec<_>>(), expected);
+        }
+        assert_eq!(set_slots(2, &[]).next(), None);
     }
 }
