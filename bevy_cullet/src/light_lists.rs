@@ -19,7 +19,6 @@ use cullet::bounds::BoundsStore;
 use cullet::visible::{VisibleSet, set_slots};
 use rayon::prelude::*;
 use std::borrow::Cow;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 /// Counts and time of the last write of the lights' lists ([`crate::CulletSystems::Lights`]).
@@ -54,47 +53,103 @@ struct CasterClasses {
 /// Rows of a table one task of the classification walks.
 const CLASSIFY_ROWS: usize = 4096;
 
-/// Classifies every stored entity ([`CasterClasses`]), walking the casters' tables in parallel; an entity
-/// that is not a caster, or not visible, is in neither set.
-fn classify_casters(store: &BoundsStore, rows: &Query<CasterRow, CasterFilter>) -> CasterClasses {
-    let words = store.len().div_ceil(64);
-    let marks: [Vec<AtomicU64>; 2] = std::array::from_fn(|_| (0..words).map(|_| AtomicU64::new(0)).collect());
-    let mark = |class: usize, slot: usize| {
-        marks[class][slot / 64].fetch_or(1 << (slot % 64), Ordering::Relaxed);
-    };
-    match rows.contiguous_iter() {
-        Ok(tables) => {
-            let mut ranges = Vec::new();
-            for (entities, inherited, has_layers, has_range) in tables {
-                let class = usize::from(has_layers || has_range);
-                for first in (0..entities.len()).step_by(CLASSIFY_ROWS) {
-                    let end = (first + CLASSIFY_ROWS).min(entities.len());
-                    ranges.push((&entities[first..end], &inherited[first..end], class));
-                }
-            }
-            ranges.into_par_iter().for_each(|(entities, inherited, class)| {
-                for (&entity, inherited) in entities.iter().zip(inherited) {
-                    if let Some(slot) = store.slot_of(entity).filter(|_| inherited.get()) {
-                        mark(class, slot);
-                    }
-                }
-            });
-        }
-        // Not stored in tables (not the case of Bevy's components): one walk on this thread.
-        Err(_) => {
+/// The casters' classification ([`CasterClasses`]) kept from frame to frame, with the rows it was made from:
+/// each caster's entity and flags (visible, special) in the order the query walks its tables. A frame whose
+/// rows are all the same, on a store of the same layout (each entity in the same slot), has the same classes.
+/// Comparing the rows reads them in order; classifying looks each entity's slot up.
+#[derive(Default)]
+pub(crate) struct CasterCache {
+    layout: Option<u64>,
+    entities: Vec<Entity>,
+    flags: Vec<u8>,
+    classes: Option<CasterClasses>,
+}
+
+/// A row's flags in [`CasterCache`].
+const VISIBLE: u8 = 1;
+const SPECIAL: u8 = 2;
+
+/// One task's share of the caster rows: its first row's index over all tables, the rows' entities and
+/// visibility, and whether their table's casters are special (layers or a range of their own).
+type RowRange<'a> = (usize, &'a [Entity], &'a [InheritedVisibility], bool);
+
+impl CasterCache {
+    /// The classes of the casters `rows` walks, over `store`'s slots: the last frame's where nothing they
+    /// depend on changed, else classified again (in parallel over the tables).
+    fn classes(&mut self, store: &BoundsStore, rows: &Query<CasterRow, CasterFilter>) -> &CasterClasses {
+        let Ok(tables) = rows.contiguous_iter() else {
+            // Not stored in tables (not the case of Bevy's components): one walk on this thread, not kept.
+            let mut classes = CasterClasses::empty(store.len());
             for (entity, inherited, has_layers, has_range) in rows {
-                if let Some(slot) = store.slot_of(entity).filter(|_| inherited.get()) {
-                    mark(usize::from(has_layers || has_range), slot);
-                }
+                classes.mark(store, entity, inherited.get(), has_layers || has_range);
             }
+            self.layout = None;
+            return self.classes.insert(classes);
+        };
+        let mut ranges: Vec<RowRange> = Vec::new();
+        let mut total = 0;
+        for (entities, inherited, has_layers, has_range) in tables {
+            for first in (0..entities.len()).step_by(CLASSIFY_ROWS) {
+                let end = (first + CLASSIFY_ROWS).min(entities.len());
+                ranges.push((total + first, &entities[first..end], &inherited[first..end], has_layers || has_range));
+            }
+            total += entities.len();
+        }
+        let flags = |inherited: &InheritedVisibility, special: bool| {
+            if inherited.get() { VISIBLE | if special { SPECIAL } else { 0 } } else { 0 }
+        };
+        let unchanged = self.classes.is_some()
+            && self.layout == Some(store.layout_generation())
+            && self.entities.len() == total
+            && ranges.par_iter().all(|&(offset, entities, inherited, special)| {
+                let rows = offset..offset + entities.len();
+                entities == &self.entities[rows.clone()]
+                    && inherited
+                        .iter()
+                        .zip(&self.flags[rows])
+                        .all(|(inherited, &kept)| flags(inherited, special) == kept)
+            });
+        if !unchanged {
+            self.layout = Some(store.layout_generation());
+            self.entities.clear();
+            self.flags.clear();
+            for &(_, entities, inherited, special) in &ranges {
+                self.entities.extend_from_slice(entities);
+                self.flags.extend(inherited.iter().map(|inherited| flags(inherited, special)));
+            }
+            // Each task marks sets of its own (a few kilobytes each), merged after: no atomic per entity.
+            let empty = || CasterClasses::empty(store.len());
+            let classes = (ranges.into_par_iter())
+                .fold(empty, |mut classes, (_, entities, inherited, special)| {
+                    for (&entity, inherited) in entities.iter().zip(inherited) {
+                        classes.mark(store, entity, inherited.get(), special);
+                    }
+                    classes
+                })
+                .reduce(empty, |mut a, b| {
+                    a.plain.or(&b.plain);
+                    a.special.or(&b.special);
+                    a
+                });
+            self.classes = Some(classes);
+        }
+        self.classes.as_ref().expect("classified above")
+    }
+}
+
+impl CasterClasses {
+    /// No stored entity in either class.
+    fn empty(len: usize) -> Self {
+        Self { plain: VisibleSet::new(len), special: VisibleSet::new(len) }
+    }
+
+    /// Puts `entity`, if `store` holds it and it is `visible`, in the special class or the plain one.
+    fn mark(&mut self, store: &BoundsStore, entity: Entity, visible: bool, special: bool) {
+        if let Some(slot) = store.slot_of(entity).filter(|_| visible) {
+            let class = if special { &mut self.special } else { &mut self.plain };
+            class.words_mut()[slot / 64] |= 1 << (slot % 64);
         }
     }
-    let [plain, special] = marks.map(|words| {
-        let mut set = VisibleSet::new(store.len());
-        set.words_mut().iter_mut().zip(words).for_each(|(word, mark)| *word = mark.into_inner());
-        set
-    });
-    CasterClasses { plain, special }
 }
 
 /// How the store's slots run against the order of their entities (Bevy's `Entity` order, which Bevy sorts its
@@ -185,6 +240,7 @@ pub(crate) fn write_light_views(
     targets: Query<(Entity, &RenderTarget), With<Camera>>,
     mut stats: ResMut<CulletLightStats>,
     mut entity_order: Local<EntityOrder>,
+    mut caster_cache: Local<CasterCache>,
 ) {
     let start = Instant::now();
     let store = &cullet.store;
@@ -206,9 +262,7 @@ pub(crate) fn write_light_views(
                         None => maps.push((map, gathered())),
                         Some((_, Gathered::Every)) => {}
                         Some((_, gathered_so_far)) => match (gathered_so_far, visible) {
-                            (Gathered::Slots(union), Some(set)) => {
-                                union.to_mut().words_mut().iter_mut().zip(set.words()).for_each(|(a, b)| *a |= b)
-                            }
+                            (Gathered::Slots(union), Some(set)) => union.to_mut().or(set),
                             (slot, None) => *slot = Gathered::Every,
                             (Gathered::Every, _) => {}
                         },
@@ -218,7 +272,7 @@ pub(crate) fn write_light_views(
         }
     }
     let lod_origin = shadow_lod_origin(&lod_origins, &targets);
-    let classes = classify_casters(store, &caster_rows);
+    let classes = caster_cache.classes(store, &caster_rows);
     let order = entity_order.of(store);
     let ranges = ranges.as_deref();
     let mut shown = VisibleSet::new(store.len());
@@ -266,38 +320,31 @@ pub(crate) fn write_light_views(
                     }
                 }
             });
-        shown.words_mut().iter_mut().zip(accepted.words()).for_each(|(word, accepted)| *word |= accepted);
+        shown.or(&accepted);
         // Listed in entity order, as Bevy sorts its lists: in slot order, or its reverse, where the store holds
         // its entities so (as the mirroring leaves entities spawned together), else the slots walked in their
         // entities' order.
-        let in_slot_order = || -> Vec<Vec<Entity>> {
-            (accepted.words().par_chunks(ORDER_RUN / 64).enumerate())
-                .map(|(chunk, words)| set_slots(chunk * ORDER_RUN / 64, words).map(|slot| entities[slot]).collect())
-                .collect()
-        };
-        let runs = match order {
-            SlotOrder::Slots => in_slot_order(),
-            SlotOrder::Reversed => {
-                let mut runs = in_slot_order();
-                runs.reverse();
-                runs.iter_mut().for_each(|run| run.reverse());
-                runs
+        match order {
+            SlotOrder::Slots => append_entities(&accepted, entities, false, out),
+            SlotOrder::Reversed => append_entities(&accepted, entities, true, out),
+            SlotOrder::Ranked(order) => {
+                let runs: Vec<Vec<Entity>> = (order.par_chunks(ORDER_RUN))
+                    .map(|run| {
+                        let kept = run.iter().map(|&slot| slot as usize).filter(|&slot| accepted.contains(slot));
+                        kept.map(|slot| entities[slot]).collect()
+                    })
+                    .collect();
+                runs.into_iter().for_each(|run| out.extend(run));
             }
-            SlotOrder::Ranked(order) => (order.par_chunks(ORDER_RUN))
-                .map(|run| {
-                    let kept = run.iter().map(|&slot| slot as usize).filter(|&slot| accepted.contains(slot));
-                    kept.map(|slot| entities[slot]).collect()
-                })
-                .collect(),
-        };
-        runs.into_iter().for_each(|run| out.extend(run));
+        }
         // Entities Cullet does not mirror, or whose bounds it refused, are in every map, as Bevy has them.
         let before = out.len();
         out.extend(others.iter().filter(|&(entity, item)| passes(entity, item)).map(|(entity, _)| entity));
         let refused = cullet.rejected.iter().filter(|&&entity| casters.get(entity).is_ok_and(|i| passes(entity, i)));
         out.extend(refused);
         unmirrored_shown.extend_from_slice(&out[before..]);
-        if !out.is_sorted() {
+        // The stored casters came in entity order; only entities added after them can break it.
+        if out.len() > before && !out.is_sorted() {
             out.sort_unstable();
         }
         maps += 1;
@@ -319,7 +366,7 @@ pub(crate) fn write_light_views(
                 lists.resize(index + 1, VisibleMeshEntities::default());
             }
             list(gathered, layers, Some(*camera), &mut out);
-            lists[*index].entities.clone_from(&out);
+            std::mem::swap(&mut lists[*index].entities, &mut out);
         }
     }
     let lamp_maps = |light: Entity| lamps.get(&light).map(Vec::as_slice).unwrap_or_default();
@@ -329,7 +376,7 @@ pub(crate) fn write_light_views(
             target.entities.clear();
             if let Some((_, gathered)) = gathered.iter().find(|(map, _)| *map == ShadowMap::Face(face)) {
                 list(gathered, layers.unwrap_or_default(), lod_origin, &mut out);
-                target.entities.clone_from(&out);
+                std::mem::swap(&mut target.entities, &mut out);
             }
         }
     }
@@ -337,7 +384,7 @@ pub(crate) fn write_light_views(
         visible.entities.clear();
         if let Some((_, gathered)) = lamp_maps(light).first() {
             list(gathered, layers.unwrap_or_default(), lod_origin, &mut out);
-            visible.entities.clone_from(&out);
+            std::mem::swap(&mut visible.entities, &mut out);
         }
     }
     // Every listed caster is drawn into a shadow map, so Bevy must extract it. A caster of the plain class that
@@ -374,6 +421,40 @@ pub(crate) fn write_light_views(
         }
     }
     *stats = CulletLightStats { maps, casters: listed, write_time: start.elapsed() };
+}
+
+/// Appends to `out` the entities (`entities`, by store slot) of the slots set in `set`, in slot order or, where
+/// `reversed`, the reverse; in parallel over runs of [`ORDER_RUN`] slots, each writing its own part of `out`.
+fn append_entities(set: &VisibleSet, entities: &[Entity], reversed: bool, out: &mut Vec<Entity>) {
+    const RUN_WORDS: usize = ORDER_RUN / 64;
+    let runs: Vec<&[u64]> = set.words().chunks(RUN_WORDS).collect();
+    let counts: Vec<usize> = runs.iter().map(|words| words.iter().map(|w| w.count_ones() as usize).sum()).collect();
+    let start = out.len();
+    out.resize(start + counts.iter().sum::<usize>(), Entity::PLACEHOLDER);
+    // Each run's part of `out`: the runs in order, or in reverse.
+    let mut parts = Vec::with_capacity(runs.len());
+    let mut rest = &mut out[start..];
+    for run in 0..runs.len() {
+        let run = if reversed { runs.len() - 1 - run } else { run };
+        let (part, tail) = std::mem::take(&mut rest).split_at_mut(counts[run]);
+        parts.push((run, part));
+        rest = tail;
+    }
+    parts.into_par_iter().for_each(|(run, part)| {
+        let first = run * RUN_WORDS * 64;
+        // Slots ascending; filled from the part's end where reversed.
+        let mut written = 0;
+        for (index, &word) in runs[run].iter().enumerate() {
+            let mut bits = word;
+            while bits != 0 {
+                let slot = first + index * 64 + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let at = if reversed { part.len() - 1 - written } else { written };
+                part[at] = entities[slot];
+                written += 1;
+            }
+        }
+    });
 }
 
 /// The view point and spot lights' casters are in visibility range of, as Bevy chooses it: an entity with

@@ -411,3 +411,53 @@ fn a_light_opted_out_keeps_what_bevy_keeps() {
     }
     assert!(listed > 0);
 }
+
+/// Casters that change between frames (a shadow switched off on one box and on for another in the same
+/// frame, a box moved to another layer, a box hidden) leave or join the lights' lists on that frame, as in
+/// Bevy's, with the camera still.
+#[test]
+fn caster_changes_reach_the_lists_on_their_frame() {
+    let frames = frames();
+    let (mut cullet_app, mut bevy_app) = (app_with_lights(Some(CulletSettings::default())), app_with_lights(None));
+    let town = spawn_town(&mut cullet_app, &frames[0]);
+    let bevy_town = spawn_town(&mut bevy_app, &frames[0]);
+    let sun_casters = |app: &mut App, town: &Town| -> BTreeSet<usize> {
+        let maps = lists(app.world_mut(), town).into_iter().filter(|((light, _), _)| *light == 0);
+        maps.flat_map(|(_, casters)| casters).collect()
+    };
+    let mut update = |change: &dyn Fn(&mut World, &Town)| {
+        for (app, town) in [(&mut cullet_app, &town), (&mut bevy_app, &bevy_town)] {
+            change(app.world_mut(), town);
+            app.update();
+        }
+        let (plugin, bevy) = (sun_casters(&mut cullet_app, &town), sun_casters(&mut bevy_app, &bevy_town));
+        assert!(plugin.is_subset(&bevy), "listed beyond Bevy's: {:?}", plugin.difference(&bevy));
+        plugin
+    };
+    let first = update(&|_, _| {});
+    let listed: Vec<usize> =
+        first.iter().copied().filter(|&i| i < town.boxes.len() && i != NOT_CASTING && i != OTHER_LAYER).collect();
+    assert!(listed.len() >= 3, "{listed:?}");
+    let (unlit, relayered, hidden) = (listed[0], listed[1], listed[2]);
+    let now = update(&|world, town| {
+        world.entity_mut(town.boxes[unlit].0).insert(NotShadowCaster);
+        world.entity_mut(town.boxes[NOT_CASTING].0).remove::<NotShadowCaster>();
+    });
+    assert!(!now.contains(&unlit), "a box that casts no shadow any more is listed");
+    let now = update(&|world, town| {
+        world.entity_mut(town.boxes[relayered].0).insert(RenderLayers::layer(1));
+    });
+    assert!(!now.contains(&relayered), "a box moved out of the sun's layer is listed");
+    let now = update(&|world, town| {
+        *world.get_mut::<bevy_camera::visibility::Visibility>(town.boxes[hidden].0).unwrap() =
+            bevy_camera::visibility::Visibility::Hidden;
+    });
+    assert!(!now.contains(&hidden), "a hidden box is listed");
+    let now = update(&|world, town| {
+        world.entity_mut(town.boxes[unlit].0).remove::<NotShadowCaster>();
+        world.entity_mut(town.boxes[relayered].0).remove::<RenderLayers>();
+        *world.get_mut::<bevy_camera::visibility::Visibility>(town.boxes[hidden].0).unwrap() =
+            bevy_camera::visibility::Visibility::Inherited;
+    });
+    assert!([unlit, relayered, hidden].iter().all(|i| now.contains(i)), "restored boxes listed again");
+}
