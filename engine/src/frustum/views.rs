@@ -498,7 +498,7 @@ impl CasterVolume {
         let GroupLanes { center, extent, empty, valid } = GroupLanes::of(groups, self.origin);
         let register = |lanes: &[f32; SIMD_LANES]| avx2::load(lanes);
         let (outside, inside) =
-            avx2::test_lanes(self, center.each_ref().map(register), extent.each_ref().map(register));
+            avx2::test_lanes::<true>(self, center.each_ref().map(register), extent.each_ref().map(register));
         ((outside | empty) & valid, inside & !empty & valid)
     }
 
@@ -536,7 +536,7 @@ impl CasterVolume {
             let centers = [soa.center_x, soa.center_y, soa.center_z];
             let center = [0, 1, 2].map(|axis| _mm256_sub_ps(lanes(centers[axis], i), avx2::splat(self.origin[axis])));
             let extent = [soa.extent_x, soa.extent_y, soa.extent_z].map(|array| lanes(array, i));
-            let outside = avx2::outside_lanes(self, center, extent);
+            let (outside, _) = avx2::test_lanes::<false>(self, center, extent);
             word |= u64::from(!outside) << (block * SIMD_LANES);
         }
         word
@@ -626,42 +626,14 @@ mod avx2 {
         _mm256_add_ps(xy, _mm256_mul_ps(splat(a.z), v[2]))
     }
 
-    /// The first half of [`CasterVolume::test_lanes`] (the bits of the boxes outside), the same operations,
-    /// stopping once every lane is outside.
+    /// [`CasterVolume::test_lanes`]. Without `CROSSING` only the bits of the boxes outside are computed (the
+    /// second set is empty), and the planes stop once every lane is outside.
     #[target_feature(enable = "avx2")]
-    pub(super) fn outside_lanes(volume: &CasterVolume, center: [__m256; 3], extent: [__m256; 3]) -> u8 {
-        let zero = _mm256_setzero_ps();
-        let tolerance = splat(PLANE_TEST_TOLERANCE);
-        let centers = _mm256_add_ps(_mm256_add_ps(abs(center[0]), abs(center[1])), abs(center[2]));
-        let magnitude = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(centers, extent[0]), extent[1]), extent[2]);
-        let length = match volume.sweep {
-            Sweep::Directional { direction, reach } => {
-                let nearest = _mm256_sub_ps(dot(direction, &center), dot(direction.abs(), &extent));
-                let free = _mm256_max_ps(_mm256_sub_ps(splat(reach), nearest), zero);
-                let bound = _mm256_add_ps(_mm256_add_ps(free, splat(reach.abs())), magnitude);
-                _mm256_add_ps(free, _mm256_mul_ps(tolerance, bound))
-            }
-            Sweep::Point => zero,
-        };
-        let base_slack = _mm256_mul_ps(tolerance, magnitude);
-        let mut outside = zero;
-        for plane in &volume.planes[..volume.plane_count] {
-            let dist = _mm256_add_ps(dot(plane.normal, &center), splat(plane.d));
-            let reach = dot(plane.normal.abs(), &extent);
-            let slack = _mm256_add_ps(base_slack, splat(plane.slack_d));
-            let farthest = _mm256_add_ps(_mm256_add_ps(dist, reach), slack);
-            let swept = _mm256_add_ps(farthest, _mm256_mul_ps(splat(plane.climb), length));
-            outside = _mm256_or_ps(outside, _mm256_cmp_ps::<_CMP_LT_OQ>(swept, splat(plane.limit)));
-            if _mm256_movemask_ps(outside) == 0xFF {
-                break;
-            }
-        }
-        _mm256_movemask_ps(outside) as u8
-    }
-
-    /// [`CasterVolume::test_lanes`].
-    #[target_feature(enable = "avx2")]
-    pub(super) fn test_lanes(volume: &CasterVolume, center: [__m256; 3], extent: [__m256; 3]) -> (u8, u8) {
+    pub(super) fn test_lanes<const CROSSING: bool>(
+        volume: &CasterVolume,
+        center: [__m256; 3],
+        extent: [__m256; 3],
+    ) -> (u8, u8) {
         let zero = _mm256_setzero_ps();
         let tolerance = splat(PLANE_TEST_TOLERANCE);
         let centers = _mm256_add_ps(_mm256_add_ps(abs(center[0]), abs(center[1])), abs(center[2]));
@@ -684,10 +656,14 @@ mod avx2 {
             let farthest = _mm256_add_ps(_mm256_add_ps(dist, reach), slack);
             let swept = _mm256_add_ps(farthest, _mm256_mul_ps(splat(plane.climb), length));
             outside = _mm256_or_ps(outside, _mm256_cmp_ps::<_CMP_LT_OQ>(swept, splat(plane.limit)));
-            let nearest = _mm256_sub_ps(_mm256_sub_ps(dist, reach), slack);
-            crossing = _mm256_or_ps(crossing, _mm256_cmp_ps::<_CMP_LT_OQ>(nearest, zero));
+            if CROSSING {
+                let nearest = _mm256_sub_ps(_mm256_sub_ps(dist, reach), slack);
+                crossing = _mm256_or_ps(crossing, _mm256_cmp_ps::<_CMP_LT_OQ>(nearest, zero));
+            } else if _mm256_movemask_ps(outside) == 0xFF {
+                break;
+            }
         }
         let outside = _mm256_movemask_ps(outside) as u8;
-        (outside, !(_mm256_movemask_ps(crossing) as u8) & !outside)
+        if CROSSING { (outside, !(_mm256_movemask_ps(crossing) as u8) & !outside) } else { (outside, 0) }
     }
 }
