@@ -235,6 +235,8 @@ impl ViewCuller {
             }
             Plan::Full => {}
         }
+        // Until this frame's occlusion stage runs detail culling, the frustum's set is the frustum's alone.
+        self.detail_visible = None;
         self.stats.objects = store.len();
         self.stats.frustum_error = None;
         let mut also_kept = None;
