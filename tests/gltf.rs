@@ -224,9 +224,9 @@ fn leaf_pointers(value: &serde_json::Value, at: String, out: &mut Vec<String>) {
     }
 }
 
-/// Structure-aware fuzzing: valid glTF (the one-triangle file with an occluder child and a second node) with
+/// Structure-aware fuzzing: valid glTF (the one-triangle file with an occluder child and an `MSFT_lod` level) with
 /// up to four of its numbers or strings replaced by hostile values (out-of-range indices, huge counts and
-/// offsets, negative numbers, wrong types): a typed error or a scene, never a panic.
+/// offsets, negative numbers, wrong types): a typed error or a scene whose levels can be built, never a panic.
 #[test]
 fn hostile_field_values_never_panic() {
     use proptest::prelude::*;
@@ -234,6 +234,8 @@ fn hostile_field_values_never_panic() {
         j["nodes"].as_array_mut().unwrap().push(serde_json::json!({"mesh": 0, "name": "t0_occluder"}));
         j["nodes"][0]["children"] = serde_json::json!([1]);
         j["meshes"][0]["primitives"][0]["mode"] = 4.into();
+        j["nodes"].as_array_mut().unwrap().push(serde_json::json!({"mesh": 0, "scale": [1.5, 1.5, 1.5]}));
+        j["nodes"][0]["extensions"] = serde_json::json!({"MSFT_lod": {"ids": [2]}});
     }))
     .unwrap();
     let mut pointers = Vec::new();
@@ -257,7 +259,9 @@ fn hostile_field_values_never_panic() {
                     *slot = value;
                 }
             }
-            let _ = parse_gltf(json.to_string().as_bytes(), None, "fuzz.gltf");
+            if let Ok(loaded) = parse_gltf(json.to_string().as_bytes(), None, "fuzz.gltf") {
+                let _ = cullet::lod::LodLibrary::for_scene(&loaded.scene, &cullet::lod::ChainSettings::default());
+            }
             Ok(())
         })
         .unwrap();
@@ -344,4 +348,76 @@ fn cell_and_portal_nodes_become_the_scenes_cells() {
         astray.warnings
     );
     assert_eq!(astray.scene.objects.len(), 1);
+}
+
+#[test]
+fn msft_lod_levels_round_trip_are_measured_and_held_by_the_bounds() {
+    use cullet::lod::{ChainSettings, LodError, LodLibrary};
+    use glam::{Affine3A, Vec3};
+    let fine = Mesh::unit_cube(8);
+    let (grown, larger) = (
+        Mesh::unit_cube(2).scaled(Vec3::splat(1.1), Vec3::ZERO),
+        Mesh::unit_cube(1).scaled(Vec3::splat(1.3), Vec3::ZERO),
+    );
+    let object =
+        |transform| cullet::scene::SceneObject { mesh: 0, transform, occluder: None, velocity: None, color: [90; 4] };
+    let placed = Affine3A::from_scale_rotation_translation(
+        Vec3::splat(2.0),
+        glam::Quat::from_rotation_y(0.7),
+        Vec3::new(40.0, 0.0, -3.0),
+    );
+    let mut scene = Scene::new(vec![fine.clone()], vec![object(placed), object(Affine3A::IDENTITY)]);
+    scene.give_levels(0, vec![grown.clone(), larger.clone()]);
+    assert!(scene.mesh_bounds[0].half_extent.abs_diff_eq(Vec3::splat(0.65), 1e-6), "bounds hold every level");
+
+    let json = write_gltf(&scene, "box");
+    let loaded = parse(&json).unwrap();
+    assert!(loaded.warnings.is_empty(), "{:?}", loaded.warnings);
+    assert_eq!(loaded.scene.objects.len(), 2, "level nodes are not drawn");
+    assert_eq!(loaded.scene.given_levels.len(), 1);
+    let (mesh, levels) = &loaded.scene.given_levels[0];
+    for (read, written) in levels.iter().zip([&grown, &larger]) {
+        assert_eq!(read.indices, written.indices);
+        assert!(read.positions.iter().zip(&written.positions).all(|(a, b)| a.abs_diff_eq(*b, 1e-5)));
+    }
+    assert_eq!(loaded.scene.mesh_bounds[*mesh as usize], scene.mesh_bounds[0]);
+
+    // Errors measured: a box grown by 0.05 a side is sqrt(3) * 0.05 away at its corners.
+    let library = LodLibrary::for_scene(&loaded.scene, &ChainSettings::default());
+    assert!(library.errors().is_empty(), "{:?}", library.errors());
+    assert_eq!(library.levels(0), 3);
+    assert_eq!([0, 1, 2].map(|l| library.triangles(0, l).unwrap()), [768, 48, 12]);
+    let error = |l| library.error(0, l).unwrap();
+    assert_eq!(error(0), 0.0);
+    assert!((error(1) - 3f32.sqrt() * 0.05).abs() < 1e-4, "{}", error(1));
+    assert!((error(2) - 3f32.sqrt() * 0.15).abs() < 1e-4, "{}", error(2));
+
+    // What cannot serve is left out, with why; never a wrong level.
+    let patched = |ids: serde_json::Value| {
+        let mut json: serde_json::Value = serde_json::from_str(&json).unwrap();
+        let node = json["nodes"].as_array_mut().unwrap().iter_mut().find(|n| n.get("extensions").is_some()).unwrap();
+        node["extensions"]["MSFT_lod"]["ids"] = ids;
+        parse(&json.to_string()).unwrap()
+    };
+    let reversed = patched(serde_json::json!([1, 0]));
+    let library = LodLibrary::for_scene(&reversed.scene, &ChainSettings::default());
+    assert_eq!(library.levels(0), 2, "the coarsest first, then a finer one: the finer one is left out");
+    assert!(
+        matches!(library.errors(), [(0, LodError::NotCoarser { level: 2, triangles: 48, finer: 12 })]),
+        "{:?}",
+        library.errors()
+    );
+    let broken = patched(serde_json::json!([99, "a", 2, 0]));
+    let [bad_ids @ .., other_node] = broken.warnings.as_slice() else { panic!() };
+    assert_eq!(bad_ids.len(), 3, "{:?}", broken.warnings);
+    assert!(bad_ids.iter().all(|w| w.contains("MSFT_lod") && w.contains("left out")), "{:?}", broken.warnings);
+    assert!(other_node.contains("other levels"), "the second box's node still lists both levels: {other_node}");
+    assert_eq!(broken.scene.given_levels[0].1.len(), 1, "only the real level node stays");
+
+    // A level nowhere near its mesh is refused before it is measured.
+    let mut stray = Scene::new(vec![fine.clone()], vec![object(Affine3A::IDENTITY)]);
+    stray.give_levels(0, vec![Mesh::unit_cube(1).scaled(Vec3::ONE, Vec3::new(1e6, 0.0, 0.0))]);
+    let library = LodLibrary::for_scene(&stray, &ChainSettings::default());
+    assert_eq!(library.levels(0), 1);
+    assert!(matches!(library.errors(), [(0, LodError::StrayLevel { level: 1, .. })]), "{:?}", library.errors());
 }

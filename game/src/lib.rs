@@ -422,9 +422,9 @@ fn prepare(args: &Args) -> Result<Prepared, String> {
     // Levels of detail for every mesh, made at load where asked for, and in a window, where the HUD switches
     // them on (off until then). A headless run without them neither simplifies nor clusters the levels.
     if !args.headless || args.lod_pixels.is_some() || args.triangle_budget.is_some() {
-        let library = LodLibrary::build(&scene.meshes, &ChainSettings::default());
+        let library = LodLibrary::for_scene(&scene, &ChainSettings::default());
         for (mesh, error) in library.errors() {
-            println!("mesh {mesh} keeps full detail only: {error}");
+            println!("mesh {mesh} has fewer levels: {error}");
         }
         let lod = LodSettings {
             max_error_pixels: args.lod_pixels.unwrap_or(0.0),

@@ -89,6 +89,57 @@ pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel
     Ok(levels)
 }
 
+/// The levels of `mesh` from the coarser `given` ones a scene brings (finest first, in `mesh`'s space), each
+/// with its error measured as the distance between its surface and `mesh`'s ([`super::surface_distance`]),
+/// raised where needed so that errors never decrease down the chain. The first level is `mesh` itself (error 0).
+///
+/// A given level that cannot serve is left out, and why is returned with the levels: one the simplifier's
+/// checks refuse ([`build_chain`]'s errors), one with no fewer triangles than the level kept before it
+/// ([`LodError::NotCoarser`]), one farther from `mesh` than `mesh` is large or without triangles
+/// ([`LodError::StrayLevel`]), and those past [`super::MAX_LEVELS`] ([`LodError::LevelCount`]). Where `mesh`
+/// itself is refused, it is its only level.
+pub fn given_chain(mesh: &Mesh, given: &[Mesh]) -> (Vec<LodLevel>, Vec<LodError>) {
+    let mut levels = vec![LodLevel { mesh: mesh.clone(), error: 0.0 }];
+    if let Err(error) = validate(mesh) {
+        return (levels, vec![error]);
+    }
+    let mut refused = Vec::new();
+    let size = mesh.local_bounds().map_or(0.0, |b| 2.0 * b.half_extent.max_element());
+    for (l, level) in given.iter().enumerate().map(|(i, level)| (i + 1, level)) {
+        if levels.len() == super::MAX_LEVELS {
+            refused.push(LodError::LevelCount { levels: 1 + given.len() });
+            break;
+        }
+        let finer = levels.last().map_or(0, |last| last.mesh.triangle_count());
+        let triangles = level.triangle_count();
+        if let Err(error) = validate(level) {
+            refused.push(error);
+            continue;
+        }
+        if triangles >= finer {
+            refused.push(LodError::NotCoarser { level: l, triangles, finer });
+            continue;
+        }
+        // The boxes' farthest sides bound the distance from below: a stray level is refused before the
+        // (costlier) measurement.
+        let distance = match (mesh.local_bounds(), level.local_bounds()) {
+            (Some(a), Some(b)) => {
+                let (centres, extents) = (a.center - b.center, a.half_extent - b.half_extent);
+                ((centres - extents).abs().max((centres + extents).abs())).max_element()
+            }
+            _ => f32::INFINITY,
+        };
+        let distance = if distance <= size { super::surface_distance(mesh, level) } else { distance };
+        if distance.is_nan() || distance > size {
+            refused.push(LodError::StrayLevel { level: l, distance, size });
+            continue;
+        }
+        let error = distance.max(levels.last().map_or(0.0, |last| last.error));
+        levels.push(LodLevel { mesh: level.clone(), error });
+    }
+    (levels, refused)
+}
+
 /// The mesh of `indices` into `positions`, with only the positions it uses, in first-use order.
 fn compact(positions: &[[f32; 3]], mut indices: Vec<u32>) -> Mesh {
     let used = meshopt::optimize_vertex_fetch(&mut indices, positions);

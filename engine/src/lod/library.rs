@@ -2,6 +2,8 @@
 
 use super::{LodError, LodLevel, MAX_LEVELS};
 use crate::mesh::Mesh;
+#[cfg(feature = "lod")]
+use crate::scene::Scene;
 use bevy_ecs::prelude::Resource;
 
 /// One mesh's levels as selection reads them.
@@ -46,18 +48,45 @@ impl LodLibrary {
     /// must not read keeps itself as its only level, and the reason is in [`LodLibrary::errors`].
     #[cfg(feature = "lod")]
     pub fn build(meshes: &[Mesh], settings: &super::ChainSettings) -> Self {
+        Self::build_with(meshes, &[], settings)
+    }
+
+    /// Levels for each of `scene`'s meshes: the levels the scene brings ([`Scene::given_levels`], their
+    /// errors measured by [`super::given_chain`]), and for every other mesh levels built as
+    /// [`LodLibrary::build`] does. Given levels left out, and meshes the simplifier must not read, are in
+    /// [`LodLibrary::errors`].
+    #[cfg(feature = "lod")]
+    pub fn for_scene(scene: &Scene, settings: &super::ChainSettings) -> Self {
+        Self::build_with(&scene.meshes, &scene.given_levels, settings)
+    }
+
+    #[cfg(feature = "lod")]
+    fn build_with(meshes: &[Mesh], given: &[(u32, Vec<Mesh>)], settings: &super::ChainSettings) -> Self {
         use rayon::prelude::*;
-        let chains: Vec<_> = meshes.par_iter().map(|mesh| super::build_chain(mesh, settings)).collect();
+        let mut given_of = vec![None; meshes.len()];
+        for (mesh, levels) in given {
+            if let Some(slot) = given_of.get_mut(*mesh as usize) {
+                *slot = Some(levels.as_slice());
+            }
+        }
+        let chains: Vec<_> = meshes
+            .par_iter()
+            .zip(given_of)
+            .map(|(mesh, given)| match given {
+                Some(levels) => super::given_chain(mesh, levels),
+                None => match super::build_chain(mesh, settings) {
+                    Ok(levels) => (levels, Vec::new()),
+                    Err(error) => (vec![LodLevel { mesh: mesh.clone(), error: 0.0 }], vec![error]),
+                },
+            })
+            .collect();
         let mut errors = Vec::new();
         let chains = chains
             .into_iter()
-            .zip(meshes)
             .enumerate()
-            .map(|(i, (chain, mesh))| {
-                chain.unwrap_or_else(|error| {
-                    errors.push((i as u32, error));
-                    vec![LodLevel { mesh: mesh.clone(), error: 0.0 }]
-                })
+            .map(|(i, (levels, refused))| {
+                errors.extend(refused.into_iter().map(|error| (i as u32, error)));
+                levels
             })
             .collect();
         let mut library = Self::from_chains(chains).expect("built chains are ordered and within the level count");
@@ -129,7 +158,8 @@ impl LodLibrary {
         (level < table.levels).then(|| table.triangles[level as usize])
     }
 
-    /// The meshes `LodLibrary::build` (feature `lod`) could not simplify, with why.
+    /// Why meshes have fewer levels than they could: each mesh `LodLibrary::build` (feature `lod`) could not
+    /// simplify, and each level a scene gave that `LodLibrary::for_scene` left out, by mesh.
     pub fn errors(&self) -> &[(u32, LodError)] {
         &self.errors
     }

@@ -4,6 +4,8 @@
 //!
 //! - `chain` (feature `lod`): each mesh's levels, simplified by meshoptimizer, with each level's geometric
 //!   error in the mesh's own units.
+//!   A scene may bring its own levels instead (glTF `MSFT_lod`, [`crate::scene::Scene::given_levels`]): their
+//!   error is measured, as the distance between the surfaces (`distance`).
 //! - [`LodLibrary`]: every mesh's levels as one flat mesh list (what the GPU culler clusters and draws) with
 //!   each level's error and triangle count.
 //! - [`select`]: each frame, a level per object the camera keeps: the coarsest whose error projects under a
@@ -12,7 +14,8 @@
 //!
 //! Culling stays conservative: the levels are never read by the culling stages, which test each object's
 //! full-detail bounds, and occluders are the artist's or made from the full-detail mesh. A level's vertices are
-//! a subset of the full-detail mesh's, so it lies inside the same bounds.
+//! a subset of the full-detail mesh's, so it lies inside the same bounds; a scene's own levels grow the mesh's
+//! bounds to hold them ([`crate::scene::Scene::give_levels`]).
 //!
 //! # Example
 //! ```
@@ -45,7 +48,12 @@ mod library;
 pub mod select;
 
 #[cfg(feature = "lod")]
-pub use chain::{ChainSettings, build_chain};
+pub mod distance;
+
+#[cfg(feature = "lod")]
+pub use chain::{ChainSettings, build_chain, given_chain};
+#[cfg(feature = "lod")]
+pub use distance::surface_distance;
 pub use library::LodLibrary;
 pub use select::{LodSelection, LodSettings, LodStats, install};
 
@@ -97,6 +105,27 @@ pub enum LodError {
         level: usize,
         /// Its error.
         error: f32,
+    },
+    /// A level a scene brings has no fewer triangles than the level before it: it is left out.
+    #[error("given level {level} has {triangles} triangles, no fewer than the {finer} of the level before it")]
+    NotCoarser {
+        /// The level (1 for the first coarser level the scene gives).
+        level: usize,
+        /// Its triangles.
+        triangles: usize,
+        /// The kept level before it's.
+        finer: usize,
+    },
+    /// A level a scene brings lies farther from the mesh than the mesh is large (or has no triangles): not a
+    /// level of this mesh. It is left out.
+    #[error("given level {level} lies {distance} from the mesh, more than the mesh's size {size}")]
+    StrayLevel {
+        /// The level (1 for the first coarser level the scene gives).
+        level: usize,
+        /// Its distance from the mesh, at least (infinite for a level without triangles).
+        distance: f32,
+        /// The mesh's largest side.
+        size: f32,
     },
     /// A mesh was given no level, or more than [`MAX_LEVELS`].
     #[error("{levels} levels given; a mesh has 1 to {MAX_LEVELS}")]

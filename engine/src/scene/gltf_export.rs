@@ -1,8 +1,9 @@
 //! Writing a [`Scene`] as one self-contained glTF 2.0 file (JSON, buffer embedded as a base64 data URI), the
 //! form [`super::gltf_import`] reads back: one node per object with its matrix, one glTF mesh per used (mesh,
 //! colour) pair with a flat-colour material, and each occluder as a child node named `<object>_occluder`
-//! holding the occluder's triangles in the object's local space. Velocities are not written (glTF scenes
-//! are static).
+//! holding the occluder's triangles in the object's local space; a mesh's given levels of detail
+//! ([`Scene::given_levels`]) as `MSFT_lod` level nodes outside the scene's hierarchy. Velocities are not
+//! written (glTF scenes are static).
 
 use super::Scene;
 use crate::occluders::Occluder;
@@ -58,9 +59,9 @@ pub fn write_gltf(scene: &Scene, prefix: &str) -> String {
     let mut meshes: Vec<Value> = Vec::new();
     let mut materials: Vec<Value> = Vec::new();
     let mut material_of: HashMap<[u8; 4], usize> = HashMap::new();
-    let mut mesh_of: HashMap<(u32, [u8; 4]), usize> = HashMap::new();
+    let mut mesh_of: HashMap<(u32, usize, [u8; 4]), usize> = HashMap::new();
     let mut occluder_mesh_of: HashMap<*const glam::Vec3, usize> = HashMap::new();
-    let mut geometry: HashMap<u32, (usize, usize)> = HashMap::new();
+    let mut geometry: HashMap<(u32, usize), (usize, usize)> = HashMap::new();
     let mut nodes: Vec<Value> = Vec::new();
     let mut roots = Vec::new();
 
@@ -71,17 +72,30 @@ pub fn write_gltf(scene: &Scene, prefix: &str) -> String {
                 "metallicFactor": 0.0, "roughnessFactor": 1.0}}));
             materials.len() - 1
         });
-        let mesh = *mesh_of.entry((object.mesh, object.color)).or_insert_with(|| {
-            let source = &scene.meshes[object.mesh as usize];
-            let (positions, indices) = *geometry
-                .entry(object.mesh)
-                .or_insert_with(|| (buffers.positions(&source.positions), buffers.indices(&source.indices)));
-            meshes.push(json!({"primitives": [{"attributes": {"POSITION": positions}, "indices": indices,
-                "material": material}]}));
-            meshes.len() - 1
-        });
-        let mut node = json!({"name": format!("{prefix}{index}"), "mesh": mesh,
-            "matrix": glam::Mat4::from(object.transform).to_cols_array()});
+        let levels = scene.given_levels.iter().find(|(mesh, _)| *mesh == object.mesh).map_or(&[][..], |(_, l)| l);
+        // Level 0 is the mesh itself, the others its given levels, each written once per colour.
+        let mut mesh_of_level = |level: usize| {
+            *mesh_of.entry((object.mesh, level, object.color)).or_insert_with(|| {
+                let source = if level == 0 { &scene.meshes[object.mesh as usize] } else { &levels[level - 1] };
+                let (positions, indices) = *geometry
+                    .entry((object.mesh, level))
+                    .or_insert_with(|| (buffers.positions(&source.positions), buffers.indices(&source.indices)));
+                meshes.push(json!({"primitives": [{"attributes": {"POSITION": positions}, "indices": indices,
+                    "material": material}]}));
+                meshes.len() - 1
+            })
+        };
+        let matrix = glam::Mat4::from(object.transform).to_cols_array();
+        let mut node = json!({"name": format!("{prefix}{index}"), "mesh": mesh_of_level(0), "matrix": matrix});
+        if !levels.is_empty() {
+            let mut ids = Vec::new();
+            for level in 1..=levels.len() {
+                nodes.push(json!({"name": format!("{prefix}{index}_lod{level}"), "mesh": mesh_of_level(level),
+                    "matrix": matrix}));
+                ids.push(nodes.len() - 1);
+            }
+            node["extensions"] = json!({"MSFT_lod": {"ids": ids}});
+        }
         if let Some(occluder) = &object.occluder {
             let occluder_mesh = occluder_mesh(occluder, &mut occluder_mesh_of, &mut buffers, &mut meshes);
             nodes.push(json!({"name": format!("{prefix}{index}{}", super::gltf_import::OCCLUDER_SUFFIX),
@@ -93,7 +107,7 @@ pub fn write_gltf(scene: &Scene, prefix: &str) -> String {
     }
 
     let data = base64::engine::general_purpose::STANDARD.encode(&buffers.bytes);
-    let document = json!({
+    let mut document = json!({
         "asset": {"version": "2.0", "generator": "cullet gltf_export"},
         "scene": 0,
         "scenes": [{"nodes": roots}],
@@ -104,6 +118,9 @@ pub fn write_gltf(scene: &Scene, prefix: &str) -> String {
         "bufferViews": buffers.views,
         "buffers": [{"byteLength": buffers.bytes.len(), "uri": format!("data:application/octet-stream;base64,{data}")}],
     });
+    if !scene.given_levels.is_empty() {
+        document["extensionsUsed"] = json!(["MSFT_lod"]);
+    }
     serde_json::to_string(&document).expect("a JSON value always serializes")
 }
 

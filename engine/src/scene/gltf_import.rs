@@ -19,6 +19,13 @@
 //! ([`Cells::joined_by_position`]). Cells and portals that break the rules there are dropped with a warning
 //! naming the problem, and the scene is culled without them: never with a wrong graph.
 //!
+//! Levels of detail: a drawn node whose `MSFT_lod` extension lists coarser level nodes (`"ids"`, finest first)
+//! gives its mesh those levels ([`Scene::give_levels`]), primitive by primitive: each level node's mesh must
+//! draw as many primitives, and is placed by the level node's own transform in place of the node's. Level nodes
+//! are normally outside the scene's hierarchy (one inside it is also drawn as an object of its own). The
+//! levels' `MSFT_screencoverage` is not read: the engine chooses levels by their geometric error, which
+//! `cullet::lod::LodLibrary::for_scene` measures. A level that breaks these rules is left out with a warning.
+//!
 //! Malformed files are refused with a [`GltfError`] naming the file and the problem: unreadable or invalid
 //! JSON, missing or short buffers, compressed geometry (Draco, meshopt), unsupported required extensions,
 //! accessors outside their buffers, indices out of range, non-finite positions or transforms, cyclic node
@@ -136,9 +143,17 @@ pub fn parse_gltf(bytes: &[u8], base_dir: Option<&Path>, file: &str) -> Result<G
     Loader::new(bytes, base_dir).and_then(Loader::load).map_err(|problem| GltfError { file: file.into(), problem })
 }
 
-/// Extensions that change nothing the loader reads.
-const HARMLESS_EXTENSIONS: [&str; 4] =
-    ["KHR_materials_unlit", "KHR_texture_transform", "KHR_materials_emissive_strength", "KHR_lights_punctual"];
+/// Extensions a file may require: one the loader reads (`MSFT_lod`), and those that change nothing it reads.
+const SUPPORTED_REQUIRED_EXTENSIONS: [&str; 5] = [
+    LOD_EXTENSION,
+    "KHR_materials_unlit",
+    "KHR_texture_transform",
+    "KHR_materials_emissive_strength",
+    "KHR_lights_punctual",
+];
+
+/// The node extension that lists a node's coarser levels of detail.
+const LOD_EXTENSION: &str = "MSFT_lod";
 
 struct Loader {
     document: gltf::Document,
@@ -167,7 +182,7 @@ impl Loader {
             .map_err(invalid)?;
         let gltf = gltf::Gltf { document, blob: unvalidated.blob };
         for extension in gltf.document.extensions_required() {
-            if !HARMLESS_EXTENSIONS.contains(&extension) {
+            if !SUPPORTED_REQUIRED_EXTENSIONS.contains(&extension) {
                 return Err(GltfProblem::UnsupportedExtension(extension.into()));
             }
         }
@@ -217,6 +232,8 @@ impl Loader {
         let mut occluder_nodes = 0;
         let mut cells: Vec<Cell> = Vec::new();
         let mut portals: Vec<(String, Vec<Vec3>)> = Vec::new();
+        // Drawn nodes that list coarser levels: (node, its local transform).
+        let mut with_levels: Vec<(gltf::Node, Affine3A)> = Vec::new();
         let scene = document.default_scene().or_else(|| document.scenes().next()).ok_or(GltfProblem::NoScene)?;
 
         // Depth-first over the hierarchy: (node, parent's world transform, first object drawn by the parent).
@@ -283,6 +300,9 @@ impl Loader {
                     if drawn[index].is_none() {
                         drawn[index] = Some(geometry.meshes_of(&mesh, &mut meshes)?);
                     }
+                    if node.extension_value(LOD_EXTENSION).is_some() {
+                        with_levels.push((node.clone(), local));
+                    }
                     for &(mesh, color) in drawn[index].iter().flatten() {
                         first_object.get_or_insert(objects.len());
                         objects.push(SceneObject { mesh, transform: world, occluder: None, velocity: None, color });
@@ -294,6 +314,32 @@ impl Loader {
             }
         }
         let mut scene = Scene::new(meshes, objects);
+        // Per glTF mesh, the levels (mesh, placement) the first node drawing it gave.
+        let mut given: Vec<Option<Vec<(usize, Affine3A)>>> = vec![None; drawn.len()];
+        for (node, local) in with_levels {
+            let Some(mesh) = node.mesh() else { continue };
+            let (levels, mut warnings) = level_nodes(&document, &node, local);
+            let signature: Vec<_> =
+                levels.iter().filter_map(|(level, placement)| Some((level.mesh()?.index(), *placement))).collect();
+            match &given[mesh.index()] {
+                Some(first) if same_levels(first, &signature) => continue,
+                Some(_) => {
+                    geometry.warnings.push(format!(
+                        "node {}: mesh {} has other levels from another node; its {LOD_EXTENSION} is ignored",
+                        node.index(),
+                        mesh.index()
+                    ));
+                    continue;
+                }
+                None => given[mesh.index()] = Some(signature),
+            }
+            let primitives = drawn[mesh.index()].as_deref().unwrap_or_default();
+            let levels = geometry.levels_of(&node, &levels, primitives.len(), &mut warnings)?;
+            geometry.warnings.extend(warnings);
+            for (primitive, levels) in levels {
+                scene.give_levels(primitives[primitive].0, levels);
+            }
+        }
         if !cells.is_empty() || !portals.is_empty() {
             match Cells::joined_by_position(cells, portals) {
                 Ok(cells) => scene.cells = Some(cells),
@@ -324,6 +370,35 @@ impl Geometry {
             out.push((meshes.len() as u32 - 1, color));
         }
         Ok(out)
+    }
+
+    /// The meshes of `node`'s level nodes ([`level_nodes`]), placed in the space of `node`'s mesh, per drawn
+    /// primitive of that mesh: `(primitive, levels)`. Each level node's mesh must draw as many primitives as
+    /// `node`'s, which it replaces primitive by primitive; one that does not is left out, with a warning added to
+    /// `warnings`.
+    fn levels_of(
+        &mut self,
+        node: &gltf::Node,
+        level_nodes: &[(gltf::Node, Affine3A)],
+        primitives: usize,
+        warnings: &mut Vec<String>,
+    ) -> Result<Vec<(usize, Vec<Mesh>)>, GltfProblem> {
+        let mut levels: Vec<Vec<Mesh>> = vec![Vec::new(); primitives];
+        for (level, placement) in level_nodes {
+            let Some(mesh) = level.mesh() else { continue };
+            let mut read = Vec::new();
+            self.meshes_of(&mesh, &mut read)?;
+            if read.len() != primitives {
+                let why = format!("level node {} draws {} primitives, not {primitives}", level.index(), read.len());
+                warnings.push(level_warning(node, why));
+                continue;
+            }
+            for (primitive, mut triangles) in read.into_iter().enumerate() {
+                triangles.positions.iter_mut().for_each(|p| *p = placement.transform_point3(*p));
+                levels[primitive].push(triangles);
+            }
+        }
+        Ok(levels.into_iter().enumerate().filter(|(_, levels)| !levels.is_empty()).collect())
     }
 
     /// Every triangle of `mesh`'s primitives as a triangle soup (for occluders).
@@ -447,6 +522,48 @@ fn cell_or_portal(node: &gltf::Node) -> Option<Role> {
     let fallback = || format!("node {}", node.index());
     (name.ends_with(PORTAL_SUFFIX) || flagged)
         .then(|| Role::Portal(if name.is_empty() { fallback() } else { name.to_string() }))
+}
+
+/// The level nodes `node` lists in its `MSFT_lod` extension (`{"ids": [node, ...]}`, finest first), each with
+/// the transform that places its mesh in the space of `node`'s mesh: the level node's own transform, in place of
+/// `node`'s (`local`). An id that names no other node, a level node without a mesh, and one that cannot be
+/// placed are left out, with a warning each.
+fn level_nodes<'a>(
+    document: &'a gltf::Document,
+    node: &gltf::Node,
+    local: Affine3A,
+) -> (Vec<(gltf::Node<'a>, Affine3A)>, Vec<String>) {
+    let ids = node.extension_value(LOD_EXTENSION).and_then(|lod| lod.get("ids")).and_then(|ids| ids.as_array());
+    let to_mesh_space = local.inverse();
+    let (mut levels, mut warnings) = (Vec::new(), Vec::new());
+    for id in ids.into_iter().flatten() {
+        let level = id.as_u64().and_then(|id| document.nodes().nth(id as usize));
+        let Some(level) = level.filter(|level| level.index() != node.index()) else {
+            warnings.push(level_warning(node, format!("level {id} is not another node")));
+            continue;
+        };
+        if level.mesh().is_none() {
+            warnings.push(level_warning(node, format!("level node {} has no mesh", level.index())));
+            continue;
+        }
+        let placement = to_mesh_space * Affine3A::from_mat4(Mat4::from_cols_array_2d(&level.transform().matrix()));
+        if !placement.is_finite() {
+            warnings.push(level_warning(node, format!("level node {} cannot be placed", level.index())));
+            continue;
+        }
+        levels.push((level, placement));
+    }
+    (levels, warnings)
+}
+
+/// Whether two nodes' levels (each level's glTF mesh and placement) are the same meshes placed alike.
+fn same_levels(a: &[(usize, Affine3A)], b: &[(usize, Affine3A)]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|((ma, pa), (mb, pb))| ma == mb && pa.abs_diff_eq(*pb, 1e-4))
+}
+
+/// A warning about `node`'s `MSFT_lod` level.
+fn level_warning(node: &gltf::Node, why: String) -> String {
+    format!("node {}: {LOD_EXTENSION} {why}; that level is left out", node.index())
 }
 
 /// Whether `node` is an artist occluder: its name ends in [`OCCLUDER_SUFFIX`] or its extras say

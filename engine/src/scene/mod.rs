@@ -67,6 +67,10 @@ pub struct Scene {
     pub objects: Vec<SceneObject>,
     /// The interior's cells and portals, where the scene has them ([`crate::cells`]): spawned as a resource.
     pub cells: Option<Cells>,
+    /// Coarser levels of detail the scene brings for some of its meshes (glTF `MSFT_lod`): `(mesh, levels)`,
+    /// finest first after the mesh itself, in the mesh's space. Add them with [`Scene::give_levels`], which
+    /// grows the mesh's bounds to hold them; `cullet::lod::LodLibrary::for_scene` measures their error.
+    pub given_levels: Vec<(u32, Vec<Mesh>)>,
 }
 
 impl Scene {
@@ -77,7 +81,23 @@ impl Scene {
             .map(|m| m.local_bounds().unwrap_or(LocalBounds { center: Vec3::ZERO, half_extent: Vec3::ZERO }))
             .collect();
         debug_assert!(objects.iter().all(|o| (o.mesh as usize) < meshes.len()));
-        Self { meshes, mesh_bounds, objects, cells: None }
+        Self { meshes, mesh_bounds, objects, cells: None, given_levels: Vec::new() }
+    }
+
+    /// Gives `mesh` the coarser `levels` (finest first, in the mesh's space), replacing any it had, and grows
+    /// the mesh's bounds to hold every level, so that culling stays conservative whichever is drawn. Nothing
+    /// changes for a mesh index out of range or no levels.
+    pub fn give_levels(&mut self, mesh: u32, levels: Vec<Mesh>) {
+        if levels.is_empty() || mesh as usize >= self.meshes.len() {
+            return;
+        }
+        let every_level = std::iter::once(&self.meshes[mesh as usize]).chain(&levels);
+        let points: Vec<Vec3> = every_level.flat_map(|m| m.positions.iter().copied()).collect();
+        if let Some(bounds) = LocalBounds::from_points(&points) {
+            self.mesh_bounds[mesh as usize] = bounds;
+        }
+        self.given_levels.retain(|(m, _)| *m != mesh);
+        self.given_levels.push((mesh, levels));
     }
 
     /// Spawns every object as an entity with [`LocalBounds`], [`ObjectTransform`], [`MeshRef`],
