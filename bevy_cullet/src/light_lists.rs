@@ -10,6 +10,7 @@ use bevy_camera::visibility::{
     SetViewVisibility, ViewVisibility, VisibilityRange, VisibleEntityRanges, VisibleMeshEntities,
 };
 use bevy_camera::{Camera, RenderTarget, ShadowLodOrigin};
+use bevy_ecs::change_detection::ContiguousMut;
 use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::SystemParam;
@@ -62,8 +63,20 @@ pub(crate) struct CasterCache {
     layout: Option<u64>,
     entities: Vec<Entity>,
     flags: Vec<u8>,
+    /// Each row's store slot ([`NOT_STORED`] for an entity the store does not hold).
+    slots: Vec<u32>,
     classes: Option<CasterClasses>,
 }
+
+/// A row's slot in [`CasterCache`] where the store does not hold its entity.
+const NOT_STORED: u32 = u32::MAX;
+
+/// Caster rows one task of [`CasterCache::mark_visible`] walks.
+const MARK_ROWS: usize = 4096;
+
+/// Rows [`CasterCache::mark_visible`] walks for the time of one entity looked up: below one caster to mark in
+/// this many rows, looking them up costs less.
+const ROWS_PER_LOOKUP: usize = 4;
 
 /// A row's flags in [`CasterCache`].
 const VISIBLE: u8 = 1;
@@ -84,6 +97,7 @@ impl CasterCache {
                 classes.mark(store, entity, inherited.get(), has_layers || has_range);
             }
             self.layout = None;
+            self.entities.clear();
             return self.classes.insert(classes);
         };
         let mut ranges: Vec<RowRange> = Vec::new();
@@ -117,6 +131,8 @@ impl CasterCache {
                 self.entities.extend_from_slice(entities);
                 self.flags.extend(inherited.iter().map(|inherited| flags(inherited, special)));
             }
+            let slot = |entity: &Entity| store.slot_of(*entity).map_or(NOT_STORED, |slot| slot as u32);
+            self.slots = self.entities.par_iter().map(slot).collect();
             // Each task marks sets of its own (a few kilobytes each), merged after: no atomic per entity.
             let empty = || CasterClasses::empty(store.len());
             let classes = (ranges.into_par_iter())
@@ -134,6 +150,53 @@ impl CasterCache {
             self.classes = Some(classes);
         }
         self.classes.as_ref().expect("classified above")
+    }
+}
+
+impl CasterCache {
+    /// Makes visible (`ViewVisibility`) each caster whose store slot is in `shown`, walking `rows` table by
+    /// table in the order the last [`CasterCache::classes`] saw them, in parallel within a table: no entity is
+    /// looked up. Returns `false`, leaving `shown` to mark by looking its entities up, where that costs less
+    /// (few casters to mark for the rows to walk), and where the tables do not hold the rows the cache has
+    /// (another query order, or casters without `ViewVisibility`: some of `shown` may then be left).
+    ///
+    /// A caster hidden last frame becomes visible with its change marked, one visible last frame without, as
+    /// Bevy's `set_visible` does. Both are written as `ViewVisibility::VISIBLE`, whose "visible last frame" bit
+    /// Bevy reads only from the next frame's reset on, which overwrites it.
+    fn mark_visible(&self, shown: &VisibleSet, rows: &mut Query<(Entity, &mut ViewVisibility), CasterFilter>) -> bool {
+        if self.layout.is_none() || shown.count() * ROWS_PER_LOOKUP < self.entities.len() {
+            return false;
+        }
+        let Ok(tables) = rows.contiguous_iter_mut() else { return false };
+        let mut offset = 0;
+        for (entities, visibility) in tables {
+            let rows = offset..offset + entities.len();
+            if self.entities.get(rows.clone()) != Some(entities) {
+                return false;
+            }
+            let (values, mut ticks) = ContiguousMut::bypass_change_detection_split(visibility);
+            let newly_visible: Vec<u32> = (values.par_chunks_mut(MARK_ROWS))
+                .zip(self.slots[rows].par_chunks(MARK_ROWS))
+                .enumerate()
+                .flat_map_iter(|(chunk, (values, slots))| {
+                    let mut newly_visible = Vec::new();
+                    for (row, (value, &slot)) in values.iter_mut().zip(slots).enumerate() {
+                        if slot != NOT_STORED && !value.get() && shown.contains(slot as usize) {
+                            if *value == ViewVisibility::HIDDEN {
+                                newly_visible.push((chunk * MARK_ROWS + row) as u32);
+                            }
+                            *value = ViewVisibility::VISIBLE;
+                        }
+                    }
+                    newly_visible
+                })
+                .collect();
+            for row in newly_visible {
+                ticks.reborrow().slice(row..row + 1).mark_all_as_changed();
+            }
+            offset += entities.len();
+        }
+        offset == self.entities.len()
     }
 }
 
@@ -234,7 +297,7 @@ pub(crate) fn write_light_views(
     casters: Query<CasterItem, CasterFilter>,
     caster_rows: Query<CasterRow, CasterFilter>,
     others: Query<(Entity, CasterItem), OtherCasterFilter>,
-    mut visibility: Query<&mut ViewVisibility>,
+    mut visibility: ParamSet<(Query<(Entity, &mut ViewVisibility), CasterFilter>, Query<&mut ViewVisibility>)>,
     ranges: Option<Res<VisibleEntityRanges>>,
     lod_origins: Query<Entity, With<ShadowLodOrigin>>,
     targets: Query<(Entity, &RenderTarget), With<Camera>>,
@@ -401,8 +464,11 @@ pub(crate) fn write_light_views(
                 .for_each(|(word, (kept, plain))| *word &= !(kept & plain));
         }
     }
+    let marked = caster_cache.mark_visible(&shown, &mut visibility.p0());
+    let mut visibility = visibility.p1();
     let entities = store.entities();
-    shown.words().par_chunks(WRITE_WORDS).enumerate().for_each(|(chunk, words)| {
+    let unmarked = if marked { VisibleSet::new(0) } else { shown };
+    unmarked.words().par_chunks(WRITE_WORDS).enumerate().for_each(|(chunk, words)| {
         let stored = set_slots(chunk * WRITE_WORDS, words).map(|slot| entities[slot]);
         // SAFETY: `iter_many_unsafe` may give two items the same entity's component: no chunk, and no two
         // chunks, hold an entity twice, as chunks hold distinct slots and the store holds each entity in one

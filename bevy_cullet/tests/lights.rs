@@ -270,6 +270,14 @@ fn touches(world: &World, town: &Town, light_view: &LightView, index: usize) -> 
 
 /// Flies both apps over the town; for each frame and shadow map checks the plugin's list against Bevy's and
 /// the judge. Returns the casters listed by the plugin and by Bevy, summed over the frames and maps.
+/// Each mesh entity's `ViewVisibility` at the end of a frame: (entity, visible, changed this frame).
+#[derive(Resource, Default)]
+struct VisibilityLog(Vec<(Entity, bool, bool)>);
+
+fn log_visibility(mut log: ResMut<VisibilityLog>, meshes: Query<(Entity, Ref<ViewVisibility>), With<Mesh3d>>) {
+    log.0 = meshes.iter().map(|(entity, visibility)| (entity, visibility.get(), visibility.is_changed())).collect();
+}
+
 fn fly(occlusion: bool) -> (usize, usize) {
     let settings = CulletSettings {
         light_occlusion: LightOcclusionSettings { enabled: occlusion, min_casters: 1, ..Default::default() },
@@ -277,9 +285,11 @@ fn fly(occlusion: bool) -> (usize, usize) {
     };
     let frames = frames();
     let (mut cullet_app, mut bevy_app) = (app_with_lights(Some(settings)), app_with_lights(None));
+    cullet_app.init_resource::<VisibilityLog>().add_systems(bevy_app::Last, log_visibility);
     let town = spawn_town(&mut cullet_app, &frames[0]);
     let bevy_town = spawn_town(&mut bevy_app, &frames[0]);
     let (mut plugin_total, mut bevy_total, mut occluded) = (0, 0, 0);
+    let (mut was_visible, mut shown_by_lights_alone) = (std::collections::HashMap::new(), 0);
     for (frame, camera) in frames.iter().enumerate() {
         for (app, town) in [(&mut cullet_app, &town), (&mut bevy_app, &bevy_town)] {
             if frame == 3 {
@@ -334,7 +344,21 @@ fn fly(occlusion: bool) -> (usize, usize) {
         }
         let view = world.get::<CulletView>(town.camera).unwrap();
         occluded += view.stats().light_occluded;
+        // `ViewVisibility` changes, as Bevy's own systems change it, exactly where an entity's visibility does;
+        // entities only a light shows (not in the camera's list) become visible too.
+        let camera_list = world.get::<VisibleEntities>(town.camera).unwrap().get(TypeId::of::<Mesh3d>());
+        for &(entity, visible, changed) in &world.resource::<VisibilityLog>().0 {
+            if let Some(before) = was_visible.insert(entity, visible) {
+                assert_eq!(
+                    changed,
+                    visible != before,
+                    "frame {frame}: {entity} changed {changed}, {before} -> {visible}"
+                );
+                shown_by_lights_alone += usize::from(visible && !before && !camera_list.contains(&entity));
+            }
+        }
     }
+    assert!(shown_by_lights_alone > 0, "some casters come into view through a light alone");
     assert_eq!(occluded > 0, occlusion, "the light views' occlusion hides casters exactly where it is on");
     (plugin_total, bevy_total)
 }
