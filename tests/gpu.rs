@@ -916,13 +916,13 @@ fn levels_of_detail_draw_fewer_triangles_and_nearly_the_same_image() {
     let ((width, height), frames) = ((640, 360), 6);
     let city = CityScene::generate(CityParams::with_objects(3_000));
     let library = LodLibrary::build(&city.scene.meshes, &ChainSettings::default());
-    let fly = |lod: bool| {
+    let fly = |lod: Option<LodSettings>| {
         let aspect = width as f32 / height as f32;
         let mut flight = Flight::new(city.flythrough(), aspect, frames, OcclusionSettings::default(), |world| {
             city.spawn(world);
         });
-        if lod {
-            lod::install(&mut flight.world, &mut flight.schedule, library.clone(), LodSettings::pixels(1.0, height));
+        if let Some(settings) = lod {
+            lod::install(&mut flight.world, &mut flight.schedule, library.clone(), settings);
         }
         let mut culler = GpuCuller::for_world(&context, &flight.world, &city.scene.meshes, (width, height));
         let (mut triangles, mut images) = (0u64, Vec::new());
@@ -934,8 +934,12 @@ fn levels_of_detail_draw_fewer_triangles_and_nearly_the_same_image() {
         }
         (triangles, images)
     };
-    let ((full, full_images), (drawn, lod_images)) = (fly(false), fly(true));
+    let ((full, full_images), (drawn, lod_images)) = (fly(None), fly(Some(LodSettings::pixels(1.0, height))));
     assert!(drawn * 2 <= full, "{drawn} of {full} triangles drawn");
+    // Under a budget that drops objects, a dropped object draws nothing on the GPU either.
+    let budget = LodSettings { triangle_budget: Some(drawn / frames as u64 / 4), ..LodSettings::pixels(1.0, height) };
+    let (budgeted, _) = fly(Some(budget));
+    assert!(budgeted * 3 <= drawn, "{budgeted} triangles under the budget, {drawn} without");
     for (frame, (a, b)) in full_images.iter().zip(&lod_images).enumerate() {
         let changed = a.iter().zip(b).filter(|(a, b)| a != b).count();
         assert!(changed * 200 <= a.len(), "frame {frame}: {changed} pixels changed");

@@ -101,8 +101,17 @@ fn the_budget_is_never_exceeded_and_the_choice_stays_stable() {
     let tiny = LodSettings { triangle_budget: Some(100), ..LodSettings::pixels(1.0, 1080) };
     let mut flight = city_flight(2_000, 2, tiny);
     flight.run_frame(0);
-    let stats = flight.world.resource::<LodSelection>().stats();
+    let selection = flight.world.resource::<LodSelection>();
+    let stats = selection.stats();
     assert!(stats.triangles <= 100 && stats.dropped > 0, "{stats:?}");
+    // Dropping an object, and drawing it again, changes the mesh it draws: a GPU copy rewrites it.
+    let dropped: Vec<u32> = selection.dropped().iter().map(|slot| slot as u32).collect();
+    assert!(dropped.iter().all(|slot| selection.changed().binary_search(slot).is_ok()));
+    *flight.world.resource_mut::<LodSettings>() = LodSettings::pixels(1.0, 1080);
+    flight.run_frame(1);
+    let selection = flight.world.resource::<LodSelection>();
+    assert_eq!(selection.dropped().count(), 0);
+    assert!(dropped.iter().all(|slot| selection.changed().binary_search(slot).is_ok()), "restored objects");
 }
 
 #[test]

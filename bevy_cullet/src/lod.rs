@@ -11,7 +11,6 @@ use bevy_transform::components::GlobalTransform;
 use cullet::MeshRef;
 use cullet::bounds::largest_axis_scale;
 use cullet::lod::{LodLibrary, LodSelection, LodSettings, LodStats};
-use cullet::visible::VisibleSet;
 
 /// Switches levels of detail on: insert it as a resource. Entities with a [`MeshRef`] (the chain of their mesh
 /// in `library`) and bounds the plugin mirrors get a [`LodLevel`].
@@ -44,8 +43,6 @@ pub(crate) struct LodState {
     selection: LodSelection,
     /// The store layout the per-slot tables were filled for.
     layout: Option<u64>,
-    /// Slots the budget dropped last frame.
-    dropped: VisibleSet,
 }
 
 /// Chooses the levels for the active perspective camera of lowest order, then writes [`LodLevel`] where an
@@ -86,14 +83,10 @@ pub(crate) fn choose_levels(
     state.selection.select(&lod.library, store, &camera, view.kept(), &lod.settings);
     stats.0 = state.selection.stats();
     // Written where the level changed, and where the budget dropped or restored an entity.
-    let dropped = state.selection.dropped();
-    let mut write = state.selection.changed().iter().map(|&slot| slot as usize).collect::<Vec<_>>();
-    write.extend(dropped.iter().chain(state.dropped.iter()).filter(|&slot| slot < store.len()));
-    write.sort_unstable();
-    write.dedup();
-    for slot in write {
-        let level = LodLevel { level: state.selection.level(slot).unwrap_or(0), dropped: dropped.contains(slot) };
+    let selection = &state.selection;
+    for &slot in selection.changed() {
+        let slot = slot as usize;
+        let level = LodLevel { level: selection.level(slot).unwrap_or(0), dropped: selection.dropped().contains(slot) };
         commands.entity(store.entities()[slot]).try_insert(level);
     }
-    state.dropped.clone_from(dropped);
 }

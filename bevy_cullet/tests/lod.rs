@@ -55,4 +55,8 @@ fn kept_entities_get_their_level_and_follow_the_camera() {
     app.update();
     assert!(level(&app, far).unwrap().dropped && !level(&app, near).unwrap().dropped);
     assert!(app.world().resource::<CulletLodStats>().0.triangles <= 20);
+    // Without the budget it is drawn again, and its level says so.
+    app.world_mut().resource_mut::<CulletLod>().settings.triangle_budget = None;
+    app.update();
+    assert!(!level(&app, far).unwrap().dropped);
 }

@@ -35,6 +35,7 @@ pub fn instance_of(world: &bevy_ecs::world::World, slot: u32) -> GpuInstance {
     let mesh = world.get::<crate::mesh::MeshRef>(entity).map_or(NO_MESH, |m| m.0);
     let mesh = match (world.get_resource::<crate::lod::LodLibrary>(), world.get_resource::<crate::lod::LodSelection>())
     {
+        (Some(_), Some(selection)) if selection.dropped().contains(slot as usize) => NO_MESH,
         (Some(library), Some(selection)) if mesh != NO_MESH => {
             selection.mesh_of(slot as usize, library).or_else(|| library.mesh_of(mesh, 0)).unwrap_or(NO_MESH)
         }

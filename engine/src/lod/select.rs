@@ -129,8 +129,8 @@ impl LodSelection {
         library.mesh_of(chain, self.level(slot).unwrap_or(0))
     }
 
-    /// Slots whose level changed in the last selection, increasing: what a GPU copy of the instances must
-    /// rewrite.
+    /// Slots whose drawn mesh changed in the last selection, increasing: their level, or whether the budget
+    /// dropped them. What a GPU copy of the instances must rewrite.
     pub fn changed(&self) -> &[u32] {
         &self.changed
     }
@@ -183,11 +183,13 @@ impl LodSelection {
         let _stage = Stage::Lod.enter();
         self.changed.clear();
         self.resize(store.len());
+        let was_dropped = std::mem::take(&mut self.dropped);
         self.dropped.reset(store.len());
         if !settings.enabled() {
             if self.active {
                 self.reset_to_full_detail();
             }
+            self.note_dropped_changes(&was_dropped);
             self.stats = LodStats { time: start.elapsed(), tables_time, ..LodStats::default() };
             return;
         }
@@ -200,7 +202,31 @@ impl LodSelection {
         {
             self.fit_budget(&frame, budget, &previous);
         }
+        self.note_dropped_changes(&was_dropped);
         (self.stats.time, self.stats.tables_time) = (start.elapsed(), tables_time);
+    }
+
+    /// Adds to the changed slots those the budget dropped, or drew again, since `was_dropped` (the last
+    /// selection's): their drawn mesh changed with the same level.
+    fn note_dropped_changes(&mut self, was_dropped: &VisibleSet) {
+        let (now, before) = (self.dropped.words(), was_dropped.words());
+        let len = self.dropped.len();
+        let mut flipped = Vec::new();
+        for word in 0..now.len().max(before.len()) {
+            let mut bits = now.get(word).copied().unwrap_or(0) ^ before.get(word).copied().unwrap_or(0);
+            while bits != 0 {
+                let slot = word * 64 + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                if slot < len {
+                    flipped.push(slot as u32);
+                }
+            }
+        }
+        if !flipped.is_empty() {
+            self.changed.extend(flipped);
+            self.changed.sort_unstable();
+            self.changed.dedup();
+        }
     }
 
     /// Every object back at full detail (LOD switched off).
