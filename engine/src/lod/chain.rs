@@ -29,6 +29,9 @@ impl Default for ChainSettings {
 
 /// The levels of `mesh`, finest first: the mesh itself (error 0), then simplified levels with fewer triangles
 /// and a larger error each (in `mesh`'s units: how far the level's surface may lie from the full-detail one).
+/// A level's error is the larger of meshoptimizer's estimate and the distance measured between the surfaces
+/// (from each sample of the level, and from each vertex of `mesh`: `Surface::distance_to_level`), so that a
+/// pixel threshold holds for the surfaces, not only for the estimate.
 /// A level no coarser, or no more accurate, than its neighbours is left out, so that every level is the
 /// coarsest for some error. Vertices are welded by position before simplifying (the meshes carry positions
 /// only), so faces that share an edge stay joined.
@@ -55,6 +58,7 @@ pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel
     let options = meshopt::SimplifyOptions::ErrorAbsolute;
     let error_limit = settings.max_relative_error.max(0.0) * extent;
 
+    let surface = super::distance::Surface::of(mesh);
     let mut levels = vec![full];
     let mut triangles = indices.len() / 3;
     // First the coarsest level that is as good as lossless (coplanar triangles merged: over-tessellated flat
@@ -77,8 +81,10 @@ pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel
             }
             break;
         }
-        let error = error.max(levels.last().map_or(0.0, |l| l.error));
-        let level = LodLevel { mesh: compact(&welded, simplified), error };
+        let level = compact(&welded, simplified);
+        let measured = surface.as_ref().map_or(0.0, |surface| surface.distance_to_level(&level));
+        let error = error.max(measured).max(levels.last().map_or(0.0, |l| l.error));
+        let level = LodLevel { mesh: level, error };
         // A coarser level as accurate as the one before replaces it (never the full-detail mesh).
         if levels.len() > 1 && levels.last().is_some_and(|last| last.error >= error) {
             levels.pop();

@@ -1,5 +1,5 @@
-//! How far apart two meshes' surfaces lie: the error of a level a scene brings, which no simplifier
-//! reported.
+//! How far apart two meshes' surfaces lie: a level's error, measured. A scene's own levels come with no other,
+//! and meshoptimizer's estimate for a level it made can fall short of the distance.
 
 use crate::mesh::Mesh;
 use glam::Vec3;
@@ -21,17 +21,58 @@ pub fn surface_distance(a: &Mesh, b: &Mesh) -> f32 {
     match (a.is_empty(), b.is_empty()) {
         (true, true) => 0.0,
         (true, false) | (false, true) => f32::INFINITY,
-        _ => one_way(&a, &b).max(one_way(&b, &a)),
+        _ => {
+            let (a, b) = (TriangleGrid::new(a), TriangleGrid::new(b));
+            farthest_sample(&a.triangles, &b).max(farthest_sample(&b.triangles, &a))
+        }
     }
 }
 
-/// The largest distance from a sample of `from` to the surface of `to` (both non-empty).
-fn one_way(from: &[[Vec3; 3]], to: &[[Vec3; 3]]) -> f32 {
-    let grid = TriangleGrid::new(to);
+/// A mesh's surface binned for nearest-point queries, with the vertices its triangles use: built once, it
+/// measures every simplified level of the mesh.
+pub(super) struct Surface {
+    grid: TriangleGrid,
+    vertices: Vec<Vec3>,
+}
+
+impl Surface {
+    /// The surface of `mesh`; `None` for a mesh without a whole triangle.
+    pub(super) fn of(mesh: &Mesh) -> Option<Self> {
+        let triangles = triangles(mesh);
+        if triangles.is_empty() {
+            return None;
+        }
+        let mut used = vec![false; mesh.positions.len()];
+        for &i in &mesh.indices {
+            if let Some(used) = used.get_mut(i as usize) {
+                *used = true;
+            }
+        }
+        let vertices = mesh.positions.iter().zip(used).filter(|(_, used)| *used).map(|(p, _)| *p).collect();
+        Some(Self { grid: TriangleGrid::new(triangles), vertices })
+    }
+
+    /// How far `level`, a simplification of this surface, lies from it: the largest distance from a sample of
+    /// `level` (as [`surface_distance`] samples) to this surface, and from a vertex of this surface to
+    /// `level`'s (where a simplification's farthest points are: the vertices it removed). Infinite for a
+    /// level without triangles.
+    pub(super) fn distance_to_level(&self, level: &Mesh) -> f32 {
+        let level = triangles(level);
+        if level.is_empty() {
+            return f32::INFINITY;
+        }
+        let level = TriangleGrid::new(level);
+        let from_vertices = self.vertices.par_iter().map(|&p| level.distance(p)).reduce(|| 0.0, f32::max);
+        farthest_sample(&level.triangles, &self.grid).max(from_vertices)
+    }
+}
+
+/// The largest distance from a sample of `from` (vertices, edge midpoints, centroid) to the surface of `to`.
+fn farthest_sample(from: &[[Vec3; 3]], to: &TriangleGrid) -> f32 {
     from.par_iter()
         .map(|&[p, q, r]| {
             let samples = [p, q, r, (p + q) * 0.5, (q + r) * 0.5, (r + p) * 0.5, (p + q + r) / 3.0];
-            samples.iter().map(|&s| grid.distance(s)).fold(0.0, f32::max)
+            samples.iter().map(|&s| to.distance(s)).fold(0.0, f32::max)
         })
         .reduce(|| 0.0, f32::max)
 }
@@ -43,8 +84,8 @@ fn triangles(mesh: &Mesh) -> Vec<[Vec3; 3]> {
 }
 
 /// Triangles binned by the uniform grid cells their boxes overlap, for nearest-point queries.
-struct TriangleGrid<'a> {
-    triangles: &'a [[Vec3; 3]],
+struct TriangleGrid {
+    triangles: Vec<[Vec3; 3]>,
     origin: Vec3,
     cell: f32,
     dims: [usize; 3],
@@ -53,8 +94,8 @@ struct TriangleGrid<'a> {
     members: Vec<u32>,
 }
 
-impl<'a> TriangleGrid<'a> {
-    fn new(triangles: &'a [[Vec3; 3]]) -> Self {
+impl TriangleGrid {
+    fn new(triangles: Vec<[Vec3; 3]>) -> Self {
         let (min, max) = triangles
             .iter()
             .flatten()
@@ -90,7 +131,7 @@ impl<'a> TriangleGrid<'a> {
     }
 
     /// Every triangle in one cell: the grid of a mesh with no extent.
-    fn single_cell(triangles: &'a [[Vec3; 3]], origin: Vec3) -> Self {
+    fn single_cell(triangles: Vec<[Vec3; 3]>, origin: Vec3) -> Self {
         let members = (0..triangles.len() as u32).collect();
         let starts = vec![0, triangles.len() as u32];
         Self { triangles, origin, cell: f32::INFINITY, dims: [1; 3], starts, members }
@@ -228,7 +269,7 @@ mod tests {
     #[test]
     fn brute_force_agrees_with_the_grid() {
         let to = triangles(&Mesh::unit_cube(5).scaled(Vec3::new(4.0, 0.5, 2.0), Vec3::new(1.0, -2.0, 0.0)));
-        let grid = TriangleGrid::new(&to);
+        let grid = TriangleGrid::new(to.clone());
         for i in 0..500 {
             let t = i as f32;
             let p = Vec3::new((t * 0.37).sin() * 6.0, (t * 0.53).cos() * 4.0, (t * 0.71).sin() * 5.0);
