@@ -223,24 +223,27 @@ fn csv(rows: &[Row]) -> String {
 /// Where the plot's log axis draws a frame with no pixel changed, in percent.
 const PIXELS_FLOOR: f64 = 1e-4;
 
-/// Against pixels changed, one colour per scene: the triangles of kept objects drawn, and where measured the GPU
-/// passes' time, each as a share of the scene's full detail.
+/// Against pixels changed, one colour per scene, each as a share of the scene's full detail: the triangles of
+/// kept objects drawn, the CPU frame (culling and selection), and where measured the GPU passes' time.
 fn plot(rows: &[Row], path: &std::path::Path) -> Result<(), Box<dyn std::error::Error>> {
     let timed = rows.iter().any(|r| r.gpu_ms.is_some());
-    let root = BitMapBackend::new(path, (if timed { 2000 } else { 1200 }, 760)).into_drawing_area();
+    let panels = if timed { 3 } else { 2 };
+    let root = BitMapBackend::new(path, (1000 * panels as u32, 760)).into_drawing_area();
     root.fill(&WHITE)?;
     let titled = root.titled("Cullet levels of detail against image error (1920x1080)", ("sans-serif", 24))?;
-    let triangles = |r: &Row| Some(100.0 * r.triangles / r.triangles_full.max(1.0));
-    let triangles_desc = "triangles of kept objects drawn (% of full detail)";
+    let areas = titled.split_evenly((1, panels));
+    // Each scene's full-detail row comes first.
+    let full = |scene: &str| rows.iter().find(|r| r.scene == scene);
+    panel(&areas[0], rows, "triangles of kept objects drawn (% of full detail)", |r| {
+        Some(100.0 * r.triangles / r.triangles_full.max(1.0))
+    })?;
+    panel(&areas[1], rows, "CPU frame, culling and selection (% of full detail's, medians)", |r| {
+        Some(100.0 * r.frame_us / full(r.scene)?.frame_us)
+    })?;
     if timed {
-        let (left, right) = titled.split_horizontally(1000);
-        panel(&left, rows, triangles_desc, triangles)?;
-        let full_ms = |scene: &str| rows.iter().find(|r| r.scene == scene).and_then(|r| r.gpu_ms);
-        panel(&right, rows, "GPU passes' time (% of full detail's; lavapipe: ratios only)", |r| {
-            Some(100.0 * r.gpu_ms? / full_ms(r.scene)?)
+        panel(&areas[2], rows, "GPU passes' time (% of full detail's; lavapipe: ratios only)", |r| {
+            Some(100.0 * r.gpu_ms? / full(r.scene)?.gpu_ms?)
         })?;
-    } else {
-        panel(&titled, rows, triangles_desc, triangles)?;
     }
     root.present()?;
     Ok(())
