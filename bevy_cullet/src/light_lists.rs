@@ -151,9 +151,7 @@ impl CasterCache {
         }
         self.classes.as_ref().expect("classified above")
     }
-}
 
-impl CasterCache {
     /// Makes visible (`ViewVisibility`) each caster whose store slot is in `shown`, walking `rows` table by
     /// table in the order the last [`CasterCache::classes`] saw them, in parallel within a table: no entity is
     /// looked up. Returns `false`, leaving `shown` to mark by looking its entities up, where that costs less

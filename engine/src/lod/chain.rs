@@ -96,7 +96,8 @@ pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel
 }
 
 /// The levels of `mesh` from the coarser `given` ones a scene brings (finest first, in `mesh`'s space), each
-/// with its error measured as the distance between its surface and `mesh`'s ([`super::surface_distance`]),
+/// with its error measured as the distance between its surface and `mesh`'s ([`super::surface_distance`],
+/// through one grid of `mesh`'s triangles for every level),
 /// raised where needed so that errors never decrease down the chain. The first level is `mesh` itself (error 0).
 ///
 /// A given level that cannot serve is left out, and why is returned with the levels: one the simplifier's
@@ -110,7 +111,8 @@ pub fn given_chain(mesh: &Mesh, given: &[Mesh]) -> (Vec<LodLevel>, Vec<LodError>
         return (levels, vec![error]);
     }
     let mut refused = Vec::new();
-    let size = mesh.local_bounds().map_or(0.0, |b| 2.0 * b.half_extent.max_element());
+    let (surface, bounds) = (super::distance::Surface::of(mesh), mesh.local_bounds());
+    let size = bounds.map_or(0.0, |b| 2.0 * b.half_extent.max_element());
     for (l, level) in given.iter().enumerate().map(|(i, level)| (i + 1, level)) {
         if levels.len() == super::MAX_LEVELS {
             refused.push(LodError::LevelCount { levels: 1 + given.len() });
@@ -128,14 +130,15 @@ pub fn given_chain(mesh: &Mesh, given: &[Mesh]) -> (Vec<LodLevel>, Vec<LodError>
         }
         // The boxes' farthest sides bound the distance from below: a stray level is refused before the
         // (costlier) measurement.
-        let distance = match (mesh.local_bounds(), level.local_bounds()) {
+        let distance = match (bounds, level.local_bounds()) {
             (Some(a), Some(b)) => {
                 let (centres, extents) = (a.center - b.center, a.half_extent - b.half_extent);
                 ((centres - extents).abs().max((centres + extents).abs())).max_element()
             }
             _ => f32::INFINITY,
         };
-        let distance = if distance <= size { super::surface_distance(mesh, level) } else { distance };
+        let measured = |surface: &super::distance::Surface| surface.distance_to(level);
+        let distance = if distance <= size { surface.as_ref().map_or(f32::INFINITY, measured) } else { distance };
         if distance.is_nan() || distance > size {
             refused.push(LodError::StrayLevel { level: l, distance, size });
             continue;

@@ -17,14 +17,10 @@ const MAX_CELLS: usize = 1 << 21;
 /// Returns 0 for two meshes with no triangle, and infinity where only one has none. Indices past the
 /// positions and partial triangles are skipped; a non-finite position gives a non-finite result.
 pub fn surface_distance(a: &Mesh, b: &Mesh) -> f32 {
-    let (a, b) = (triangles(a), triangles(b));
-    match (a.is_empty(), b.is_empty()) {
-        (true, true) => 0.0,
-        (true, false) | (false, true) => f32::INFINITY,
-        _ => {
-            let (a, b) = (TriangleGrid::new(a), TriangleGrid::new(b));
-            farthest_sample(&a.triangles, &b).max(farthest_sample(&b.triangles, &a))
-        }
+    match Surface::of(a) {
+        Some(a) => a.distance_to(b),
+        None if triangles(b).is_empty() => 0.0,
+        None => f32::INFINITY,
     }
 }
 
@@ -50,6 +46,16 @@ impl Surface {
         }
         let vertices = mesh.positions.iter().zip(used).filter(|(_, used)| *used).map(|(p, _)| *p).collect();
         Some(Self { grid: TriangleGrid::new(triangles), vertices })
+    }
+
+    /// [`surface_distance`] from this surface to `other`: infinite where `other` has no triangle.
+    pub(super) fn distance_to(&self, other: &Mesh) -> f32 {
+        let other = triangles(other);
+        if other.is_empty() {
+            return f32::INFINITY;
+        }
+        let other = TriangleGrid::new(other);
+        farthest_sample(&self.grid.triangles, &other).max(farthest_sample(&other.triangles, &self.grid))
     }
 
     /// How far `level`, a simplification of this surface, lies from it: the largest distance from a sample of

@@ -8,7 +8,7 @@ use crate::camera::Camera;
 use crate::mesh::MeshRef;
 use crate::parallel::{self, Stage};
 use crate::pipeline::{CameraCuller, CullStage};
-use crate::visible::VisibleSet;
+use crate::visible::{VisibleSet, set_slots};
 use bevy_ecs::prelude::*;
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
@@ -210,18 +210,10 @@ impl LodSelection {
     /// selection's): their drawn mesh changed with the same level.
     fn note_dropped_changes(&mut self, was_dropped: &VisibleSet) {
         let (now, before) = (self.dropped.words(), was_dropped.words());
+        let word = |words: &[u64], i: usize| words.get(i).copied().unwrap_or(0);
+        let flips: Vec<u64> = (0..now.len().max(before.len())).map(|i| word(now, i) ^ word(before, i)).collect();
         let len = self.dropped.len();
-        let mut flipped = Vec::new();
-        for word in 0..now.len().max(before.len()) {
-            let mut bits = now.get(word).copied().unwrap_or(0) ^ before.get(word).copied().unwrap_or(0);
-            while bits != 0 {
-                let slot = word * 64 + bits.trailing_zeros() as usize;
-                bits &= bits - 1;
-                if slot < len {
-                    flipped.push(slot as u32);
-                }
-            }
-        }
+        let flipped: Vec<u32> = set_slots(0, &flips).filter(|&slot| slot < len).map(|slot| slot as u32).collect();
         if !flipped.is_empty() {
             self.changed.extend(flipped);
             self.changed.sort_unstable();
