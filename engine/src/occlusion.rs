@@ -20,7 +20,7 @@ use crate::detail::DetailTest;
 use crate::frustum::SimdBackend;
 use crate::occluders::OccluderInstance;
 use crate::parallel::{self, Stage};
-use crate::raster::{RasterMode, RasterStats, rasterize};
+use crate::raster::{RasterMode, RasterStats, TexelRect, rasterize_within};
 use crate::visible::VisibleSet;
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
@@ -102,6 +102,24 @@ pub fn occlude(
     visible: &mut VisibleSet,
     occluded: &mut VisibleSet,
 ) -> ViewOcclusion {
+    occlude_within(store, frustum_visible, view, occluders, mode, None, detail, pyramid, visible, occluded)
+}
+
+/// [`occlude`], the occluders drawn only within `scissor` where it is given and everything outside it hidden
+/// ([`rasterize_within`]): for a caller none of whose `frustum_visible` objects can be seen outside it.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn occlude_within(
+    store: &BoundsStore,
+    frustum_visible: &VisibleSet,
+    view: Option<&ScreenView>,
+    occluders: &[OccluderInstance<'_>],
+    mode: RasterMode,
+    scissor: Option<TexelRect>,
+    detail: Option<&DetailTest>,
+    pyramid: &mut DepthPyramid,
+    visible: &mut VisibleSet,
+    occluded: &mut VisibleSet,
+) -> ViewOcclusion {
     let Some(view) = view.filter(|_| !occluders.is_empty()) else {
         let start = Instant::now();
         *pyramid = DepthPyramid::default();
@@ -113,7 +131,7 @@ pub fn occlude(
         return ViewOcclusion { test, test_time: start.elapsed(), ..Default::default() };
     };
     let start = Instant::now();
-    let raster = rasterize(view, occluders, mode, pyramid);
+    let raster = rasterize_within(view, occluders, mode, scissor, pyramid);
     let raster_time = start.elapsed();
     let start = Instant::now();
     let _stage = Stage::Occlusion.enter();

@@ -25,6 +25,12 @@ impl BenefitGate {
         skip
     }
 
+    /// Runs the stage again from the next frame on, forgetting what it removed lately: for a view that
+    /// changed too much for that to say anything.
+    pub fn reopen(&mut self) {
+        *self = Self::default();
+    }
+
     /// Records a frame the stage ran, removing `removed` of the `tested` items, against `min_benefit` (a
     /// fraction): after `low_benefit_frames` such frames in a row the stage is skipped for `reprobe_every`
     /// frames. A frame with nothing tested says nothing and is not counted.

@@ -12,6 +12,10 @@
 //! the near plane; the ray leaves each region it crosses through a portal, at a point beyond the near plane,
 //! which the clipped portal's projection holds; so the point's pixel lies in every rectangle along the way, and
 //! its object, listed in every region its box touches, is tested against a view that holds it.
+//!
+//! The same argument bounds the occlusion stage's work from inside the cells: an object listed in no region
+//! the view starts in is seen, if at all, within the rectangle around the regions seen through portals, so for
+//! those objects the buffer is drawn within that rectangle only and hides everything outside it.
 
 use super::adaptive::BenefitGate;
 use super::{
@@ -20,10 +24,11 @@ use super::{
 use crate::bounds::{BoundsStore, SIMD_LANES};
 use crate::camera::Camera;
 use crate::cells::Cells;
-use crate::depth::DepthPyramid;
+use crate::depth::{DepthPyramid, ScreenView};
 use crate::frustum::{Frustum, FrustumOptions, cull_frustum};
-use crate::occlusion::occlude;
+use crate::occlusion::occlude_within;
 use crate::parallel::{self, Stage};
+use crate::raster::{RasterMode, TexelRect};
 use crate::visible::{SharedVisibleSet, VisibleSet};
 use glam::{DMat4, DVec2, DVec3, DVec4};
 use rayon::prelude::*;
@@ -31,6 +36,9 @@ use std::time::Instant;
 
 /// Slots of a region tested by one rayon task.
 const SLOTS_PER_TASK: usize = 4096;
+
+/// Objects the portal stage keeps below which a frame's growth does not reopen the occlusion stage's gate.
+const MIN_REOPEN_GROWTH: usize = 32;
 
 /// Margin added to every side of a projected portal's rectangle, in NDC units: covers the rounding of the
 /// projection, which is in f64 from f32 vertices.
@@ -85,6 +93,16 @@ impl Rect {
 
     fn contains(self, other: Rect) -> bool {
         self.min.cmple(other.min).all() && self.max.cmpge(other.max).all()
+    }
+
+    /// The texels of `view`'s buffer the rectangle reaches, a texel more each side for rounding.
+    fn texels(self, view: &ScreenView) -> TexelRect {
+        let (width, height) = (view.width as f64, view.height as f64);
+        let x = |ndc: f64| ((ndc * 0.5 + 0.5) * width).clamp(0.0, width);
+        let y = |ndc: f64| ((0.5 - ndc * 0.5) * height).clamp(0.0, height);
+        let (x0, x1) = ((x(self.min.x) - 1.0).max(0.0), (x(self.max.x) + 1.0).min(width));
+        let (y0, y1) = ((y(self.max.y) - 1.0).max(0.0), (y(self.min.y) + 1.0).min(height));
+        TexelRect { x0: x0.floor() as u32, x1: x1.ceil() as u32, y0: y0.floor() as u32, y1: y1.ceil() as u32 }
     }
 
     /// The camera's clip-from-relative matrix narrowed to this rectangle: its x and y remapped so that the
@@ -166,8 +184,17 @@ fn slot_box(store: &BoundsStore, slot: usize) -> Option<(glam::Vec3, glam::Vec3)
     (min.is_finite() && max.is_finite()).then_some((min, max))
 }
 
-/// The rectangle each region is seen through this frame (`None` for a region not seen), and the counts.
-fn traverse(cells: &Cells, camera: &Camera) -> (Vec<Option<Rect>>, PortalStats) {
+/// What the view sees of the regions this frame.
+struct Traversal {
+    /// The rectangle each region is seen through (`None` for a region not seen).
+    seen: Vec<Option<Rect>>,
+    /// Whether the view starts in each region (seen whole, not through portals).
+    started: Vec<bool>,
+    stats: PortalStats,
+}
+
+/// The regions the view sees, and through which rectangles.
+fn traverse(cells: &Cells, camera: &Camera) -> Traversal {
     let mut stats = PortalStats { regions: cells.region_count(), ..PortalStats::default() };
     let mut seen: Vec<Option<Rect>> = vec![None; cells.region_count()];
     let eye = camera.position;
@@ -194,6 +221,8 @@ fn traverse(cells: &Cells, camera: &Camera) -> (Vec<Option<Rect>>, PortalStats) 
         queue.push(cells.outside());
     }
     stats.start_regions = queue.len();
+    let mut started = vec![false; cells.region_count()];
+    queue.iter().for_each(|&region| started[region] = true);
 
     let view_from_relative = camera.view_from_relative_f64();
     let clip_from_view = camera.clip_from_view_f64();
@@ -221,7 +250,7 @@ fn traverse(cells: &Cells, camera: &Camera) -> (Vec<Option<Rect>>, PortalStats) 
         }
     }
     stats.regions_seen = seen.iter().flatten().count();
-    (seen, stats)
+    Traversal { seen, started, stats }
 }
 
 /// The screen rectangle of a portal's vertices clipped to the near plane, in NDC with a margin; `None` where
@@ -268,7 +297,9 @@ fn project_portal(
 
 /// Culls through cells and portals ([`crate::cells`]), then runs the occlusion stage over what they keep: the
 /// occluders chosen among the objects of the cells seen, so the cells behind closed walls cost neither tests
-/// nor raster.
+/// nor raster. Where the view starts only in cells, the stage tests only the objects seen through portals and
+/// draws its occluders only within the rectangle those are seen through; the objects of the cells around the
+/// eye are kept untested (the masked raster, which has no such scissor, tests everything).
 ///
 /// The cells come from the world's [`Cells`] resource; a world without one (or without cells) is culled by the
 /// frustum alone, then occlusion. Per object, the regions its box touches are listed once, and again for the
@@ -312,8 +343,17 @@ pub struct PortalCuller {
     occluded: VisibleSet,
     pyramid: DepthPyramid,
     portal_stats: PortalStats,
+    /// Where the view starts only in cells: the rectangle around the regions it sees through portals (`None`
+    /// within where it sees none). `None` where it starts outside, or the scene has no cells.
+    window: Option<Option<Rect>>,
+    /// Where `window` is given: the kept objects listed in a region the view starts in.
+    in_start_regions: VisibleSet,
+    /// The kept objects listed only in regions seen through portals.
+    through_portals: VisibleSet,
     /// Skips occlusion where it has removed too little lately.
     gate: BenefitGate,
+    /// What the portal stage kept the frame before.
+    kept_last_frame: usize,
 }
 
 impl PortalCuller {
@@ -344,7 +384,7 @@ impl PortalCuller {
         let store = scene.store();
         let cells = scene.world.get_resource::<Cells>().filter(|cells| !cells.cells().is_empty());
         let Some(cells) = cells else {
-            self.synced = None;
+            (self.synced, self.window) = (None, None);
             cull_frustum(store, frustum, FrustumOptions::default(), &mut self.portal_visible);
             let len = store.len();
             self.portal_stats =
@@ -352,7 +392,7 @@ impl PortalCuller {
             return;
         };
         self.sync(scene, cells);
-        let (seen, mut stats) = traverse(cells, camera);
+        let Traversal { seen, started, mut stats } = traverse(cells, camera);
         // The camera's frustum first, over the whole store at once: a region seen whole keeps its members that
         // pass it, and only the members that pass it of a region seen through portals are tested again, against
         // the view narrowed to that region's rectangle.
@@ -413,6 +453,21 @@ impl PortalCuller {
             });
         }
         kept.copy_to(store.len(), &mut self.portal_visible);
+        // From inside the cells, what lies beyond them is seen only through portals, within the rectangles
+        // those regions are seen through.
+        self.window = None;
+        if !started[cells.outside()] {
+            let through_portals = seen.iter().zip(&started).filter(|(_, started)| !**started);
+            let rects = through_portals.filter_map(|(rect, _)| rect.and_then(|rect| rect.intersect(Rect::SCREEN)));
+            self.window = Some(rects.reduce(Rect::union));
+            self.in_start_regions.reset(store.len());
+            let start_members = self.membership.of_region.iter().zip(&started).filter(|(_, started)| **started);
+            for &slot in start_members.flat_map(|(members, _)| members) {
+                if self.portal_visible.contains(slot as usize) {
+                    self.in_start_regions.set(slot as usize, true);
+                }
+            }
+        }
         self.portal_stats = stats;
     }
 }
@@ -446,6 +501,12 @@ impl Culler for PortalCuller {
         stats.after_frustum = self.portal_visible.count();
         stats.frustum_time = start.elapsed();
 
+        // A view that suddenly keeps far more than the frame before (through a door, turning to a window) is
+        // another view: what occlusion removed lately says nothing of it.
+        if stats.after_frustum > 2 * self.kept_last_frame.max(MIN_REOPEN_GROWTH) {
+            self.gate.reopen();
+        }
+        self.kept_last_frame = stats.after_frustum;
         let occlusion = self.settings.occlusion;
         let runs = occlusion.enabled && occlusion.validate().is_ok();
         stats.occlusion_gated = runs && self.gate.skip_this_frame();
@@ -455,21 +516,39 @@ impl Culler for PortalCuller {
             let occluders = scene.occluders_among(&self.portal_visible, camera.position, occlusion.triangle_budget);
             let selection_time = start.elapsed();
             let view = occlusion.view(camera);
-            let run = occlude(
+            // From inside the cells, only the objects seen through portals are tested, against occluders drawn
+            // only within the rectangle around the regions they are seen through; the objects of the cells around
+            // the eye are kept. The masked raster draws the whole buffer, so it tests everything.
+            let (tested, scissor) = match self.window.filter(|_| occlusion.mode != RasterMode::Masked) {
+                None => (&self.portal_visible, None),
+                Some(window) => {
+                    self.through_portals.clone_from(&self.portal_visible);
+                    self.through_portals.and_not(&self.in_start_regions);
+                    let nothing = TexelRect { x0: 0, x1: 0, y0: 0, y1: 0 };
+                    (&self.through_portals, Some(window.map_or(nothing, |rect| rect.texels(&view))))
+                }
+            };
+            // Nothing seen through portals: an empty test would only clear the buffer.
+            let occluders = if tested.count() == 0 { Vec::new() } else { occluders };
+            let run = occlude_within(
                 store,
-                &self.portal_visible,
+                tested,
                 Some(&view),
                 &occluders,
                 occlusion.mode,
+                scissor,
                 None,
                 &mut self.pyramid,
                 &mut self.kept,
                 &mut self.occluded,
             );
+            if scissor.is_some() {
+                self.kept.or(&self.in_start_regions);
+            }
             (stats.occluders, stats.occluder_triangles) = (occluders.len(), run.raster.triangles_rasterized);
             stats.occluders_hidden = run.raster.occluders_hidden;
             (stats.raster_time, stats.occlusion_time) = (selection_time + run.raster_time, run.test_time);
-            stats.after_occlusion = run.test.visible;
+            stats.after_occlusion = self.kept.count();
             // A frame without occluders says nothing of what occlusion is worth here.
             if !occluders.is_empty() {
                 let removed = stats.after_frustum - stats.after_occlusion;
@@ -509,6 +588,15 @@ mod tests {
                 crate::bounds::WorldBounds { center: world, half_extent: glam::Vec3::splat(1e-3), radius: 1.7e-3 };
             assert_eq!(frustum.intersects(&bounds), inside, "{ndc:?}");
         }
+    }
+
+    /// A rectangle's texels reach a texel past it each side, within the buffer; NDC's y points up, texels' down.
+    #[test]
+    fn a_rectangle_reaches_its_texels_and_one_more() {
+        let view = ScreenView::new(&Camera::looking_at(glam::Vec3::ZERO, -glam::Vec3::Z), 256, 144);
+        let rect = Rect { min: DVec2::new(-0.5, 0.0), max: DVec2::new(0.5, 1.0) };
+        assert_eq!(rect.texels(&view), TexelRect { x0: 63, x1: 193, y0: 0, y1: 73 });
+        assert_eq!(Rect::SCREEN.texels(&view), TexelRect::whole(256, 144));
     }
 
     #[test]

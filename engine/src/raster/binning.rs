@@ -128,18 +128,24 @@ pub(super) fn update_summary(summary: &mut [f32], cells: &[f32], width: usize, c
     }
 }
 
-/// The rows `y0..y1` of the depth buffer one task owns.
+/// The rows `y0..y1` of the depth buffer one task owns, drawn only within `scissor`.
 pub(super) struct Band<'a> {
     pub(super) texels: &'a mut [f32],
     pub(super) width: usize,
     pub(super) y0: u32,
     pub(super) y1: u32,
+    pub(super) scissor: TexelRect,
 }
 
-impl Band<'_> {
+impl<'a> Band<'a> {
+    /// Rows `y0..y1` (of `texels`, `width` texels each), drawn wherever they lie.
+    pub(super) fn new(texels: &'a mut [f32], width: usize, y0: u32, y1: u32) -> Self {
+        Band { texels, width, y0, y1, scissor: TexelRect::whole(width as u32, y1) }
+    }
+
     #[inline]
     pub(super) fn reborrow(&mut self) -> Band<'_> {
-        Band { texels: self.texels, width: self.width, y0: self.y0, y1: self.y1 }
+        Band { texels: self.texels, ..*self }
     }
 
     /// Whether every texel of `rect` within the band already holds a depth nearer than `nearest`, so that an
@@ -153,9 +159,13 @@ impl Band<'_> {
             return true;
         }
         let rect = self.clip(rect);
-        (rect.y0..rect.y1).all(|y| {
-            all_nearer(&self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize], nearest)
-        })
+        rect.is_empty()
+            || (rect.y0..rect.y1).all(|y| {
+                all_nearer(
+                    &self.texels[(y - self.y0) as usize * self.width..][rect.x0 as usize..rect.x1 as usize],
+                    nearest,
+                )
+            })
     }
 
     /// Recomputes the farthest depth of the blocks under `rect`'s columns after an occluder was drawn there.
@@ -164,9 +174,9 @@ impl Band<'_> {
         update_summary(blocks, self.texels, self.width, rect.x0 as usize..rect.x1 as usize);
     }
 
-    /// The part of `rect` inside the band.
+    /// The part of `rect` inside the band and its scissor.
     #[inline]
     pub(super) fn clip(&self, rect: TexelRect) -> TexelRect {
-        TexelRect { y0: rect.y0.max(self.y0), y1: rect.y1.min(self.y1), ..rect }
+        TexelRect { y0: rect.y0.max(self.y0), y1: rect.y1.min(self.y1), ..rect }.intersect(self.scissor)
     }
 }

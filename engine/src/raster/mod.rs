@@ -56,7 +56,8 @@ mod setup;
 mod texels;
 
 use binning::{BAND_ROWS, BLOCK_COLUMNS, Band, Bins, band_levels, reduce_band};
-use setup::{PendingOccluder, SetupScratch, TexelRect, screen_bound};
+pub(crate) use setup::TexelRect;
+use setup::{PendingOccluder, SetupScratch, screen_bound};
 use texels::{Scratch, raster_centres_with_backend, raster_union_with_backend};
 
 /// Occluders a task bounds on screen: each takes a projection of its box, so tasks of one would cost more
@@ -139,13 +140,38 @@ pub fn rasterize(
     mode: RasterMode,
     pyramid: &mut DepthPyramid,
 ) -> RasterStats {
+    rasterize_within(view, occluders, mode, None, pyramid)
+}
+
+/// [`rasterize`], drawing only the texels within `scissor` where it is given: every texel outside it holds
+/// [`HIDDEN_OUTSIDE_SCISSOR`], nearer than any depth, so the pyramid hides everything there. Only for a caller
+/// that tests nothing that could be seen outside the scissor. The masked mode draws the whole buffer: `scissor`
+/// must be `None` there.
+pub(crate) fn rasterize_within(
+    view: &ScreenView,
+    occluders: &[OccluderInstance<'_>],
+    mode: RasterMode,
+    scissor: Option<TexelRect>,
+    pyramid: &mut DepthPyramid,
+) -> RasterStats {
+    debug_assert!(scissor.is_none() || mode != RasterMode::Masked, "the masked raster has no scissor");
+    let whole = TexelRect::whole(view.width, view.height);
+    let within = match scissor.map(|scissor| scissor.intersect(whole)) {
+        Some(_) if mode == RasterMode::Masked => whole,
+        Some(scissor) if scissor.is_empty() => TexelRect { x0: 0, x1: 0, y0: 0, y1: 0 },
+        Some(scissor) => scissor,
+        None => whole,
+    };
     let bounded: Vec<(f32, TexelRect, &OccluderInstance)> = parallel::region(|region| {
         occluders
             .par_chunks(BOUND_OCCLUDERS_PER_TASK)
             .flat_map_iter(|chunk| {
                 region.task(|| {
-                    let bound =
-                        |instance| screen_bound(view, instance).map(|(rect, nearest)| (nearest, rect, instance));
+                    let bound = |instance| {
+                        let (rect, nearest) = screen_bound(view, instance)?;
+                        let rect = rect.intersect(within);
+                        (!rect.is_empty()).then_some((nearest, rect, instance))
+                    };
                     chunk.iter().filter_map(bound).collect::<Vec<_>>()
                 })
             })
@@ -166,7 +192,7 @@ pub fn rasterize(
     if mode == RasterMode::Masked {
         masked::rasterize_blocks(view, &pending, pyramid);
     } else {
-        rasterize_texels(view, &pending, mode, pyramid);
+        rasterize_texels(view, &pending, mode, within, pyramid);
     }
     let triangles_in = occluders.iter().map(|o| o.occluder.triangle_count()).sum();
     let set_up = pending.iter().filter_map(|occluder| occluder.setup.get()?.as_ref());
@@ -186,9 +212,18 @@ fn nearest_first_key(depth: f32) -> u32 {
     !(if bits >> 31 == 1 { !bits } else { bits | 1 << 31 })
 }
 
-/// Draws `pending` (nearest first) into a buffer of one texel per pixel of `view`, level 0 of `pyramid`, and
-/// reduces the levels above.
-fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: RasterMode, pyramid: &mut DepthPyramid) {
+/// The depth [`rasterize_within`] leaves outside its scissor: nearer than any surface.
+const HIDDEN_OUTSIDE_SCISSOR: f32 = f32::INFINITY;
+
+/// Draws `pending` (nearest first) into a buffer of one texel per pixel of `view`, level 0 of `pyramid`, within
+/// `scissor` ([`HIDDEN_OUTSIDE_SCISSOR`] elsewhere), and reduces the levels above.
+fn rasterize_texels(
+    view: &ScreenView,
+    pending: &[PendingOccluder],
+    mode: RasterMode,
+    scissor: TexelRect,
+    pyramid: &mut DepthPyramid,
+) {
     pyramid.resize_for_overwrite(view.width, view.height);
     if view.width == 0 || view.height == 0 {
         return; // No texel to write, at any level.
@@ -207,11 +242,20 @@ fn rasterize_texels(view: &ScreenView, pending: &[PendingOccluder], mode: Raster
         bands.for_each_init(scratches, |(scratch, setup_scratch, blocks), (band, (mut rows, bin))| {
             region.task(|| {
                 let texels = &mut *rows[0];
-                texels.fill(0.0);
-                blocks.fill(0.0);
                 let band_y0 = (band * BAND_ROWS) as u32;
+                for (row, y) in texels.chunks_exact_mut(width).zip(band_y0..) {
+                    let (x0, x1) = if (scissor.y0..scissor.y1).contains(&y) {
+                        (scissor.x0 as usize, scissor.x1 as usize)
+                    } else {
+                        (0, 0)
+                    };
+                    row[..x0].fill(HIDDEN_OUTSIDE_SCISSOR);
+                    row[x0..x1].fill(0.0);
+                    row[x1..].fill(HIDDEN_OUTSIDE_SCISSOR);
+                }
+                blocks.fill(0.0);
                 let band_y1 = band_y0 + (texels.len() / width) as u32;
-                let mut band = Band { texels, width, y0: band_y0, y1: band_y1 };
+                let mut band = Band { scissor, ..Band::new(texels, width, band_y0, band_y1) };
                 for &index in *bin {
                     let pending = &pending[index as usize];
                     if band.hides(blocks, pending.rect, pending.nearest) {
@@ -344,6 +388,41 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(64))]
 
+        /// Within a scissor, the raster writes the texels the whole buffer's raster writes there, however many
+        /// bands the scissor spans; outside it, every texel hides everything.
+        #[test]
+        fn a_scissor_draws_what_the_whole_buffer_does_within_it_and_hides_the_rest(
+            scale in prop::array::uniform3(0.5f32..20.0),
+            angles in prop::array::uniform3(-3.2f32..3.2),
+            offset in prop::array::uniform3(-15.0f32..15.0),
+            corners in prop::array::uniform4(0u32..220),
+        ) {
+            let (camera, occluder, transform) = placed_cube(scale, angles, offset);
+            let (near, far) = (Affine3A::from_translation(Vec3::Z * 10.0) * transform, transform);
+            let occluders = [near, far].map(|transform| OccluderInstance { occluder: &occluder, transform });
+            let view = ScreenView::new(&camera, 203, 117);
+            let scissor = TexelRect {
+                x0: corners[0].min(corners[1]),
+                x1: corners[0].max(corners[1]),
+                y0: corners[2].min(corners[3]),
+                y1: corners[2].max(corners[3]),
+            };
+            for mode in [RasterMode::Conservative, RasterMode::PixelCentres] {
+                let (mut whole, mut within) = (DepthPyramid::default(), DepthPyramid::default());
+                rasterize(&view, &occluders, mode, &mut whole);
+                rasterize_within(&view, &occluders, mode, Some(scissor), &mut within);
+                let inside = scissor.intersect(TexelRect::whole(view.width, view.height));
+                for (y, x) in (0..view.height).flat_map(|y| (0..view.width).map(move |x| (y, x))) {
+                    let texel = within.base().get(x, y);
+                    if (inside.x0..inside.x1).contains(&x) && (inside.y0..inside.y1).contains(&y) {
+                        prop_assert_eq!(texel.to_bits(), whole.base().get(x, y).to_bits(), "{:?} {} {}", mode, x, y);
+                    } else {
+                        prop_assert_eq!(texel, HIDDEN_OUTSIDE_SCISSOR, "{:?} {} {}", mode, x, y);
+                    }
+                }
+            }
+        }
+
         /// The AVX2 builds of the per-texel rasters write the very texels of the portable ones: the same f32
         /// arithmetic, compiled wider.
         #[cfg(target_arch = "x86_64")]
@@ -365,7 +444,7 @@ mod tests {
                 };
                 let draw = |avx2: bool| {
                     let mut texels = vec![0.0f32; (view.width * view.height) as usize];
-                    let band = Band { texels: &mut texels, width: view.width as usize, y0: 0, y1: view.height };
+                    let band = Band::new(&mut texels, view.width as usize, 0, view.height);
                     match mode {
                         RasterMode::Conservative => {
                             raster_union_with_backend(avx2, &setup, band, &mut Scratch::default())
@@ -407,7 +486,7 @@ mod tests {
                 for (band, rows) in texels.chunks_mut(BAND_ROWS * view.width as usize).enumerate() {
                     let y0 = (band * BAND_ROWS) as u32;
                     let y1 = y0 + (rows.len() / view.width as usize) as u32;
-                    let band = Band { texels: rows, width: view.width as usize, y0, y1 };
+                    let band = Band::new(rows, view.width as usize, y0, y1);
                     raster_union(setup, band, &mut Scratch::default());
                 }
                 texels

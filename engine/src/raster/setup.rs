@@ -24,17 +24,32 @@ pub(super) struct SetupTriangle {
     pub(super) rect: TexelRect,
 }
 
-/// Columns `x0..x1`, rows `y0..y1`.
+/// Columns `x0..x1`, rows `y0..y1` of a depth buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct TexelRect {
-    pub(super) x0: u32,
-    pub(super) x1: u32,
-    pub(super) y0: u32,
-    pub(super) y1: u32,
+pub(crate) struct TexelRect {
+    pub(crate) x0: u32,
+    pub(crate) x1: u32,
+    pub(crate) y0: u32,
+    pub(crate) y1: u32,
 }
 
 impl TexelRect {
     pub(super) const EMPTY: Self = Self { x0: u32::MAX, x1: 0, y0: u32::MAX, y1: 0 };
+
+    /// Every texel of a `width` by `height` buffer.
+    pub(crate) fn whole(width: u32, height: u32) -> Self {
+        Self { x0: 0, x1: width, y0: 0, y1: height }
+    }
+
+    #[inline]
+    pub(super) fn intersect(self, other: Self) -> Self {
+        Self {
+            x0: self.x0.max(other.x0),
+            x1: self.x1.min(other.x1),
+            y0: self.y0.max(other.y0),
+            y1: self.y1.min(other.y1),
+        }
+    }
 
     #[inline]
     pub(super) fn union(self, other: Self) -> Self {
@@ -47,7 +62,7 @@ impl TexelRect {
     }
 
     #[inline]
-    pub(super) fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.x0 >= self.x1 || self.y0 >= self.y1
     }
 }

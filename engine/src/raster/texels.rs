@@ -50,6 +50,9 @@ pub(super) unsafe fn raster_centres_avx2(triangles: &[SetupTriangle], band: Band
 pub(super) fn raster_centres(triangles: &[SetupTriangle], band: Band<'_>) {
     for tri in triangles {
         let rect = band.clip(tri.rect);
+        if rect.is_empty() {
+            continue;
+        }
         let [p, q, r] = tri.depth;
         let [[a0, b0, c0, _], [a1, b1, c1, _], [a2, b2, c2, _]] = tri.edges;
         for y in rect.y0..rect.y1 {
