@@ -343,8 +343,8 @@ pub struct PortalCuller {
     occluded: VisibleSet,
     pyramid: DepthPyramid,
     portal_stats: PortalStats,
-    /// Where the view starts only in cells: the rectangle around the regions it sees through portals (`None`
-    /// within where it sees none). `None` where it starts outside, or the scene has no cells.
+    /// Where the view starts only in cells: the rectangle around the regions it sees through portals
+    /// (`Some(None)` where it sees none). `None` where it starts outside, or the scene has no cells.
     window: Option<Option<Rect>>,
     /// Where `window` is given: the kept objects listed in a region the view starts in.
     in_start_regions: VisibleSet,
