@@ -162,6 +162,7 @@ fn the_structures_record_their_stages_inside_their_times() {
             scene.spawn(world);
         });
         flight.schedule.set_executor(SingleThreadedExecutor::new());
+        let mut frames_occluded = 0;
         for frame in 0..frames {
             let mut stats = None;
             let (recorded, _) = record_on(1, || stats = Some(flight.cull_frame(frame, culler.as_mut()).1.stats));
@@ -171,9 +172,14 @@ fn the_structures_record_their_stages_inside_their_times() {
                 (Stage::Raster, stats.raster_time),
                 (Stage::Occlusion, stats.occlusion_time),
             ];
+            // The portals skip the occlusion stage where nothing is seen through them from inside the cells.
+            let occlusion_ran = stats.occluders > 0;
+            frames_occluded += usize::from(occlusion_ran);
             for (stage, time) in stages {
                 let times = recorded.stage(stage);
-                assert!(times.regions >= 1, "{}, frame {frame}: {stage:?} recorded no region", culler.name());
+                if stage == Stage::Frustum || occlusion_ran {
+                    assert!(times.regions >= 1, "{}, frame {frame}: {stage:?} recorded no region", culler.name());
+                }
                 assert!(
                     times.tasks <= times.wall && times.wall <= time,
                     "{}, frame {frame}: {stage:?} {times:?} in {time:?}",
@@ -181,5 +187,6 @@ fn the_structures_record_their_stages_inside_their_times() {
                 );
             }
         }
+        assert!(frames_occluded > 0, "{}: occlusion never ran", culler.name());
     }
 }

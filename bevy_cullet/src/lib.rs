@@ -70,8 +70,11 @@
 //! Insert a [`CulletLod`] resource (each mesh's levels and the pixel error, hysteresis and triangle budget)
 //! and give entities a [`cullet::MeshRef`] naming their mesh's chain: after culling, [`CulletSystems::Lod`]
 //! chooses a level for each entity the main camera (the active perspective camera of lowest order) keeps and
-//! writes it as a [`LodLevel`] component where it changed; swap the entity's mesh on `Changed<LodLevel>`.
-//! [`CulletLodStats`] holds what the last frame chose. Lossy, and off without the resource.
+//! writes it as a [`LodLevel`] component where it changed. [`mesh_levels`] makes a Bevy mesh's levels and the
+//! chain for the library; an entity given their handles as [`LodMeshes`] gets its `Mesh3d` swapped to the
+//! level chosen, and leaves the main camera's visible list while the budget drops it (without [`LodMeshes`],
+//! swap the mesh on `Changed<LodLevel>`). [`CulletLodStats`] holds what the last frame chose. Lossy, and off
+//! without the resource.
 //!
 //! # Conservative
 //! The frustum test keeps every box the exact test keeps (Cullet's planes add a slack that bounds their f32
@@ -129,7 +132,9 @@ mod scene;
 
 pub use cull::{CulletView, ViewStats};
 pub use light_lists::CulletLightStats;
-pub use lod::{CulletLod, CulletLodStats, LodLevel};
+pub use lod::{CulletLod, CulletLodStats, LodLevel, LodMeshes};
+#[cfg(feature = "lod")]
+pub use lod::{MeshLevels, MeshLevelsError, mesh_levels};
 pub use mirror::CulletStore;
 pub use occluders::{GLTF_EXTRAS, OCCLUDER_SUFFIX, OccluderMesh};
 pub use scene::spawn_scene;
@@ -322,7 +327,7 @@ impl Plugin for CulletPlugin {
                     occluders::add_auto_occluders.in_set(CulletSystems::AutoOccluders),
                     cull::cull_views.in_set(CulletSystems::Cull).after(CulletSystems::Mirror).run_if(enabled),
                     light_lists::write_light_views.in_set(CulletSystems::Lights).run_if(lights_enabled),
-                    lod::choose_levels.in_set(CulletSystems::Lod).run_if(enabled),
+                    (lod::choose_levels, lod::swap_meshes).chain().in_set(CulletSystems::Lod).run_if(enabled),
                     // Bevy's check, where it was, for when the plugin is switched off.
                     check_visibility_cpu_culling.in_set(VisibilitySystems::CheckVisibility).run_if(not(enabled)),
                 ),

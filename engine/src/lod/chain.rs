@@ -41,6 +41,31 @@ impl Default for ChainSettings {
 /// past the positions, a position not finite. The mesh itself is then the only level
 /// ([`super::LodLibrary::build`] keeps it so).
 pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel>, LodError> {
+    simplified_chain(mesh, settings, Vertices::Welded)
+}
+
+/// [`build_chain`], with every level indexing `mesh`'s own vertices: each level's positions are all of `mesh`'s,
+/// in its order, and none is welded to another (vertices that share a position but differ in other attributes,
+/// a seam, stay apart; meshoptimizer keeps the seam where it collapses edges). For a renderer whose vertices
+/// carry more than positions (normals, texture coordinates): it draws a level with the mesh's vertex buffer and
+/// the level's indices. A level's bounds are the mesh's.
+///
+/// # Errors
+/// As [`build_chain`].
+pub fn build_chain_keeping_vertices(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel>, LodError> {
+    simplified_chain(mesh, settings, Vertices::Kept)
+}
+
+/// Which vertices a chain's levels index.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Vertices {
+    /// Welded by position, and only those each level uses.
+    Welded,
+    /// All of the mesh's.
+    Kept,
+}
+
+fn simplified_chain(mesh: &Mesh, settings: &ChainSettings, vertices: Vertices) -> Result<Vec<LodLevel>, LodError> {
     validate(mesh)?;
     let full = LodLevel { mesh: mesh.clone(), error: 0.0 };
     let max_levels = settings.max_levels.clamp(1, super::MAX_LEVELS);
@@ -49,10 +74,15 @@ pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel
     }
     let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
     // Validated above: every index is below `positions.len()`, the count a multiple of 3.
-    let (unique, remap) = meshopt::generate_vertex_remap(&positions, Some(&mesh.indices));
-    let indices = meshopt::remap_index_buffer(Some(&mesh.indices), positions.len(), &remap);
-    let welded = meshopt::remap_vertex_buffer(&positions, unique, &remap);
-    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&welded), 12, 0)
+    let (positions, indices) = match vertices {
+        Vertices::Welded => {
+            let (unique, remap) = meshopt::generate_vertex_remap(&positions, Some(&mesh.indices));
+            let indices = meshopt::remap_index_buffer(Some(&mesh.indices), positions.len(), &remap);
+            (meshopt::remap_vertex_buffer(&positions, unique, &remap), indices)
+        }
+        Vertices::Kept => (positions, mesh.indices.clone()),
+    };
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&positions), 12, 0)
         .expect("12-byte positions at offset 0 fit their own buffer");
     let extent = meshopt::simplify_scale(&adapter);
     let options = meshopt::SimplifyOptions::ErrorAbsolute;
@@ -81,7 +111,10 @@ pub fn build_chain(mesh: &Mesh, settings: &ChainSettings) -> Result<Vec<LodLevel
             }
             break;
         }
-        let level = compact(&welded, simplified);
+        let level = match vertices {
+            Vertices::Welded => compact(&positions, simplified),
+            Vertices::Kept => Mesh { positions: mesh.positions.clone(), indices: simplified },
+        };
         let measured = surface.as_ref().map_or(0.0, |surface| surface.distance_to_level(&level));
         let error = error.max(measured).max(levels.last().map_or(0.0, |l| l.error));
         let level = LodLevel { mesh: level, error };

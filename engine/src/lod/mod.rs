@@ -51,7 +51,7 @@ pub mod select;
 pub mod distance;
 
 #[cfg(feature = "lod")]
-pub use chain::{ChainSettings, build_chain, given_chain};
+pub use chain::{ChainSettings, build_chain, build_chain_keeping_vertices, given_chain};
 #[cfg(feature = "lod")]
 pub use distance::surface_distance;
 pub use library::LodLibrary;
