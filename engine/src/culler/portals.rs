@@ -513,8 +513,6 @@ impl Culler for PortalCuller {
         if runs && !stats.occlusion_gated {
             let start = Instant::now();
             let _stage = Stage::Raster.enter();
-            let occluders = scene.occluders_among(&self.portal_visible, camera.position, occlusion.triangle_budget);
-            let selection_time = start.elapsed();
             let view = occlusion.view(camera);
             // From inside the cells, only the objects seen through portals are tested, against occluders drawn
             // only within the rectangle around the regions they are seen through; the objects of the cells around
@@ -528,8 +526,13 @@ impl Culler for PortalCuller {
                     (&self.through_portals, Some(window.map_or(nothing, |rect| rect.texels(&view))))
                 }
             };
-            // Nothing seen through portals: an empty test would only clear the buffer.
-            let occluders = if tested.count() == 0 { Vec::new() } else { occluders };
+            // Nothing seen through portals: no occluder is chosen, as an empty test would only clear the buffer.
+            let occluders = if tested.count() == 0 {
+                Vec::new()
+            } else {
+                scene.occluders_among(&self.portal_visible, camera.position, occlusion.triangle_budget)
+            };
+            let selection_time = start.elapsed();
             let run = occlude_within(
                 store,
                 tested,
