@@ -7,12 +7,13 @@ use cullet::Camera;
 use cullet::camera::DepthConvention;
 use cullet::depth::{DepthBuffer, DepthPyramid};
 use cullet::gpu::cluster_cull::{ClusterVerdict, cull_cluster};
+use cullet::gpu::draw::RenderedImage;
 use cullet::gpu::hzb::Hzb;
 use cullet::gpu::interface::{GpuView, VIEW_HZB, VIEW_PHASE_LATE, VIEW_SECOND_HZB};
 use cullet::gpu::scene::instances_from_world;
 use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::two_phase::merge_level0;
-use cullet::gpu::{GpuContext, GpuError, STORAGE_BUFFERS_PER_STAGE};
+use cullet::gpu::{DrawBuffers, GpuContext, GpuError, OwnRenderer, STORAGE_BUFFERS_PER_STAGE};
 use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, ReadBack};
 use cullet::pipeline::CameraCuller;
 use cullet_test_support::context_for_tests;
@@ -305,16 +306,28 @@ fn cluster_and_triangle_culling_match_the_cpu_exactly() {
 /// pixels the unculled image covers.
 fn pixels_differing_from_unculled(context: &GpuContext, culler: &mut GpuCuller, camera: &Camera) -> (usize, usize) {
     let culled = culler.read_image(context).unwrap();
+    image_differing_from_unculled(context, culler, camera, &culled)
+}
+
+/// [`pixels_differing_from_unculled`] for `culled`, an image drawn by a renderer of its own (colour compared
+/// only where it has one).
+fn image_differing_from_unculled(
+    context: &GpuContext,
+    culler: &mut GpuCuller,
+    camera: &Camera,
+    culled: &RenderedImage,
+) -> (usize, usize) {
     let unculled = culler.debug().unculled(context, camera, false).unwrap();
     let reversed = culler.debug().unculled(context, camera, true).unwrap();
     assert_eq!(unculled.depth, reversed.depth, "depth must not depend on draw order");
     // Pixels where two objects' surfaces meet at exactly the same depth: which one shows depends on draw order
     // alone, and the culled draws come in the order the GPU appended them.
     let tie = |i: usize| unculled.object[i] != reversed.object[i];
+    let color_differs = |i: usize| !culled.color.is_empty() && culled.color[i] != unculled.color[i];
     let differing = (0..culled.object.len())
         .filter(|&i| {
             culled.depth[i] != unculled.depth[i]
-                || (!tie(i) && (culled.object[i] != unculled.object[i] || culled.color[i] != unculled.color[i]))
+                || (!tie(i) && (culled.object[i] != unculled.object[i] || color_differs(i)))
         })
         .count();
     let covered = unculled.object.iter().filter(|&&o| o != cullet::gpu::draw::NO_OBJECT).count();
@@ -777,6 +790,230 @@ fn two_phase_draws_the_unculled_image_on_the_shared_scenes() {
             assert!(early.triangles_out > 4 * late.triangles_out, "{name}, frame {frame}");
         }
     }
+}
+
+/// A renderer of the test's own: each object's store slot and its depth, drawn as the culler's draw does
+/// (`draw.wgsl`'s vertex stage), into textures of its own.
+struct SlotRenderer {
+    pipeline: wgpu::RenderPipeline,
+    object: wgpu::Texture,
+    depth: wgpu::Texture,
+    /// The depth each draw clears to.
+    empty_depth: f32,
+}
+
+const SLOT_SHADER: &str = "
+@group(0) @binding(1) var<storage, read> instances: array<Instance>;
+
+struct Varyings {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) @interpolate(flat) instance: u32,
+}
+
+@vertex
+fn vs(@location(0) position: vec3<f32>, @builtin(instance_index) instance: u32) -> Varyings {
+    var clip = view.clip_from_relative * vec4<f32>(relative_point(instances[instance], position, view.camera.xyz), 1.0);
+    if (view.depth_from_negative_one != 0u) {
+        clip.z = (clip.z + clip.w) * 0.5;
+    }
+    return Varyings(clip, instance);
+}
+
+@fragment
+fn fs(in: Varyings) -> @location(0) u32 {
+    return in.instance;
+}
+";
+
+impl SlotRenderer {
+    /// Targets of `size` (width, height) for frames drawn in the `depth` convention, the depth texture made as
+    /// `depth_format` with `depth_usage` besides being drawn into.
+    fn new(
+        context: &GpuContext,
+        size: (u32, u32),
+        depth: DepthConvention,
+        (depth_format, depth_usage): (wgpu::TextureFormat, wgpu::TextureUsages),
+    ) -> Self {
+        let device = &context.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("slots"),
+            source: wgpu::ShaderSource::Wgsl(cullet::gpu::shader_source(SLOT_SHADER).into()),
+        });
+        let reversed = depth == DepthConvention::Reversed;
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("slots"),
+            layout: None,
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                buffers: &[Some(cullet::gpu::indirect::POSITION_LAYOUT)],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: depth_format,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(if reversed {
+                    wgpu::CompareFunction::Greater
+                } else {
+                    wgpu::CompareFunction::Less
+                }),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::TextureFormat::R32Uint.into())],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let texture = |format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("slots"),
+                size: wgpu::Extent3d { width: size.0, height: size.1, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: usage | wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                view_formats: &[],
+            })
+        };
+        Self {
+            pipeline,
+            object: texture(wgpu::TextureFormat::R32Uint, wgpu::TextureUsages::empty()),
+            depth: texture(depth_format, depth_usage),
+            empty_depth: if reversed { 0.0 } else { 1.0 },
+        }
+    }
+
+    /// What it drew: object IDs and depth, no colour.
+    fn read(&self, context: &GpuContext) -> RenderedImage {
+        let object = context.read_texture(&self.object, wgpu::TextureAspect::All, 4).unwrap();
+        let depth = context.read_texture(&self.depth, wgpu::TextureAspect::DepthOnly, 4).unwrap();
+        RenderedImage {
+            width: self.object.width(),
+            height: self.object.height(),
+            color: Vec::new(),
+            object: bytemuck::cast_slice(&object).to_vec(),
+            depth: bytemuck::cast_slice(&depth).to_vec(),
+        }
+    }
+}
+
+impl OwnRenderer for SlotRenderer {
+    fn depth(&self) -> &wgpu::Texture {
+        &self.depth
+    }
+
+    fn draw(
+        &mut self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        buffers: DrawBuffers<'_>,
+        clear: bool,
+    ) {
+        let group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("slots"),
+            layout: &self.pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: buffers.view.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: buffers.instances.as_entire_binding() },
+            ],
+        });
+        let (object, depth) =
+            (self.object.create_view(&Default::default()), self.depth.create_view(&Default::default()));
+        let no_object = f64::from(cullet::gpu::draw::NO_OBJECT);
+        let (object_load, depth_load) = match clear {
+            true => {
+                let cleared = wgpu::Color { r: no_object, g: 0.0, b: 0.0, a: 0.0 };
+                (wgpu::LoadOp::Clear(cleared), wgpu::LoadOp::Clear(self.empty_depth))
+            }
+            false => (wgpu::LoadOp::Load, wgpu::LoadOp::Load),
+        };
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("slots"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &object,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: object_load, store: wgpu::StoreOp::Store },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &depth,
+                depth_ops: Some(wgpu::Operations { load: depth_load, store: wgpu::StoreOp::Store }),
+                stencil_ops: None,
+            }),
+            ..Default::default()
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        buffers.record(context, &mut pass);
+    }
+}
+
+/// A renderer drawing both phases into its own depth: with the software occluders off, the late phase hides
+/// clusters only through the depth the renderer drew early (the culler's own targets are never drawn), and the
+/// renderer's image equals the unculled one through the fly-through, cuts and a resize, in every depth
+/// convention. A depth texture the merge cannot read is refused before anything runs.
+#[test]
+fn a_renderer_of_its_own_draws_both_phases_into_its_depth() {
+    let Some(context) = context_for_tests() else { return };
+    let occlusion = OcclusionSettings { enabled: false, ..OcclusionSettings::default() };
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    let readable = (wgpu::TextureFormat::Depth32Float, wgpu::TextureUsages::TEXTURE_BINDING);
+    for convention in [DepthConvention::Reversed, DepthConvention::Standard, DepthConvention::NegativeOneToOne] {
+        let mut setup = setup_flying(&context, 3000, (WIDTH, HEIGHT), occlusion, 300);
+        let views = cameras(setup.half);
+        let mut renderer = SlotRenderer::new(&context, (WIDTH, HEIGHT), convention, readable);
+        let mut late_hidden = 0;
+        for frame in 0..10 {
+            let size = if frame < 6 { (WIDTH, HEIGHT) } else { (WIDTH + 37, HEIGHT + 21) };
+            if frame == 6 {
+                setup.culler.resize(&context, size.0, size.1);
+                renderer = SlotRenderer::new(&context, size, convention, readable);
+            }
+            let camera = match frame {
+                4 => views[2].1,
+                _ => setup.flight.path.camera_at(frame as f32 * setup.flight.frame_delta(), 1.0),
+            };
+            let camera = Camera { depth: convention, aspect: size.0 as f32 / size.1 as f32, ..camera };
+            setup.flight.run_with_camera(camera, setup.flight.frame_delta());
+            let world = &mut setup.flight.world;
+            let output = setup.culler.run_world_into(&context, world, &settings, &mut renderer).expect("GPU frame");
+            let phases = output.phases.expect("a frame of two phases");
+            late_hidden += phases.late.clusters_hzb;
+            let image = renderer.read(&context);
+            let (differing, covered) = image_differing_from_unculled(&context, &mut setup.culler, &camera, &image);
+            println!("{convention:?}, frame {frame}: {differing} differing of {covered} covered; {phases:?}");
+            assert!(covered > 0, "{convention:?}, frame {frame}: nothing drawn");
+            assert_eq!(differing, 0, "{convention:?}, frame {frame}: {phases:?}");
+        }
+        assert!(late_hidden > 0, "{convention:?}: the late phase hid nothing behind the renderer's depth");
+    }
+
+    // Depth textures the merge cannot read.
+    let mut setup = setup(&context, 500);
+    setup.flight.run_frame(0);
+    let reversed = DepthConvention::Reversed;
+    let wrong = [
+        SlotRenderer::new(&context, (WIDTH, HEIGHT), reversed, (wgpu::TextureFormat::Depth24Plus, readable.1)),
+        SlotRenderer::new(&context, (WIDTH + 1, HEIGHT), reversed, readable),
+        SlotRenderer::new(&context, (WIDTH, HEIGHT), reversed, (readable.0, wgpu::TextureUsages::empty())),
+    ];
+    for mut renderer in wrong {
+        let result = setup.culler.run_world_into(&context, &mut setup.flight.world, &settings, &mut renderer);
+        assert!(matches!(result, Err(GpuError::RendererDepth(_))), "{:?}", result.map(|output| output.counters));
+    }
+    // In one phase the depth is not read: any depth does.
+    let mut renderer =
+        SlotRenderer::new(&context, (WIDTH, HEIGHT), reversed, (wgpu::TextureFormat::Depth24Plus, readable.1));
+    let one_phase = GpuCullSettings::default();
+    setup.culler.run_world_into(&context, &mut setup.flight.world, &one_phase, &mut renderer).expect("one phase");
 }
 
 /// Two-phase occlusion's passes against their CPU twins on still cameras, once the late phase draws nothing

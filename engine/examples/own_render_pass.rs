@@ -1,8 +1,9 @@
-//! A renderer's use of the GPU culler: cull two frames of the built-in city in two phases (two-phase
-//! occlusion: what the first frame saw is drawn first, and the rest culled against that depth), then draw the
-//! survivors of both phases from a render pass of your own, each with one `multi_draw_indexed_indirect_count`
-//! over the culler's outputs (compacted indices, indirect arguments, draw count), and compare with the
-//! culler's own image.
+//! A renderer's use of the GPU culler: frames of the built-in city culled in two phases (two-phase occlusion:
+//! what the frame before saw is drawn first, and the rest culled against that depth), each phase drawn by a
+//! render pass of your own into your own colour and depth textures, with one
+//! `multi_draw_indexed_indirect_count` over the culler's outputs (compacted indices, indirect arguments, draw
+//! count). The culler reads your depth between the phases: the late phase culls against what you drew. The
+//! pixels covered are compared with an unculled image.
 //!
 //! Your shader starts with the engine's declarations (`cullet::gpu::shader_source`): the `Instance` struct,
 //! the `view` (a read-only storage buffer) at group 0 binding 0 and `relative_point`. Each indirect draw's
@@ -12,7 +13,7 @@
 
 use bevy_ecs::prelude::*;
 use cullet::gpu::draw::NO_OBJECT;
-use cullet::gpu::{GpuContext, GpuCullSettings, GpuCuller, GpuError};
+use cullet::gpu::{DrawBuffers, GpuContext, GpuCullSettings, GpuCuller, GpuError, OwnRenderer};
 use cullet::prelude::*;
 use cullet::scene::city::{CityParams, CityScene};
 
@@ -36,117 +37,139 @@ const SIZE: (u32, u32) = (640, 360);
 const COLOR: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
-fn main() -> Result<(), GpuError> {
-    // The CPU stages, then the GPU passes, for one frame of a 10 000-object city.
-    let city = CityScene::generate(CityParams::with_objects(10_000));
-    let (mut world, mut schedule) = (World::new(), Schedule::default());
-    cullet::install(&mut world, &mut schedule, PipelineSettings::default());
-    city.spawn(&mut world);
-    let camera = Camera { aspect: SIZE.0 as f32 / SIZE.1 as f32, ..city.benchmark_cameras()[0].1 };
-    world.insert_resource(camera);
-    let context = GpuContext::new()?;
-    let mut culler = GpuCuller::for_world(&context, &world, &city.scene.meshes, SIZE);
-    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
-    let mut frame = None;
-    for step in [0.0, 0.5] {
-        // The second frame half a metre further on: most of it was visible in the first.
-        world.insert_resource(Camera { position: camera.position + camera.forward.normalize() * step, ..camera });
-        schedule.run(&mut world);
-        world.clear_trackers();
-        frame = Some(culler.run_world(&context, &mut world, &settings)?);
+/// Your renderer: a pipeline over the culler's buffers, and colour and depth textures of your own.
+struct MyRenderer {
+    pipeline: wgpu::RenderPipeline,
+    color: wgpu::Texture,
+    depth: wgpu::Texture,
+}
+
+impl MyRenderer {
+    fn new(device: &wgpu::Device) -> Self {
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("my draw"),
+            source: wgpu::ShaderSource::Wgsl(cullet::gpu::shader_source(SHADER).into()),
+        });
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("my draw"),
+            layout: None,
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                // `positions`: three f32 a vertex, at location 0.
+                buffers: &[Some(cullet::gpu::indirect::POSITION_LAYOUT)],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
+            // The camera's default depth is reversed: nearer is greater, cleared to 0.
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Greater),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &[Some(COLOR.into())],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let texture = |format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: None,
+                size: wgpu::Extent3d { width: SIZE.0, height: SIZE.1, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let color = texture(COLOR, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
+        // The culler reads this depth between the phases: it needs the texture binding.
+        let depth = texture(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING);
+        Self { pipeline, color, depth }
     }
-    let frame = frame.expect("two frames ran");
-    // The early phase's draws, then the late phase's, into the same depth.
-    let buffers = culler.draw_buffers().expect("a frame ran");
-    let late_buffers = culler.late_draw_buffers().expect("a frame of two phases ran");
+}
 
-    // Your own pipeline over the culler's buffers.
-    let device = &context.device;
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("my draw"),
-        source: wgpu::ShaderSource::Wgsl(cullet::gpu::shader_source(SHADER).into()),
-    });
-    let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-        label: Some("my draw"),
-        layout: None,
-        vertex: wgpu::VertexState {
-            module: &module,
-            entry_point: Some("vs"),
-            compilation_options: Default::default(),
-            // `positions`: three f32 a vertex, at location 0.
-            buffers: &[Some(cullet::gpu::indirect::POSITION_LAYOUT)],
-        },
-        primitive: wgpu::PrimitiveState { cull_mode: Some(wgpu::Face::Back), ..Default::default() },
-        // The camera's default depth is reversed: nearer is greater, cleared to 0.
-        depth_stencil: Some(wgpu::DepthStencilState {
-            format: DEPTH,
-            depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::Greater),
-            stencil: Default::default(),
-            bias: Default::default(),
-        }),
-        multisample: Default::default(),
-        fragment: Some(wgpu::FragmentState {
-            module: &module,
-            entry_point: Some("fs"),
-            compilation_options: Default::default(),
-            targets: &[Some(COLOR.into())],
-        }),
-        multiview_mask: None,
-        cache: None,
-    });
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("my draw"),
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry { binding: 0, resource: buffers.view.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 1, resource: buffers.instances.as_entire_binding() },
-        ],
-    });
-    let texture = |format, usage| {
-        device.create_texture(&wgpu::TextureDescriptor {
-            label: None,
-            size: wgpu::Extent3d { width: SIZE.0, height: SIZE.1, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage,
-            view_formats: &[],
-        })
-    };
-    let color = texture(COLOR, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC);
-    let depth = texture(DEPTH, wgpu::TextureUsages::RENDER_ATTACHMENT);
-    let (color_view, depth_view) = (color.create_view(&Default::default()), depth.create_view(&Default::default()));
+impl OwnRenderer for MyRenderer {
+    fn depth(&self) -> &wgpu::Texture {
+        &self.depth
+    }
 
-    let mut encoder = device.create_command_encoder(&Default::default());
-    {
+    fn draw(
+        &mut self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        buffers: DrawBuffers<'_>,
+        clear: bool,
+    ) {
+        let bind_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("my draw"),
+            layout: &self.pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: buffers.view.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: buffers.instances.as_entire_binding() },
+            ],
+        });
+        let (color_view, depth_view) =
+            (self.color.create_view(&Default::default()), self.depth.create_view(&Default::default()));
+        let (color_load, depth_load) = match clear {
+            true => (wgpu::LoadOp::Clear(wgpu::Color::BLACK), wgpu::LoadOp::Clear(0.0)),
+            false => (wgpu::LoadOp::Load, wgpu::LoadOp::Load),
+        };
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("my draw"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
                 view: &color_view,
                 depth_slice: None,
                 resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+                ops: wgpu::Operations { load: color_load, store: wgpu::StoreOp::Store },
             })],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: &depth_view,
-                depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+                depth_ops: Some(wgpu::Operations { load: depth_load, store: wgpu::StoreOp::Store }),
                 stencil_ops: None,
             }),
             ..Default::default()
         });
-        pass.set_pipeline(&pipeline);
+        pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &bind_group, &[]);
-        // Per phase: the positions as vertex buffer, the compacted indices, and one multi-draw-indirect-count
-        // over the culler's arguments and draw count.
-        buffers.record(&context, &mut pass);
-        late_buffers.record(&context, &mut pass);
+        // The positions as vertex buffer, the compacted indices, and one multi-draw-indirect-count over the
+        // culler's arguments and draw count.
+        buffers.record(context, &mut pass);
     }
-    context.queue.submit([encoder.finish()]);
+}
 
-    // Read the image back and count the pixels the survivors cover.
-    let covered = covered_pixels(&context, &color)?;
+fn main() -> Result<(), GpuError> {
+    // The CPU stages, then the GPU passes, for frames of a 10 000-object city.
+    let city = CityScene::generate(CityParams::with_objects(10_000));
+    let (mut world, mut schedule) = (World::new(), Schedule::default());
+    cullet::install(&mut world, &mut schedule, PipelineSettings::default());
+    city.spawn(&mut world);
+    let camera = Camera { aspect: SIZE.0 as f32 / SIZE.1 as f32, ..city.benchmark_cameras()[0].1 };
+    let context = GpuContext::new()?;
+    let mut culler = GpuCuller::for_world(&context, &world, &city.scene.meshes, SIZE);
+    let mut renderer = MyRenderer::new(&context.device);
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    let mut frame = None;
+    for step in [0.0, 0.5] {
+        // The second frame half a metre further on: most of it was visible in the first, and is drawn early.
+        world.insert_resource(Camera { position: camera.position + camera.forward.normalize() * step, ..camera });
+        schedule.run(&mut world);
+        world.clear_trackers();
+        frame = Some(culler.run_world_into(&context, &mut world, &settings, &mut renderer)?);
+    }
+    let frame = frame.expect("two frames ran");
+
+    // Read your image back and count the pixels the survivors cover.
+    let covered = covered_pixels(&context, &renderer.color)?;
     let c = frame.counters;
     let phases = frame.phases.expect("two phases");
     println!("two phases: {} triangles drawn early, {} late", phases.early.triangles_out, phases.late.triangles_out);
@@ -160,12 +183,13 @@ fn main() -> Result<(), GpuError> {
         c.triangles_in,
         c.draws
     );
-    // The culler drew the same survivors into its own targets: the same pixels are covered.
-    let culler_image = culler.read_image(&context)?;
-    let culler_covered = culler_image.object.iter().filter(|&&object| object != NO_OBJECT).count();
-    println!("my render pass covered {covered} of {} pixels, the culler's own draw {culler_covered}", SIZE.0 * SIZE.1);
+    // Every object drawn with no culling at all covers the same pixels.
+    let last_camera = *world.resource::<Camera>();
+    let unculled = culler.debug().unculled(&context, &last_camera, false)?;
+    let unculled_covered = unculled.object.iter().filter(|&&object| object != NO_OBJECT).count();
+    println!("my render pass covered {covered} of {} pixels, the unculled draw {unculled_covered}", SIZE.0 * SIZE.1);
     assert!(covered > 0, "the survivors cover part of the screen");
-    assert_eq!(covered, culler_covered, "the same draws cover the same pixels");
+    assert_eq!(covered, unculled_covered, "the culled draws cover what every object does");
     Ok(())
 }
 

@@ -38,7 +38,7 @@ impl DebugDraw<'_> {
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
-        self.culler.run_views(context, camera, draw_camera, visible, depth, settings, None)
+        self.culler.run_views(context, camera, draw_camera, visible, depth, settings, None, None)
     }
 
     /// [`GpuCuller::run_world`] drawing from `draw_camera` (see [`DebugDraw::run_from`]).
@@ -55,7 +55,7 @@ impl DebugDraw<'_> {
         draw_camera: &Camera,
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
-        self.culler.run_world_from(context, world, draw_camera, settings)
+        self.culler.run_world_from(context, world, draw_camera, settings, None)
     }
 
     /// Draws every object of `world` with no culling, each in the colour `color_of(slot)` gives it (its own

@@ -14,6 +14,7 @@ use super::late_read::LateRead;
 use super::output::{
     COUNTER_BYTES, GpuCounters, GpuFrameOutput, ONE_PHASE_PASSES, PassTimer, PhaseCounters, TIMED_PASSES,
 };
+use super::own_renderer::{OwnRenderer, check_depth};
 use super::scene::{GpuInstance, GpuScene, drawn_meshes, instance_of, instances_from_world};
 use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
 use super::two_phase::TwoPhase;
@@ -31,7 +32,12 @@ use crate::pipeline::{CameraCuller, LightViews, LightViewsVisible};
 use crate::culler::{BenefitGate, OcclusionSettings};
 use bevy_ecs::prelude::*;
 use bytemuck::Zeroable;
-use std::time::Instant;
+use std::time::{Duration, Instant};
+
+/// `renderer` lent for a shorter while: the trait object's lifetime shrinks with the borrow's.
+fn reborrow<'a>(renderer: &'a mut Option<&mut dyn OwnRenderer>) -> Option<&'a mut dyn OwnRenderer> {
+    renderer.as_mut().map(|renderer| &mut **renderer as &mut dyn OwnRenderer)
+}
 
 /// Which GPU tests run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -194,7 +200,8 @@ pub type Survivors = (Vec<(u32, u32)>, Vec<u32>);
 ///
 /// Build it with [`GpuCuller::for_world`]; each frame, after the CPU stages ran,
 /// [`GpuCuller::run_world`] brings the instances up to date, culls and draws. A renderer of its own draws
-/// from [`GpuCuller::draw_buffers`] instead of (or after) the culler's draw.
+/// from [`GpuCuller::draw_buffers`] after the culler's draw, or every frame in place of it through
+/// [`GpuCuller::run_world_into`] (which two-phase occlusion needs to cull against the renderer's depth).
 pub struct GpuCuller {
     pub(super) scene: GpuScene,
     hzb: Hzb,
@@ -400,11 +407,32 @@ impl GpuCuller {
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
-        self.run_views(context, camera, camera, visible, depth, settings, None)
+        self.run_views(context, camera, camera, visible, depth, settings, None, None)
     }
 
-    /// [`GpuCuller::run`] drawing the survivors as `draw_camera` sees them, and with `cascades` the shadow maps
-    /// culled and drawn first, in the same submission; with `None` the shadow maps stay as they are.
+    /// [`GpuCuller::run`] with `renderer` drawing the survivors into its own targets instead of the culler
+    /// into its own ([`GpuCuller::read_image`] then keeps an earlier frame's image). With
+    /// [`GpuCullSettings::two_phase`], the late phase culls against the depth `renderer` drew in the early
+    /// phase, merged with the CPU pyramid.
+    ///
+    /// # Errors
+    /// As [`GpuCuller::run`], and [`GpuError::RendererDepth`] (nothing is run) where the settings ask for two
+    /// phases and the renderer's depth texture is not one the merge can read.
+    pub fn run_into(
+        &mut self,
+        context: &GpuContext,
+        camera: &Camera,
+        visible: &[u32],
+        depth: &DepthBuffer,
+        settings: &GpuCullSettings,
+        renderer: &mut dyn OwnRenderer,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        self.run_views(context, camera, camera, visible, depth, settings, None, Some(renderer))
+    }
+
+    /// [`GpuCuller::run`] drawing the survivors as `draw_camera` sees them (by `renderer` where given, from
+    /// `camera`), and with `cascades` the shadow maps culled and drawn first, in the same submission; with
+    /// `None` the shadow maps stay as they are.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn run_views(
         &mut self,
@@ -415,7 +443,12 @@ impl GpuCuller {
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
         mut cascades: Option<&[Cascade<'_>]>,
+        mut renderer: Option<&mut dyn OwnRenderer>,
     ) -> Result<GpuFrameOutput, GpuError> {
+        if let Some(renderer) = renderer.as_deref().filter(|_| settings.two_phase) {
+            check_depth(renderer.depth(), self.targets.size())?;
+        }
+        let draw_camera = if renderer.is_some() { camera } else { draw_camera };
         if depth.width() > 0 && !self.hzb.fits(depth.width(), depth.height()) {
             self.hzb = Hzb::new(context, depth.width(), depth.height());
         }
@@ -446,8 +479,9 @@ impl GpuCuller {
         for (i, batch) in batches.into_iter().enumerate() {
             let (first, cascades) = (i == 0, cascades.take());
             let frame = BatchFrame { gate, first, late, two_phase };
-            let output =
-                self.run_batch(context, camera, draw_camera, &visible[batch], depth, settings, frame, cascades)?;
+            let renderer = reborrow(&mut renderer);
+            let draw = (draw_camera, renderer);
+            let output = self.run_batch(context, camera, draw, &visible[batch], depth, settings, frame, cascades)?;
             total = Some(match total {
                 None => output,
                 Some(sum) => sum.plus(&output),
@@ -529,7 +563,7 @@ impl GpuCuller {
         &mut self,
         context: &GpuContext,
         camera: &Camera,
-        draw_camera: &Camera,
+        (draw_camera, mut renderer): (&Camera, Option<&mut dyn OwnRenderer>),
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
@@ -575,18 +609,21 @@ impl GpuCuller {
         let scene = &self.scene;
         self.camera.record(context, &mut encoder, scene, &self.passes, against, visible, gate, (timer, 1));
         let draws = self.camera.draws(scene, gate.skip_triangles).expect("fit above");
-        self.record_draw(
-            context,
-            &mut encoder,
-            camera.depth,
-            DrawSource::Culled(draws),
-            first,
-            timer.map(|t| t.render(3)),
-        );
+        match reborrow(&mut renderer) {
+            Some(renderer) => renderer.draw(context, &mut encoder, draws, first),
+            None => self.record_draw(
+                context,
+                &mut encoder,
+                camera.depth,
+                DrawSource::Culled(draws),
+                first,
+                timer.map(|t| t.render(3)),
+            ),
+        }
         if let Some(state) = state {
             let late_view = Self::late_view(view, settings);
             let late = (camera, &late_view, settings.cluster_hzb);
-            self.record_late_phase(context, &mut encoder, state, late, visible, gate);
+            self.record_late_phase(context, &mut encoder, state, late, visible, gate, reborrow(&mut renderer));
             self.last_late_view = Some(late_view);
         }
         let timed = if two_phase { TIMED_PASSES } else { ONE_PHASE_PASSES };
@@ -604,7 +641,11 @@ impl GpuCuller {
         let (counters, phases) = self.read_counters(context)?;
         let wall_time = start.elapsed();
         (self.last_counters, self.last_phases, self.counters_pending) = (counters, phases, false);
-        let pass_times = timer.map(|t| t.read(context, timed)).transpose()?;
+        let mut pass_times = timer.map(|t| t.read(context, timed)).transpose()?;
+        if let Some(times) = pass_times.as_mut().filter(|_| renderer.is_some()) {
+            // The renderer's draws are its own passes, which the culler does not time.
+            (times.draw, times.late_draw) = (Duration::ZERO, Duration::ZERO);
+        }
         let light_views = match cascades {
             Some(_) => self.shadows.read_counters(context, &self.gating)?,
             None => Vec::new(),
@@ -631,9 +672,10 @@ impl GpuCuller {
         view
     }
 
-    /// Records two-phase occlusion after the early phase's draw from `camera`: the merge of its depth with the
-    /// CPU pyramid, the late phase's culling of `visible` with `late_view` and its draw over the early image
-    /// (timed as passes 4 to 7).
+    /// Records two-phase occlusion after the early phase's draw from `camera` (by `renderer`, into its depth,
+    /// where given): the merge of its depth with the CPU pyramid, the late phase's culling of `visible` with
+    /// `late_view` and its draw over the early image (timed as passes 4 to 7).
+    #[allow(clippy::too_many_arguments)]
     fn record_late_phase(
         &self,
         context: &GpuContext,
@@ -642,15 +684,22 @@ impl GpuCuller {
         (camera, late_view, with_cpu): (&Camera, &GpuView, bool),
         visible: &[u32],
         gate: PassGate,
+        renderer: Option<&mut dyn OwnRenderer>,
     ) {
         let timer = self.timer.as_ref();
-        let depth = self.targets.depth_texture();
+        let depth = renderer.as_deref().map_or(self.targets.depth_texture(), |renderer| renderer.depth());
         state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(4)));
         context.queue.write_buffer(&state.late.view, 0, bytemuck::bytes_of(late_view));
         let against = state.against();
         state.late.record(context, encoder, &self.scene, &self.passes, against, visible, gate, (timer, 5));
         let draws = state.late.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");
-        self.record_draw(context, encoder, camera.depth, DrawSource::Culled(draws), false, timer.map(|t| t.render(7)));
+        match renderer {
+            Some(renderer) => renderer.draw(context, encoder, draws, false),
+            None => {
+                let source = DrawSource::Culled(draws);
+                self.record_draw(context, encoder, camera.depth, source, false, timer.map(|t| t.render(7)));
+            }
+        }
     }
 
     /// The last submitted frame's counters, waiting for the GPU: the camera's, and where the frame ran in two
@@ -785,21 +834,41 @@ impl GpuCuller {
         settings: &GpuCullSettings,
     ) -> Result<GpuFrameOutput, GpuError> {
         let camera = *world.resource::<Camera>();
-        self.run_world_from(context, world, &camera, settings)
+        self.run_world_from(context, world, &camera, settings, None)
     }
 
-    /// [`GpuCuller::run_world`] drawing from `draw_camera`.
+    /// [`GpuCuller::run_world`] with `renderer` drawing the survivors into its own targets, as
+    /// [`GpuCuller::run_into`] does.
+    ///
+    /// # Errors
+    /// As [`GpuCuller::run_into`].
+    ///
+    /// # Panics
+    /// As [`GpuCuller::run_world`].
+    pub fn run_world_into(
+        &mut self,
+        context: &GpuContext,
+        world: &mut World,
+        settings: &GpuCullSettings,
+        renderer: &mut dyn OwnRenderer,
+    ) -> Result<GpuFrameOutput, GpuError> {
+        let camera = *world.resource::<Camera>();
+        self.run_world_from(context, world, &camera, settings, Some(renderer))
+    }
+
+    /// [`GpuCuller::run_world`] drawing from `draw_camera`, or by `renderer` where given.
     pub(super) fn run_world_from(
         &mut self,
         context: &GpuContext,
         world: &mut World,
         draw_camera: &Camera,
         settings: &GpuCullSettings,
+        renderer: Option<&mut dyn OwnRenderer>,
     ) -> Result<GpuFrameOutput, GpuError> {
         self.sync_world(context, world);
         let state = world.resource::<CameraCuller>();
         let visible: Vec<u32> = state.visible().iter().map(|slot| slot as u32).collect();
-        self.run_synced(context, world, draw_camera, &visible, state.depth(), settings)
+        self.run_synced(context, world, (draw_camera, renderer), &visible, state.depth(), settings)
     }
 
     /// [`GpuCuller::run_world`] for what a culler of your own kept ([`crate::culler::Culler`]): the store slots
@@ -823,7 +892,7 @@ impl GpuCuller {
     ) -> Result<GpuFrameOutput, GpuError> {
         self.sync_world(context, world);
         let camera = *world.resource::<Camera>();
-        self.run_synced(context, world, &camera, visible, depth, settings)
+        self.run_synced(context, world, (&camera, None), visible, depth, settings)
     }
 
     /// Brings the instances up to date with `world` and takes its [`GpuGating`], where it has one.
@@ -835,13 +904,13 @@ impl GpuCuller {
         self.recolored = false;
     }
 
-    /// Culls and draws `visible` against `depth` from `world`'s [`Camera`], drawn from `draw_camera`, with the
-    /// world's sun cascades.
+    /// Culls and draws `visible` against `depth` from `world`'s [`Camera`], drawn from `draw_camera` (or by
+    /// `renderer`), with the world's sun cascades.
     fn run_synced(
         &mut self,
         context: &GpuContext,
         world: &World,
-        draw_camera: &Camera,
+        (draw_camera, renderer): (&Camera, Option<&mut dyn OwnRenderer>),
         visible: &[u32],
         depth: &DepthBuffer,
         settings: &GpuCullSettings,
@@ -850,7 +919,7 @@ impl GpuCuller {
         let cascades: Option<Vec<Cascade<'_>>> =
             suns.as_ref().map(|suns| suns.iter().map(SunCasters::cascade).collect());
         let camera = *world.resource::<Camera>();
-        self.run_views(context, &camera, draw_camera, visible, depth, settings, cascades.as_deref())
+        self.run_views(context, &camera, draw_camera, visible, depth, settings, cascades.as_deref(), renderer)
     }
 
     /// The shadow maps the draw shades with.

@@ -55,6 +55,7 @@ pub mod indirect;
 pub mod interface;
 mod late_read;
 pub mod output;
+pub mod own_renderer;
 pub mod query_grid;
 pub mod scene;
 pub mod shadow;
@@ -66,6 +67,7 @@ pub use debug_draw::DebugDraw;
 pub use frame::{GpuCullSettings, GpuCuller, GpuGating, ReadBack, Survivors};
 pub use indirect::DrawBuffers;
 pub use output::{GpuCounters, GpuFrameOutput, GpuPassTimes, PhaseCounters};
+pub use own_renderer::OwnRenderer;
 pub use query_grid::{QueryGridCuller, QueryGridSettings, QueryGridStats};
 
 use thiserror::Error;
@@ -103,6 +105,10 @@ pub enum GpuError {
         /// Instances in the scene.
         instances: usize,
     },
+    /// Two-phase occlusion cannot read the depth of an [`OwnRenderer`] ([`OwnRenderer::depth`] says what it
+    /// must be): nothing is run.
+    #[error("two-phase occlusion cannot read the renderer's depth texture: {0}")]
+    RendererDepth(String),
 }
 
 /// Most storage buffers one pass binds in one shader stage: the cluster pass binds ten (the view, the HZB and
