@@ -12,13 +12,15 @@
 //!
 //! `CULLET_GPU_TWO_PHASE=1` adds one phase against two ([`GpuCullSettings::two_phase`]) with the software
 //! occluders on and off, on the city and on truck_town and zdm2 from `../shared/scenes` (automatic occluders
-//! where on: they have no artist ones): triangles and draws a frame, what each phase drew, and GPU time.
+//! where on: they have no artist ones): triangles and draws a frame, what each phase drew, and GPU time; and
+//! two phases with the CPU occluder stage gated by what it saves ([`GpuGating::min_occluder_benefit`]), with
+//! the stage's CPU time and the frames it ran.
 use cullet::CameraPath;
 use cullet::culler::OcclusionSettings;
 use cullet::gpu::cluster_cull::ClusterVerdict;
 use cullet::gpu::triangle_cull::TriangleVerdict;
 use cullet::gpu::{GpuContext, GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, GpuPassTimes};
-use cullet::pipeline::CameraCuller;
+use cullet::pipeline::{CameraCuller, CullStats};
 use cullet::scene::Scene;
 use cullet::scene::auto_occluders::{AutoOccluderSettings, add_auto_occluders};
 use cullet::scene::city::{CityParams, CityScene};
@@ -56,20 +58,20 @@ fn fly(
     size: (u32, u32),
     gating: GpuGating,
 ) -> (Vec<GpuFrameOutput>, (usize, usize)) {
-    let (outputs, library, _) =
+    let (outputs, library, _, _) =
         fly_with(context, scene, frames, size, (gating, GpuCullSettings::default(), OcclusionSettings::default()));
     (outputs, library)
 }
 
 /// [`fly`] with GPU `settings` and CPU `occlusion` settings; also the triangles of the frustum stage's
-/// survivors, each frame (what every later test removes from).
+/// survivors, each frame (what every later test removes from), and each frame's CPU stats.
 fn fly_with(
     context: &GpuContext,
     (scene, path): &(Scene, CameraPath),
     frames: u32,
     size: (u32, u32),
     (gating, settings, occlusion): (GpuGating, GpuCullSettings, OcclusionSettings),
-) -> (Vec<GpuFrameOutput>, (usize, usize), Vec<f64>) {
+) -> (Vec<GpuFrameOutput>, (usize, usize), Vec<f64>, Vec<CullStats>) {
     let aspect = size.0 as f32 / size.1 as f32;
     let mut flight = Flight::new(path.clone(), aspect, frames, occlusion, |world| {
         scene.spawn(world);
@@ -78,10 +80,10 @@ fn fly_with(
     culler.set_gating(gating);
     let library = &culler.scene().library;
     let library = (library.clusters.len(), library.indices.len() / 3);
-    let mut in_frustum = Vec::new();
+    let (mut in_frustum, mut cpu) = (Vec::new(), Vec::new());
     let outputs = (0..frames)
         .map(|frame| {
-            flight.run_frame(frame);
+            cpu.push(flight.run_frame(frame));
             let gpu_scene = culler.scene();
             let frustum = flight.world.resource::<CameraCuller>().frustum_visible();
             let triangles = frustum.iter().flat_map(|slot| {
@@ -91,41 +93,47 @@ fn fly_with(
             culler.run_world(context, &mut flight.world, &settings).expect("GPU frame")
         })
         .collect();
-    (outputs, library, in_frustum)
+    (outputs, library, in_frustum, cpu)
 }
 
-/// One phase against two, software occluders on and off, on `scene` (`name`): per frame, the triangles drawn
-/// and the share of the frustum's survivors' triangles removed, draws, the triangles each phase drew, and
-/// GPU time (timestamps where the adapter has them).
+/// One phase against two, software occluders on and off, and two phases with the occluder stage gated
+/// ([`GpuGating::min_occluder_benefit`], every other pass every frame), on `scene` (`name`): per frame, the
+/// triangles drawn and the share of the frustum's survivors' triangles removed, draws, the triangles each
+/// phase drew, GPU time (timestamps where the adapter has them), and the CPU occluder stage's time and
+/// frames run.
 fn two_phase_rows(context: &GpuContext, name: &str, scene: &(Scene, CameraPath), frames: u32, size: (u32, u32)) {
-    for occluders in [true, false] {
-        for two_phase in [false, true] {
-            let occlusion = OcclusionSettings { enabled: occluders, ..OcclusionSettings::default() };
-            let settings = GpuCullSettings { two_phase, ..GpuCullSettings::default() };
-            // Every pass every frame: the gates would decide differently for the two (fewer candidates leave the
-            // triangle pass less to remove), which is not what the table compares.
-            let (outputs, _, in_frustum) =
-                fly_with(context, scene, frames, size, (GpuGating::fixed(), settings, occlusion));
-            let drawn = mean_of(&outputs, |o| f64::from(o.counters.triangles_out));
-            let removed = 100.0 * (1.0 - drawn / (in_frustum.iter().sum::<f64>() / frames as f64).max(1.0));
-            let phase = |f: fn(&cullet::gpu::PhaseCounters) -> u32| {
-                mean_of(&outputs, |o| o.phases.map_or(0.0, |p| f64::from(f(&p))))
-            };
-            let gpu = GpuPassTimes::mean(&outputs).map_or(String::from("-"), |t| {
-                let total = t.hzb + t.clusters + t.triangles + t.draw;
-                format!("{:.0}", us(total + t.merge + t.late_clusters + t.late_triangles + t.late_draw))
-            });
-            println!(
-                "{name:<11} {:>9} {:>6} {drawn:>10.0} {removed:>8.1}% {:>7.0} {:>10.0} {:>10.0} {:>9.0} {gpu:>10} {:>9.0}",
-                if occluders { "on" } else { "off" },
-                if two_phase { "two" } else { "one" },
-                mean_of(&outputs, |o| f64::from(o.counters.draws)),
-                phase(|p| p.early.triangles_out),
-                phase(|p| p.late.triangles_out),
-                phase(|p| p.late.clusters_hzb),
-                mean_of(&outputs, |o| us(o.wall_time)),
-            );
-        }
+    let gated = GpuGating { min_occluder_benefit: GpuGating::default().min_occluder_benefit, ..GpuGating::fixed() };
+    let gated = GpuGating { reprobe_every: GpuGating::default().reprobe_every, ..gated };
+    let rows = [("on", false, GpuGating::fixed()), ("on", true, GpuGating::fixed()), ("gated", true, gated)];
+    let rows = rows.into_iter().chain([("off", false, GpuGating::fixed()), ("off", true, GpuGating::fixed())]);
+    for (occluders, two_phase, gating) in rows {
+        let occlusion = OcclusionSettings { enabled: occluders != "off", ..OcclusionSettings::default() };
+        let settings = GpuCullSettings { two_phase, ..GpuCullSettings::default() };
+        // Every pass every frame: the gates would decide differently for the two (fewer candidates leave the
+        // triangle pass less to remove), which is not what the table compares.
+        let (outputs, _, in_frustum, cpu) = fly_with(context, scene, frames, size, (gating, settings, occlusion));
+        let drawn = mean_of(&outputs, |o| f64::from(o.counters.triangles_out));
+        let removed = 100.0 * (1.0 - drawn / (in_frustum.iter().sum::<f64>() / frames as f64).max(1.0));
+        let phase = |f: fn(&cullet::gpu::PhaseCounters) -> u32| {
+            mean_of(&outputs, |o| o.phases.map_or(0.0, |p| f64::from(f(&p))))
+        };
+        let gpu = GpuPassTimes::mean(&outputs).map_or(String::from("-"), |t| {
+            let total = t.hzb + t.clusters + t.triangles + t.draw;
+            format!("{:.0}", us(total + t.merge + t.late_clusters + t.late_triangles + t.late_draw))
+        });
+        let occluder_stage = cpu.iter().map(|stats| us(stats.raster_time + stats.occlusion_time)).sum::<f64>();
+        let stage_ran = cpu.iter().filter(|stats| stats.occluders > 0).count();
+        println!(
+            "{name:<11} {occluders:>9} {:>6} {drawn:>10.0} {removed:>8.1}% {:>7.0} {:>10.0} {:>10.0} {:>9.0} {gpu:>10} \
+             {:>9.0} {:>9.0} {stage_ran:>6}",
+            if two_phase { "two" } else { "one" },
+            mean_of(&outputs, |o| f64::from(o.counters.draws)),
+            phase(|p| p.early.triangles_out),
+            phase(|p| p.late.triangles_out),
+            phase(|p| p.late.clusters_hzb),
+            mean_of(&outputs, |o| us(o.wall_time)),
+            occluder_stage / frames as f64,
+        );
     }
 }
 
@@ -138,7 +146,7 @@ fn two_phase_table(context: &GpuContext, city: &(Scene, CameraPath), objects: us
         size.0, size.1
     );
     println!(
-        "{:<11} {:>9} {:>6} {:>10} {:>9} {:>7} {:>10} {:>10} {:>9} {:>10} {:>9}",
+        "{:<11} {:>9} {:>6} {:>10} {:>9} {:>7} {:>10} {:>10} {:>9} {:>10} {:>9} {:>9} {:>6}",
         "scene",
         "occluders",
         "phases",
@@ -149,7 +157,9 @@ fn two_phase_table(context: &GpuContext, city: &(Scene, CameraPath), objects: us
         "late tris",
         "late HZB",
         "GPU us",
-        "wall us"
+        "wall us",
+        "occl. us",
+        "ran"
     );
     two_phase_rows(context, &format!("city:{objects}"), city, frames, size);
     let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");

@@ -1122,6 +1122,43 @@ fn two_phase_under_its_benefit_is_gated_off_and_reprobed() {
     assert_eq!(in_two_phases, expected);
 }
 
+/// Beside two phases, the CPU occluder stage runs only where it pays (`GpuGating::min_occluder_benefit`): on
+/// a still camera the frame's own depth hides all the CPU buffer does, and the stage is skipped but for its
+/// probes; turning fast on the spot, where what the last frame saw covers only part of this one, it saves
+/// triangles and runs but for its probes. Every frame draws the unculled image.
+#[test]
+fn the_occluder_stage_runs_beside_two_phases_only_where_it_pays() {
+    let Some(context) = context_for_tests() else { return };
+    let gating = GpuGating { min_occluder_benefit: 0.05, reprobe_every: 6, ..GpuGating::fixed() };
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    for still in [true, false] {
+        let mut setup = setup_flying(&context, 3000, (WIDTH, HEIGHT), OcclusionSettings::default(), 300);
+        setup.flight.world.insert_resource(gating);
+        let mut ran = Vec::new();
+        for frame in 0..26 {
+            let camera = setup.flight.path.camera_at(1.0, setup.flight.aspect);
+            let turn = if still { 0.0 } else { 0.4 * frame as f32 };
+            let camera = Camera { forward: glam::Quat::from_rotation_y(turn) * camera.forward, ..camera };
+            let stats = setup.flight.run_with_camera(camera, 0.0);
+            let output = setup.culler.run_world(&context, &mut setup.flight.world, &settings).expect("GPU frame");
+            let camera = *setup.flight.world.resource::<Camera>();
+            let (differing, _) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
+            assert_eq!(differing, 0, "still {still}, frame {frame}");
+            let occluders = setup.flight.world.resource::<CameraCuller>().stats().occluders;
+            println!(
+                "still {still}, frame {frame}: {occluders} occluders, {} drawn, {stats:?}",
+                output.counters.triangles_out
+            );
+            ran.push(occluders > 0);
+        }
+        let ran_after_the_first_probes = ran[10..].iter().filter(|&&ran| ran).count();
+        match still {
+            true => assert!(ran_after_the_first_probes <= 4, "{ran:?}"),
+            false => assert!(ran_after_the_first_probes >= 12, "{ran:?}"),
+        }
+    }
+}
+
 /// Two-phase occlusion's marks (`2f` and `2f + 1` for frame `f`) are cleared before they would wrap around, so
 /// that no stale mark reads as drawn early this frame: frames across the wrap draw the unculled image, the
 /// first after it all late.

@@ -342,7 +342,8 @@ pub fn print_summary(frames: &[CullStats]) {
     }
     println!(
         "gating: {reused} of {} frames reused the last result (nothing changed), {retested} re-tested only the \
-         objects that moved (same view); occlusion skipped in {gated} (it had removed under the threshold)",
+         objects that moved (same view); occlusion skipped in {gated} (it had removed under the threshold, or \
+         beside two phases the frame's own depth hid as much)",
         frames.len()
     );
     let detail = frames.iter().map(|f| f.detail_culled as f64).sum::<f64>() / n;

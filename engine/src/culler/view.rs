@@ -79,7 +79,8 @@ pub struct ViewStats {
     /// and depth pyramid. 0 when the frame ran in full or was reused.
     pub retested: usize,
     /// The occlusion stage was skipped because it had removed too little lately
-    /// ([`super::AdaptiveSettings::min_occlusion_benefit`]).
+    /// ([`super::AdaptiveSettings::min_occlusion_benefit`]), or a judge outside the view asked
+    /// ([`ViewCuller::skip_occlusion_once`]).
     pub occlusion_gated: bool,
     /// Objects the frustum kept that detail culling dropped ([`ViewSettings::detail`]; already left out of
     /// `after_frustum`). Inside the occlusion test it judges only the groups the pyramid does not hide whole:
@@ -177,6 +178,8 @@ pub struct ViewCuller {
     last: Option<LastCull>,
     plan: Plan,
     occlusion_gate: BenefitGate,
+    /// The next cull that is not reused skips the occlusion stage ([`ViewCuller::skip_occlusion_once`]).
+    occlusion_held: bool,
     retest_cost: RetestCost,
     stats: ViewStats,
 }
@@ -378,7 +381,9 @@ impl ViewCuller {
         }
         let occlusion = settings.occlusion.enabled && self.stats.occlusion_error.is_none();
         let was_gated = self.stats.occlusion_gated;
-        self.stats.occlusion_gated = occlusion && self.occlusion_gate.skip_this_frame();
+        // The gate ticks every frame, held or not.
+        let skipped = self.occlusion_gate.skip_this_frame() | std::mem::take(&mut self.occlusion_held);
+        self.stats.occlusion_gated = occlusion && skipped;
         // Only objects without occluders moved since the last cull: the planes and the depth pyramid stand.
         let moved = frame.moves.filter(|moves| {
             can_retest
@@ -443,6 +448,14 @@ impl ViewCuller {
         }
         self.stats.after_frustum = self.frustum_visible().count();
         (self.stats.after_occlusion, self.stats.raster_time) = (self.visible.count(), Duration::ZERO);
+    }
+
+    /// Skips the occlusion stage on the next cull that is not reused: it then keeps every object the frustum
+    /// kept, and [`ViewStats::occlusion_gated`] says so. For a judge outside the view that finds the stage
+    /// does not pay, such as two-phase GPU occlusion (`GpuGating::min_occluder_benefit`, feature `gpu`). Adds
+    /// no false negative.
+    pub fn skip_occlusion_once(&mut self) {
+        self.occlusion_held = true;
     }
 
     /// The view of the last cull, if any.

@@ -17,7 +17,7 @@ use super::output::{
 use super::own_renderer::{OwnRenderer, check_depth};
 use super::scene::{GpuInstance, GpuScene, drawn_meshes, instance_of, instances_from_world};
 use super::shadow::{Cascade, CascadeCulling, ShadowMaps};
-use super::two_phase::TwoPhase;
+use super::two_phase::{OccluderStageGate, TwoPhase};
 use super::view_cull::{CullPasses, PassGate, ViewCull, candidates, fits_binding, view_buffer};
 use super::{GpuContext, GpuError};
 use crate::bounds::BoundsStore;
@@ -132,6 +132,12 @@ pub struct GpuGating {
     /// phase and the merge cost about a second cluster pass and a pass over the depth, and they pay only where
     /// the frame's own depth hides what the CPU buffer does not. 0 never skips.
     pub min_two_phase_benefit: f32,
+    /// The least fraction of the triangles two phases draw without the CPU occluder stage that the stage must
+    /// save; below it, the world's camera culler skips the stage ([`crate::culler::ViewCuller::skip_occlusion_once`]),
+    /// and the frame's own depth culls alone. Judged by [`GpuCuller::run_world`] on frames of two phases whose
+    /// counters it reads at once: one frame without the stage next to one with it, every `reprobe_every`
+    /// frames, each by the share of the frustum's triangles drawn. 0 never skips.
+    pub min_occluder_benefit: f32,
     /// Frames in a row under its share before a pass is skipped.
     pub low_benefit_frames: u32,
     /// Frames a pass stays skipped before it runs again to re-probe.
@@ -140,13 +146,15 @@ pub struct GpuGating {
 
 impl Default for GpuGating {
     /// No cluster pass for 64 clusters or fewer; each pass skipped after 8 frames under 40% removed, two
-    /// phases after 8 frames under 5% of the late phase's clusters hidden; re-probed every 30 frames.
+    /// phases after 8 frames under 5% of the late phase's clusters hidden; re-probed every 30 frames. Beside
+    /// two phases, the CPU occluder stage skipped where it saves less than 5% of the triangles drawn.
     fn default() -> Self {
         Self {
             tiny_scene_clusters: 64,
             min_cluster_benefit: 0.4,
             min_triangle_benefit: 0.4,
             min_two_phase_benefit: 0.05,
+            min_occluder_benefit: 0.05,
             low_benefit_frames: 8,
             reprobe_every: 30,
         }
@@ -161,6 +169,7 @@ impl GpuGating {
             min_cluster_benefit: 0.0,
             min_triangle_benefit: 0.0,
             min_two_phase_benefit: 0.0,
+            min_occluder_benefit: 0.0,
             low_benefit_frames: u32::MAX,
             reprobe_every: 0,
         }
@@ -248,6 +257,8 @@ pub struct GpuCuller {
     /// Frames of two phases in a row: the first after frames of one has nothing marked to draw early, and
     /// says nothing of what two phases remove.
     two_phase_run: u32,
+    /// Whether the world's CPU occluder stage pays beside two phases ([`GpuGating::min_occluder_benefit`]).
+    occluder_gate: OccluderStageGate,
 }
 
 impl GpuCuller {
@@ -302,6 +313,7 @@ impl GpuCuller {
             last_late_view: None,
             two_phase_gate: BenefitGate::default(),
             two_phase_run: 0,
+            occluder_gate: OccluderStageGate::default(),
         }
     }
 
@@ -515,6 +527,7 @@ impl GpuCuller {
             self.camera.reset_gate();
             self.shadows.reset_gates();
             self.two_phase_gate = BenefitGate::default();
+            self.occluder_gate = OccluderStageGate::default();
         }
     }
 
@@ -868,7 +881,28 @@ impl GpuCuller {
         self.sync_world(context, world);
         let state = world.resource::<CameraCuller>();
         let visible: Vec<u32> = state.visible().iter().map(|slot| slot as u32).collect();
-        self.run_synced(context, world, (draw_camera, renderer), &visible, state.depth(), settings)
+        let output = self.run_synced(context, world, (draw_camera, renderer), &visible, state.depth(), settings)?;
+        self.judge_occluder_stage(world, &output);
+        Ok(output)
+    }
+
+    /// Feeds [`GpuGating::min_occluder_benefit`]'s gate a frame of two phases (its counters read at once, and
+    /// two frames of two phases before it: the first draws everything late, and the second early what the first
+    /// kept with no depth of its own), and has the world's camera culler skip its occluder stage next frame
+    /// where the gate says so.
+    fn judge_occluder_stage(&mut self, world: &mut World, output: &GpuFrameOutput) {
+        let min_benefit = self.gating.min_occluder_benefit;
+        if min_benefit <= 0.0 || output.phases.is_none() || output.counters_late || self.two_phase_run < 3 {
+            return;
+        }
+        let state = world.resource::<CameraCuller>();
+        let ran = state.stats().occluders > 0;
+        let in_frustum: Vec<u32> = state.frustum_visible().iter().map(|slot| slot as u32).collect();
+        let (_, frustum_triangles) = candidates(&self.scene, &in_frustum);
+        let drawn = (output.counters.triangles_out, frustum_triangles);
+        if self.occluder_gate.record(ran, drawn, min_benefit, self.gating.reprobe_every) {
+            world.resource_mut::<CameraCuller>().skip_occlusion_once();
+        }
     }
 
     /// [`GpuCuller::run_world`] for what a culler of your own kept ([`crate::culler::Culler`]): the store slots

@@ -250,6 +250,45 @@ impl TwoPhase {
     }
 }
 
+/// Whether the CPU occluder stage pays for itself beside two-phase occlusion, whose late phase culls behind the
+/// frame's own depth: adjacent frames with and without the stage compared by the share of the frustum's
+/// triangles each drew. The stage pays where it saves at least `min_benefit` of the triangles drawn without
+/// it. The way the last comparison chose holds for `reprobe_every` frames, then one frame the other way
+/// probes it again.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct OccluderStageGate {
+    /// Share of the frustum's triangles drawn on the last frame with the CPU stage.
+    with: Option<f32>,
+    /// The same on the last frame without it.
+    without: Option<f32>,
+    /// The CPU stage is skipped: the last comparison found it does not pay.
+    skipping: bool,
+    /// Frames before the next probe of the other way.
+    frames_left: u32,
+}
+
+impl OccluderStageGate {
+    /// Records a frame of two phases that drew `drawn` of the `frustum` triangles of the objects in the frustum,
+    /// with the CPU stage or without it (`ran`), and returns whether the next frame skips the stage. A frame run
+    /// the other way than the gate holds is a probe: it decides again.
+    pub fn record(&mut self, ran: bool, (drawn, frustum): (u32, u32), min_benefit: f32, reprobe_every: u32) -> bool {
+        if frustum > 0 {
+            let share = Some(drawn as f32 / frustum as f32);
+            *(if ran { &mut self.with } else { &mut self.without }) = share;
+            if let (Some(with), Some(without), true) = (self.with, self.without, ran == self.skipping) {
+                self.skipping = with > without * (1.0 - min_benefit);
+                self.frames_left = reprobe_every;
+            }
+        }
+        if self.frames_left == 0 {
+            self.frames_left = reprobe_every;
+            return !self.skipping;
+        }
+        self.frames_left -= 1;
+        self.skipping
+    }
+}
+
 /// The merge pass of `hzb_merge.wgsl` on the CPU: level 0 of the merged pyramid from `depth` (a `width` x
 /// `height` depth image, rows from the top, in `camera`'s convention) and, where given, the CPU pyramid's
 /// level 0 (`cpu_level0`, laid out as `cpu_level`, the view `cpu_screen_size` of its texels). For the tests
@@ -289,4 +328,28 @@ pub fn merge_level0(
         }
     }
     merged
+}
+
+#[cfg(test)]
+mod tests {
+    use super::OccluderStageGate;
+
+    /// The gate probes the other way every `reprobe_every` frames and follows what the probe shows: the stage
+    /// skipped while it saves less than its share, run again once it saves more.
+    #[test]
+    fn the_occluder_gate_probes_and_follows_the_comparison() {
+        let mut gate = OccluderStageGate::default();
+        let (min_benefit, reprobe_every) = (0.05, 2);
+        // Frames with the stage draw 50 of 100 triangles; the probe without draws 51: it does not pay.
+        assert!(gate.record(true, (50, 100), min_benefit, reprobe_every), "the first frame asks for a probe");
+        assert!(gate.record(false, (51, 100), min_benefit, reprobe_every), "2% saved: skipped");
+        assert!(gate.record(false, (51, 100), min_benefit, reprobe_every));
+        assert!(!gate.record(false, (51, 100), min_benefit, reprobe_every), "after two frames, a probe with it");
+        // The probe with the stage draws 40 where the frames without drew 51: it pays again.
+        assert!(!gate.record(true, (40, 100), min_benefit, reprobe_every), "22% saved: run");
+        assert!(!gate.record(true, (40, 100), min_benefit, reprobe_every));
+        assert!(gate.record(true, (40, 100), min_benefit, reprobe_every), "after two frames, a probe without it");
+        // A frame with nothing in the frustum decides nothing.
+        assert!(!gate.record(false, (0, 0), min_benefit, reprobe_every));
+    }
 }

@@ -493,7 +493,7 @@ fn adaptive_flags(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame, controls
         notes.push(format!("re-tested only the {} objects that moved", stats.retested));
     }
     if stats.occlusion_gated {
-        notes.push("occlusion skipped: it removed too little lately".into());
+        notes.push("occlusion skipped: it removed too little lately, or the frame's own depth hides as much".into());
     }
     if gpu.is_some_and(|o| o.cluster_pass_skipped) {
         notes.push("cluster pass skipped: too few clusters, or it removed too little lately".into());
