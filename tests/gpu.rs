@@ -917,14 +917,7 @@ impl OwnRenderer for SlotRenderer {
         buffers: DrawBuffers<'_>,
         clear: bool,
     ) {
-        let group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("slots"),
-            layout: &self.pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: buffers.view.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: buffers.instances.as_entire_binding() },
-            ],
-        });
+        let group = buffers.bind_group(context, &self.pipeline.get_bind_group_layout(0));
         let (object, depth) =
             (self.object.create_view(&Default::default()), self.depth.create_view(&Default::default()));
         let no_object = f64::from(cullet::gpu::draw::NO_OBJECT);

@@ -110,14 +110,7 @@ impl OwnRenderer for MyRenderer {
         buffers: DrawBuffers<'_>,
         clear: bool,
     ) {
-        let bind_group = context.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("my draw"),
-            layout: &self.pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: buffers.view.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: buffers.instances.as_entire_binding() },
-            ],
-        });
+        let bind_group = buffers.bind_group(context, &self.pipeline.get_bind_group_layout(0));
         let (color_view, depth_view) =
             (self.color.create_view(&Default::default()), self.depth.create_view(&Default::default()));
         let (color_load, depth_load) = match clear {
@@ -159,9 +152,11 @@ fn main() -> Result<(), GpuError> {
     let mut renderer = MyRenderer::new(&context.device);
     let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
     let mut frame = None;
-    for step in [0.0, 0.5] {
-        // The second frame half a metre further on: most of it was visible in the first, and is drawn early.
-        world.insert_resource(Camera { position: camera.position + camera.forward.normalize() * step, ..camera });
+    for turn in [0.0, 0.3] {
+        // The second frame turned a little: most of it was visible in the first, and is drawn early; what
+        // comes into view is culled against that depth and drawn late.
+        let forward = glam::Quat::from_rotation_y(turn) * camera.forward;
+        world.insert_resource(Camera { forward, ..camera });
         schedule.run(&mut world);
         world.clear_trackers();
         frame = Some(culler.run_world_into(&context, &mut world, &settings, &mut renderer)?);

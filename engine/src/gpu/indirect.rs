@@ -49,6 +49,12 @@ pub struct DrawBuffers<'a> {
 }
 
 impl DrawBuffers<'_> {
+    /// The bind group a shader written on the engine's declarations ([`super::shader_source`]) takes at group
+    /// 0 with `layout`: the view at binding 0 and the instances at binding 1.
+    pub fn bind_group(&self, context: &GpuContext, layout: &wgpu::BindGroupLayout) -> wgpu::BindGroup {
+        context.bind_buffers("draw buffers", layout, &[(0, self.view), (1, self.instances)])
+    }
+
     /// Records the draws into `pass`, whose pipeline and bind groups are set: `positions` as vertex buffer 0,
     /// `indices` as the index buffer, then one `multi_draw_indexed_indirect_count`, or without that feature
     /// `multi_draw_indexed_indirect` of all `max_draws` slots (the culler zeroes the unused ones).
