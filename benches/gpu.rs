@@ -119,7 +119,8 @@ fn two_phase_rows(context: &GpuContext, name: &str, scene: &(Scene, CameraPath),
         };
         let gpu = GpuPassTimes::mean(&outputs).map_or(String::from("-"), |t| {
             let total = t.hzb + t.clusters + t.triangles + t.draw;
-            format!("{:.0}", us(total + t.merge + t.late_clusters + t.late_triangles + t.late_draw))
+            let late = t.merge + t.late_clusters + t.late_triangles + t.late_draw + t.final_merge + t.final_marks;
+            format!("{:.0}", us(total + late))
         });
         let occluder_stage = cpu.iter().map(|stats| us(stats.raster_time + stats.occlusion_time)).sum::<f64>();
         let stage_ran = cpu.iter().filter(|stats| stats.occluders > 0).count();

@@ -68,7 +68,7 @@ fn main(invocation: Invocation) {
         return; // No mesh: nothing to draw.
     }
     let mesh = meshes[instance.mesh];
-    let phase = view.flags & (VIEW_PHASE_EARLY | VIEW_PHASE_LATE);
+    let phase = view.flags & (VIEW_PHASE_EARLY | VIEW_PHASE_LATE | VIEW_PHASE_FINAL);
     var first_entry = 0u;
     if (phase != 0u) {
         first_entry = visibility[instance_index];
@@ -81,6 +81,13 @@ fn main(invocation: Invocation) {
         }
         if (phase == VIEW_PHASE_EARLY && mark != 2u * view.frame - 2u) {
             continue; // Not visible last frame.
+        }
+        if (phase == VIEW_PHASE_FINAL) {
+            // A cluster the late phase kept that the frame's final depth hides is not drawn early next frame.
+            if (mark == 2u * view.frame && cull_cluster(instance, clusters[cluster_index]) != KEEP) {
+                visibility[first_entry + c] = 0u;
+            }
+            continue;
         }
         atomicAdd(&counters[CLUSTERS_IN], 1u);
         let cluster = clusters[cluster_index];

@@ -7,8 +7,8 @@ use super::draw::{DrawPass, DrawSource, RenderTargets, RenderedImage};
 use super::hzb::Hzb;
 use super::indirect::{DrawBuffers, cluster_draws, indirect_buffer};
 use super::interface::{
-    GpuView, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_LATE,
-    VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
+    GpuView, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_FINAL,
+    VIEW_PHASE_LATE, VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
 };
 use super::late_read::LateRead;
 use super::output::{
@@ -687,7 +687,8 @@ impl GpuCuller {
 
     /// Records two-phase occlusion after the early phase's draw from `camera` (by `renderer`, into its depth,
     /// where given): the merge of its depth with the CPU pyramid, the late phase's culling of `visible` with
-    /// `late_view` and its draw over the early image (timed as passes 4 to 7).
+    /// `late_view` and its draw over the early image, then the final depth merged again and the marks it hides
+    /// taken (timed as passes 4 to 9).
     #[allow(clippy::too_many_arguments)]
     fn record_late_phase(
         &self,
@@ -706,13 +707,25 @@ impl GpuCuller {
         let against = state.against();
         state.late.record(context, encoder, &self.scene, &self.passes, against, visible, gate, (timer, 5));
         let draws = state.late.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");
-        match renderer {
-            Some(renderer) => renderer.draw(context, encoder, draws, false),
+        let depth = match renderer {
+            Some(renderer) => {
+                renderer.draw(context, encoder, draws, false);
+                renderer.depth()
+            }
             None => {
                 let source = DrawSource::Culled(draws);
                 self.record_draw(context, encoder, camera.depth, source, false, timer.map(|t| t.render(7)));
+                self.targets.depth_texture()
             }
-        }
+        };
+        // The frame's final depth, merged again, takes the marks of what it hides (next frame's early phase
+        // tests against this pyramid too).
+        state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(8)));
+        let final_view = GpuView { flags: (late_view.flags & !VIEW_PHASE_LATE) | VIEW_PHASE_FINAL, ..*late_view };
+        context.queue.write_buffer(&state.final_view, 0, bytemuck::bytes_of(&final_view));
+        let marking = (&self.passes, state.against());
+        let (instances, timestamps) = (visible.len() as u32, timer.map(|t| t.compute(9)));
+        state.late.record_marks(context, encoder, &self.scene, marking, &state.final_view, instances, timestamps);
     }
 
     /// The last submitted frame's counters, waiting for the GPU: the camera's, and where the frame ran in two

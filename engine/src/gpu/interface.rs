@@ -34,6 +34,10 @@ pub const VIEW_PHASE_LATE: u32 = 256;
 /// View flag: the HZB test also tests against the second pyramid ([`GpuView::second_hzb_levels`]); a cluster
 /// behind either is hidden. Two-phase occlusion's late phase tests the merged pyramid and the CPU's.
 pub const VIEW_SECOND_HZB: u32 = 512;
+/// View flag: after two-phase occlusion's late draw, the clusters the late phase marked visible are tested
+/// against the pyramid of the frame's final depth, and those it hides lose their mark, so that the next frame
+/// does not draw them early. Nothing is counted or kept.
+pub const VIEW_PHASE_FINAL: u32 = 1024;
 
 /// Set in [`super::scene::GpuInstance::flags`] when the transform is invertible and does not mirror: the cone
 /// test, run in mesh space with the camera brought there, is then valid (which side of a plane a point lies on
@@ -225,6 +229,7 @@ pub fn wgsl_prelude() -> String {
         ("VIEW_PHASE_EARLY", VIEW_PHASE_EARLY),
         ("VIEW_PHASE_LATE", VIEW_PHASE_LATE),
         ("VIEW_SECOND_HZB", VIEW_SECOND_HZB),
+        ("VIEW_PHASE_FINAL", VIEW_PHASE_FINAL),
         ("INSTANCE_CONE_SAFE", INSTANCE_CONE_SAFE),
         ("MAX_HZB_LEVELS", MAX_HZB_LEVELS as u32),
         ("MAX_CASCADES", MAX_CASCADES as u32),

@@ -149,6 +149,10 @@ pub struct GpuPassTimes {
     pub late_triangles: Duration,
     /// See `merge`: the late draw.
     pub late_draw: Duration,
+    /// See `merge`: the frame's final depth merged again (its reduction untimed, as the first merge's).
+    pub final_merge: Duration,
+    /// See `merge`: the pass taking the marks of the clusters the final depth hides.
+    pub final_marks: Duration,
 }
 
 impl GpuPassTimes {
@@ -167,6 +171,8 @@ impl GpuPassTimes {
             late_clusters: sum(|t| t.late_clusters),
             late_triangles: sum(|t| t.late_triangles),
             late_draw: sum(|t| t.late_draw),
+            final_merge: sum(|t| t.final_merge),
+            final_marks: sum(|t| t.final_marks),
         })
     }
 }
@@ -185,11 +191,14 @@ impl std::fmt::Display for GpuPassTimes {
         if self.merge > Duration::ZERO {
             write!(
                 f,
-                "; late phase: merge {:.1} us, clusters {:.1} us, triangles {:.1} us, draw {:.1} us",
+                "; late phase: merge {:.1} us, clusters {:.1} us, triangles {:.1} us, draw {:.1} us, final merge \
+                 {:.1} us, final marks {:.1} us",
                 us(self.merge),
                 us(self.late_clusters),
                 us(self.late_triangles),
-                us(self.late_draw)
+                us(self.late_draw),
+                us(self.final_merge),
+                us(self.final_marks)
             )?;
         }
         Ok(())
@@ -206,7 +215,7 @@ pub(crate) struct PassTimer {
 
 /// Passes timed, two timestamps each: the HZB build, clusters, triangles, draw, then two-phase occlusion's
 /// merge and late clusters, triangles and draw.
-pub(crate) const TIMED_PASSES: u32 = 8;
+pub(crate) const TIMED_PASSES: u32 = 10;
 /// The passes of a frame of one phase: the first four.
 pub(crate) const ONE_PHASE_PASSES: u32 = 4;
 
@@ -269,6 +278,8 @@ impl PassTimer {
             late_clusters: span(5),
             late_triangles: span(6),
             late_draw: span(7),
+            final_merge: span(8),
+            final_marks: span(9),
         })
     }
 }
@@ -323,6 +334,8 @@ impl GpuFrameOutput {
             late_clusters: a.late_clusters + b.late_clusters,
             late_triangles: a.late_triangles + b.late_triangles,
             late_draw: a.late_draw + b.late_draw,
+            final_merge: a.final_merge + b.final_merge,
+            final_marks: a.final_marks + b.final_marks,
         });
         GpuFrameOutput {
             counters,

@@ -20,7 +20,7 @@ use super::GpuContext;
 use super::hzb::{Hzb, HzbLevel};
 use super::interface::{GpuView, VIEW_HZB, VIEW_SECOND_HZB};
 use super::scene::GpuScene;
-use super::view_cull::{Against, ViewCull};
+use super::view_cull::{Against, ViewCull, view_buffer};
 use crate::camera::{Camera, DepthConvention};
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
@@ -44,6 +44,8 @@ struct GpuMerge {
 pub(crate) struct TwoPhase {
     /// The late phase's view, counters and per-frame buffers.
     pub late: ViewCull,
+    /// The view of the pass that takes the marks of clusters the frame's final depth hides.
+    pub final_view: wgpu::Buffer,
     /// The merged pyramid, a level-0 texel per pixel of the render target; the CPU's is copied after it in its
     /// buffer, for the late phase to test against both.
     pub hzb: Hzb,
@@ -73,6 +75,7 @@ impl TwoPhase {
         });
         Self {
             late: ViewCull::new(context, "late view"),
+            final_view: view_buffer(context, "final view"),
             hzb: Hzb::with_room(context, target.0, target.1, cpu.texels()),
             merge: context.compute_pipeline("hzb merge", cullet_shaders::HZB_MERGE),
             merge_uniform,

@@ -268,6 +268,36 @@ impl ViewCull {
         passes.triangle.record(context, encoder, &triangle_buffers, gate.skip_triangles, timestamps);
     }
 
+    /// Records the cluster pass alone over the instances the last [`ViewCull::record`] uploaded, reading the
+    /// view in `view` (flagged [`super::interface::VIEW_PHASE_FINAL`]: it only changes `against`'s visibility),
+    /// with `timestamps` at its start and end if given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_marks(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        scene: &GpuScene,
+        (passes, against): (&CullPasses, Against<'_>),
+        view: &wgpu::Buffer,
+        instance_count: u32,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let frame = self.frame.as_ref().expect("ViewCull::record before ViewCull::record_marks");
+        let buffers = ClusterCullBuffers {
+            view,
+            instances: &scene.instances,
+            meshes: &scene.meshes,
+            clusters: &scene.clusters,
+            visible: &frame.visible,
+            hzb: against.hzb,
+            counters: &self.counters,
+            survivors: &frame.survivors,
+            draws: &frame.draw_args,
+            visibility: against.visibility,
+        };
+        passes.cluster.record(context, encoder, &buffers, instance_count, false, timestamps);
+    }
+
     /// The draws the view's last culled frame wrote, over `scene`'s buffers; `None` before its first frame.
     pub fn draws<'a>(&'a self, scene: &'a GpuScene, skip_triangles: bool) -> Option<DrawBuffers<'a>> {
         let frame = self.frame.as_ref()?;

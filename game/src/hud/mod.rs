@@ -457,7 +457,8 @@ fn stage_table(ui: &mut egui::Ui, labels: &Labels, frame: &HudFrame) {
                 "{} tris early, {} late; merged HZB hid {} of {} clusters",
                 phases.early.triangles_out, late.triangles_out, late.clusters_hzb, late.clusters_in
             );
-            let late_time = pass(|t| t.merge + t.late_clusters + t.late_triangles + t.late_draw);
+            let late_time =
+                pass(|t| t.merge + t.late_clusters + t.late_triangles + t.late_draw + t.final_merge + t.final_marks);
             rows.push(stage_row(HZB_COLOUR, "two phases", split, late_time));
         }
         if !gpu.light_views.is_empty() {
