@@ -381,9 +381,9 @@ impl ViewCuller {
         }
         let occlusion = settings.occlusion.enabled && self.stats.occlusion_error.is_none();
         let was_gated = self.stats.occlusion_gated;
-        // The gate ticks every frame, held or not.
-        let skipped = self.occlusion_gate.skip_this_frame() | std::mem::take(&mut self.occlusion_held);
-        self.stats.occlusion_gated = occlusion && skipped;
+        // The gate ticks only on frames where occlusion would run; a hold is spent either way.
+        let held = std::mem::take(&mut self.occlusion_held);
+        self.stats.occlusion_gated = occlusion && (self.occlusion_gate.skip_this_frame() | held);
         // Only objects without occluders moved since the last cull: the planes and the depth pyramid stand.
         let moved = frame.moves.filter(|moves| {
             can_retest
