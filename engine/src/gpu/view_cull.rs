@@ -230,18 +230,7 @@ impl ViewCull {
                 encoder.clear_buffer(&frame.draw_args, 0, None);
             }
         }
-        let cluster_buffers = ClusterCullBuffers {
-            view: &self.view,
-            instances: &scene.instances,
-            meshes: &scene.meshes,
-            clusters: &scene.clusters,
-            visible: &frame.visible,
-            hzb: against.hzb,
-            counters: &self.counters,
-            survivors: &frame.survivors,
-            draws: &frame.draw_args,
-            visibility: against.visibility,
-        };
+        let cluster_buffers = self.cluster_buffers(scene, frame, against, &self.view);
         let instance_count = visible.len() as u32;
         let skip_clusters = gate.skip_clusters;
         passes.cluster.record(
@@ -283,7 +272,19 @@ impl ViewCull {
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
         let frame = self.frame.as_ref().expect("ViewCull::record before ViewCull::record_marks");
-        let buffers = ClusterCullBuffers {
+        let buffers = self.cluster_buffers(scene, frame, against, view);
+        passes.cluster.record(context, encoder, &buffers, instance_count, false, timestamps);
+    }
+
+    /// The cluster pass's buffers for this view's `frame`, reading the view in `view`.
+    fn cluster_buffers<'a>(
+        &'a self,
+        scene: &'a GpuScene,
+        frame: &'a FrameBuffers,
+        against: Against<'a>,
+        view: &'a wgpu::Buffer,
+    ) -> ClusterCullBuffers<'a> {
+        ClusterCullBuffers {
             view,
             instances: &scene.instances,
             meshes: &scene.meshes,
@@ -294,8 +295,7 @@ impl ViewCull {
             survivors: &frame.survivors,
             draws: &frame.draw_args,
             visibility: against.visibility,
-        };
-        passes.cluster.record(context, encoder, &buffers, instance_count, false, timestamps);
+        }
     }
 
     /// The draws the view's last culled frame wrote, over `scene`'s buffers; `None` before its first frame.
