@@ -12,7 +12,8 @@
 //!
 //! `CULLET_GPU_TWO_PHASE=1` adds one phase against two ([`GpuCullSettings::two_phase`]) with the software
 //! occluders on and off, on the city and on truck_town and zdm2 from `../shared/scenes` (automatic occluders
-//! where on: they have no artist ones): triangles and draws a frame, what each phase drew, and GPU time; and
+//! where on: they have no artist ones): triangles and draws a frame, what each phase drew (and of the late
+//! phase, its occluder step), and GPU time; and
 //! two phases with the CPU occluder stage gated by what it saves ([`GpuGating::min_occluder_benefit`]), with
 //! the stage's CPU time and the frames it ran.
 use cullet::CameraPath;
@@ -120,17 +121,19 @@ fn two_phase_rows(context: &GpuContext, name: &str, scene: &(Scene, CameraPath),
         let gpu = GpuPassTimes::mean(&outputs).map_or(String::from("-"), |t| {
             let total = t.hzb + t.clusters + t.triangles + t.draw;
             let late = t.merge + t.late_clusters + t.late_triangles + t.late_draw + t.final_merge + t.final_marks;
-            format!("{:.0}", us(total + late))
+            let step = t.occluder_clusters + t.occluder_triangles + t.occluder_draw + t.occluder_merge;
+            format!("{:.0}", us(total + late + step))
         });
         let occluder_stage = cpu.iter().map(|stats| us(stats.raster_time + stats.occlusion_time)).sum::<f64>();
         let stage_ran = cpu.iter().filter(|stats| stats.occluders > 0).count();
         println!(
-            "{name:<11} {occluders:>9} {:>6} {drawn:>10.0} {removed:>8.1}% {:>7.0} {:>10.0} {:>10.0} {:>9.0} {gpu:>10} \
-             {:>9.0} {:>9.0} {stage_ran:>6}",
+            "{name:<11} {occluders:>9} {:>6} {drawn:>10.0} {removed:>8.1}% {:>7.0} {:>10.0} {:>10.0} {:>10.0} {:>9.0} \
+             {gpu:>10} {:>9.0} {:>9.0} {stage_ran:>6}",
             if two_phase { "two" } else { "one" },
             mean_of(&outputs, |o| f64::from(o.counters.draws)),
             phase(|p| p.early.triangles_out),
             phase(|p| p.late.triangles_out),
+            phase(|p| p.late_occluders.map_or(0, |step| step.triangles_out)),
             phase(|p| p.late.clusters_hzb),
             mean_of(&outputs, |o| us(o.wall_time)),
             occluder_stage / frames as f64,
@@ -147,7 +150,7 @@ fn two_phase_table(context: &GpuContext, city: &(Scene, CameraPath), objects: us
         size.0, size.1
     );
     println!(
-        "{:<11} {:>9} {:>6} {:>10} {:>9} {:>7} {:>10} {:>10} {:>9} {:>10} {:>9} {:>9} {:>6}",
+        "{:<11} {:>9} {:>6} {:>10} {:>9} {:>7} {:>10} {:>10} {:>10} {:>9} {:>10} {:>9} {:>9} {:>6}",
         "scene",
         "occluders",
         "phases",
@@ -156,6 +159,7 @@ fn two_phase_table(context: &GpuContext, city: &(Scene, CameraPath), objects: us
         "draws",
         "early tris",
         "late tris",
+        "step tris",
         "late HZB",
         "GPU us",
         "wall us",

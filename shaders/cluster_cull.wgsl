@@ -7,7 +7,9 @@
 // 2f visible to the late phase, 2f + 1 drawn by the early phase. The early phase (VIEW_PHASE_EARLY) tests
 // only the clusters visible last frame and marks those it keeps as drawn; the late phase (VIEW_PHASE_LATE)
 // tests every cluster against the HZB merged from the early phase's depth, marks those it keeps as visible,
-// and appends only those the early phase did not draw.
+// and appends only those the early phase did not draw. Where the late phase runs in two steps, its first
+// (VIEW_PHASE_LATE_OCCLUDERS) marks visible and appends only the kept clusters likely to hide others, and the
+// second skips those.
 
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 @group(0) @binding(2) var<storage, read> meshes: array<MeshInfo>;
@@ -55,6 +57,15 @@ fn cull_cluster(instance: Instance, cluster: Cluster) -> u32 {
     return KEEP;
 }
 
+// Whether a cluster kept by the late phase is likely to hide others: its box covers LATE_OCCLUDER_AREA of the
+// view or reaches the near plane.
+fn likely_occluder(instance: Instance, cluster: Cluster) -> bool {
+    let center = relative_point(instance, cluster.center, view.camera.xyz);
+    let box = box_footprint(center, box_axes(instance, cluster.extent));
+    let size = clamp(box.hi, vec2<f32>(0.0), vec2<f32>(1.0)) - clamp(box.lo, vec2<f32>(0.0), vec2<f32>(1.0));
+    return box.reaches_near || size.x * size.y >= LATE_OCCLUDER_AREA;
+}
+
 @compute @workgroup_size(CLUSTER_WORKGROUP_SIZE)
 fn main(invocation: Invocation) {
     let thread = invocation.thread;
@@ -68,7 +79,7 @@ fn main(invocation: Invocation) {
         return; // No mesh: nothing to draw.
     }
     let mesh = meshes[instance.mesh];
-    let phase = view.flags & (VIEW_PHASE_EARLY | VIEW_PHASE_LATE | VIEW_PHASE_FINAL);
+    let phase = view.flags & (VIEW_PHASE_EARLY | VIEW_PHASE_LATE | VIEW_PHASE_FINAL | VIEW_PHASE_LATE_OCCLUDERS);
     var first_entry = 0u;
     if (phase != 0u) {
         first_entry = visibility[instance_index];
@@ -89,9 +100,21 @@ fn main(invocation: Invocation) {
             }
             continue;
         }
-        atomicAdd(&counters[CLUSTERS_IN], 1u);
+        if (phase == VIEW_PHASE_LATE && mark == 2u * view.frame) {
+            continue; // Drawn by the late phase's first step.
+        }
         let cluster = clusters[cluster_index];
-        let verdict = cull_cluster(instance, cluster);
+        if (phase == VIEW_PHASE_LATE_OCCLUDERS) {
+            if (mark == 2u * view.frame + 1u || cull_cluster(instance, cluster) != KEEP || !likely_occluder(instance, cluster)) {
+                continue; // Drawn early, or left to the late phase's second step.
+            }
+            visibility[first_entry + c] = 2u * view.frame;
+        }
+        atomicAdd(&counters[CLUSTERS_IN], 1u);
+        var verdict = KEEP;
+        if (phase != VIEW_PHASE_LATE_OCCLUDERS) {
+            verdict = cull_cluster(instance, cluster);
+        }
         if (verdict == KEEP) {
             if (phase == VIEW_PHASE_EARLY) {
                 visibility[first_entry + c] = 2u * view.frame + 1u;

@@ -15,7 +15,7 @@ use cullet::gpu::triangle_cull::{TriangleVerdict, cull_triangle};
 use cullet::gpu::two_phase::merge_level0;
 use cullet::gpu::{DrawBuffers, GpuContext, GpuError, OwnRenderer, STORAGE_BUFFERS_PER_STAGE};
 use cullet::gpu::{GpuCounters, GpuCullSettings, GpuCuller, GpuFrameOutput, GpuGating, ReadBack};
-use cullet::pipeline::CameraCuller;
+use cullet::pipeline::{CameraCuller, CullStats};
 use cullet_test_support::context_for_tests;
 
 use cullet::culler::OcclusionSettings;
@@ -709,6 +709,11 @@ fn fly_two_phase(
         assert!(late.clusters_drawn_early <= early.clusters_out, "frame {frame}: {phases:?}");
         let culled = late.clusters_frustum + late.clusters_cone + late.clusters_hzb + late.clusters_small;
         assert_eq!(late.clusters_in, culled + late.clusters_out + late.clusters_drawn_early, "frame {frame}");
+        if let Some(step) = phases.late_occluders {
+            // The occluder step counts only the clusters it draws, and the rest never draw them again.
+            assert_eq!((step.clusters_in, step.clusters_hzb), (step.clusters_out, 0), "frame {frame}");
+            assert!(step.triangles_out <= late.triangles_out, "frame {frame}");
+        }
         let camera = *flight.world.resource::<Camera>();
         let (differing, covered) = pixels_differing_from_unculled(context, culler, &camera);
         assert!(covered > 0, "frame {frame}: nothing drawn");
@@ -762,6 +767,8 @@ fn two_phase_draws_the_unculled_image_through_cuts_resizes_and_spawns() {
             assert!(early.triangles_out > share * late.triangles_out, "occluders {occluders}, frame {frame}");
         }
         assert!(phases.iter().map(|p| p.late.clusters_hzb).sum::<u32>() > 0, "occluders {occluders}");
+        let step_drew = |frame: usize| phases[frame].late_occluders.is_some_and(|step| step.clusters_out > 0);
+        assert!(cuts.iter().all(|&(frame, _)| step_drew(frame as usize)), "occluders {occluders}: {phases:?}");
     }
 }
 
@@ -1115,6 +1122,25 @@ fn two_phase_under_its_benefit_is_gated_off_and_reprobed() {
     assert_eq!(in_two_phases, expected);
 }
 
+/// Runs `frame` of a camera standing at a point of the fly-through, still or turning 0.4 radians a frame on
+/// the spot, with `settings`, and checks that it draws the unculled image.
+fn turn_on_the_spot(
+    context: &GpuContext,
+    setup: &mut Setup,
+    (still, frame): (bool, u32),
+    settings: &GpuCullSettings,
+) -> (GpuFrameOutput, CullStats) {
+    let camera = setup.flight.path.camera_at(1.0, setup.flight.aspect);
+    let turn = if still { 0.0 } else { 0.4 * frame as f32 };
+    let camera = Camera { forward: glam::Quat::from_rotation_y(turn) * camera.forward, ..camera };
+    let stats = setup.flight.run_with_camera(camera, 0.0);
+    let output = setup.culler.run_world(context, &mut setup.flight.world, settings).expect("GPU frame");
+    let camera = *setup.flight.world.resource::<Camera>();
+    let (differing, _) = pixels_differing_from_unculled(context, &mut setup.culler, &camera);
+    assert_eq!(differing, 0, "still {still}, frame {frame}");
+    (output, stats)
+}
+
 /// Beside two phases, the CPU occluder stage runs only where it pays (`GpuGating::min_occluder_benefit`): on
 /// a still camera the frame's own depth hides all the CPU buffer does, and the stage is skipped but for its
 /// probes; turning fast on the spot, where what the last frame saw covers only part of this one, it saves
@@ -1129,14 +1155,7 @@ fn the_occluder_stage_runs_beside_two_phases_only_where_it_pays() {
         setup.flight.world.insert_resource(gating);
         let mut ran = Vec::new();
         for frame in 0..26 {
-            let camera = setup.flight.path.camera_at(1.0, setup.flight.aspect);
-            let turn = if still { 0.0 } else { 0.4 * frame as f32 };
-            let camera = Camera { forward: glam::Quat::from_rotation_y(turn) * camera.forward, ..camera };
-            let stats = setup.flight.run_with_camera(camera, 0.0);
-            let output = setup.culler.run_world(&context, &mut setup.flight.world, &settings).expect("GPU frame");
-            let camera = *setup.flight.world.resource::<Camera>();
-            let (differing, _) = pixels_differing_from_unculled(&context, &mut setup.culler, &camera);
-            assert_eq!(differing, 0, "still {still}, frame {frame}");
+            let (output, stats) = turn_on_the_spot(&context, &mut setup, (still, frame), &settings);
             let occluders = setup.flight.world.resource::<CameraCuller>().stats().occluders;
             println!(
                 "still {still}, frame {frame}: {occluders} occluders, {} drawn, {stats:?}",
@@ -1148,6 +1167,35 @@ fn the_occluder_stage_runs_beside_two_phases_only_where_it_pays() {
         match still {
             true => assert!(ran_after_the_first_probes <= 4, "{ran:?}"),
             false => assert!(ran_after_the_first_probes >= 12, "{ran:?}"),
+        }
+    }
+}
+
+/// The late phase's occluder step runs only where it draws its share of the frame
+/// (`GpuGating::min_late_occluder_share`): on a still camera, once the early phase draws everything, it draws
+/// nothing and is skipped but for its probes; turning fast on the spot, it draws the large clusters coming into
+/// view first and runs every frame. Every frame draws the unculled image.
+#[test]
+fn the_late_occluder_step_runs_only_where_it_draws() {
+    let Some(context) = context_for_tests() else { return };
+    let gating =
+        GpuGating { min_late_occluder_share: 0.01, low_benefit_frames: 3, reprobe_every: 6, ..GpuGating::fixed() };
+    let settings = GpuCullSettings { two_phase: true, ..GpuCullSettings::default() };
+    for still in [true, false] {
+        let mut setup = setup_flying(&context, 3000, (WIDTH, HEIGHT), OcclusionSettings::default(), 300);
+        setup.flight.world.insert_resource(gating);
+        let mut ran = Vec::new();
+        for frame in 0..20 {
+            let (output, _) = turn_on_the_spot(&context, &mut setup, (still, frame), &settings);
+            let step = output.phases.expect("two phases").late_occluders;
+            println!("still {still}, frame {frame}: {step:?} of {} drawn", output.counters.triangles_out);
+            ran.push(step.is_some());
+        }
+        assert!(ran[0], "{ran:?}");
+        let ran_after_the_first_frames = ran[4..].iter().filter(|&&ran| ran).count();
+        match still {
+            true => assert!(ran_after_the_first_frames <= 6, "{ran:?}"),
+            false => assert_eq!(ran_after_the_first_frames, 16, "{ran:?}"),
         }
     }
 }

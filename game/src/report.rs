@@ -55,11 +55,13 @@ pub fn print_gpu_summary(frames: &[GpuFrameOutput]) {
         let m = phases.len() as f64;
         let mean = |f: fn(&cullet::gpu::PhaseCounters) -> u32| phases.iter().map(|p| f64::from(f(p))).sum::<f64>() / m;
         println!(
-            "two-phase occlusion ({} frames): triangles drawn early {:.0}, late {:.0}; the merged HZB hid {:.0} of \
-             {:.0} clusters a frame",
+            "two-phase occlusion ({} frames): triangles drawn early {:.0}, late {:.0} (its occluder step {:.0}, on \
+             {} frames); the merged HZB hid {:.0} of {:.0} clusters a frame",
             phases.len(),
             mean(|p| p.early.triangles_out),
             mean(|p| p.late.triangles_out),
+            mean(|p| p.late_occluders.map_or(0, |step| step.triangles_out)),
+            phases.iter().filter(|p| p.late_occluders.is_some()).count(),
             mean(|p| p.late.clusters_hzb),
             mean(|p| p.late.clusters_in)
         );

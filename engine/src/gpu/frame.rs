@@ -8,11 +8,13 @@ use super::hzb::Hzb;
 use super::indirect::{DrawBuffers, cluster_draws, indirect_buffer};
 use super::interface::{
     GpuView, VIEW_BACKFACE, VIEW_CONE, VIEW_DRAW_CLUSTERS, VIEW_HZB, VIEW_PHASE_EARLY, VIEW_PHASE_FINAL,
-    VIEW_PHASE_LATE, VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE, VIEW_TRIANGLE_FRUSTUM,
+    VIEW_PHASE_LATE, VIEW_PHASE_LATE_OCCLUDERS, VIEW_SECOND_HZB, VIEW_SMALL_CLUSTER, VIEW_SMALL_TRIANGLE,
+    VIEW_TRIANGLE_FRUSTUM,
 };
 use super::late_read::LateRead;
 use super::output::{
     COUNTER_BYTES, GpuCounters, GpuFrameOutput, ONE_PHASE_PASSES, PassTimer, PhaseCounters, TIMED_PASSES,
+    TWO_PHASE_PASSES,
 };
 use super::own_renderer::{OwnRenderer, check_depth};
 use super::scene::{GpuInstance, GpuScene, drawn_meshes, instance_of, instances_from_world};
@@ -138,6 +140,12 @@ pub struct GpuGating {
     /// counters it reads at once: one frame without the stage next to one with it, every `reprobe_every`
     /// frames, each by the share of the frustum's triangles drawn. 0 never skips.
     pub min_occluder_benefit: f32,
+    /// The least fraction of a frame's triangles that two phases' late occluder step must draw
+    /// ([`super::interface::VIEW_PHASE_LATE_OCCLUDERS`]); below it (see the type's docs) the late phase runs
+    /// in one step. The step draws the large clusters the late phase keeps before it tests the rest, and costs
+    /// a cluster pass and another merge of the depth: it can pay only where it draws something, which is where
+    /// much comes into view at once. 0 never skips.
+    pub min_late_occluder_share: f32,
     /// Frames in a row under its share before a pass is skipped.
     pub low_benefit_frames: u32,
     /// Frames a pass stays skipped before it runs again to re-probe.
@@ -146,8 +154,9 @@ pub struct GpuGating {
 
 impl Default for GpuGating {
     /// No cluster pass for 64 clusters or fewer; each pass skipped after 8 frames under 40% removed, two
-    /// phases after 8 frames under 5% of the late phase's clusters hidden; re-probed every 30 frames. Beside
-    /// two phases, the CPU occluder stage skipped where it saves less than 5% of the triangles drawn.
+    /// phases after 8 frames under 5% of the late phase's clusters hidden, the late occluder step after 8 frames
+    /// drawing under 1% of the triangles; re-probed every 30 frames. Beside two phases, the CPU occluder stage
+    /// skipped where it saves less than 5% of the triangles drawn.
     fn default() -> Self {
         Self {
             tiny_scene_clusters: 64,
@@ -155,6 +164,7 @@ impl Default for GpuGating {
             min_triangle_benefit: 0.4,
             min_two_phase_benefit: 0.05,
             min_occluder_benefit: 0.05,
+            min_late_occluder_share: 0.01,
             low_benefit_frames: 8,
             reprobe_every: 30,
         }
@@ -170,6 +180,7 @@ impl GpuGating {
             min_triangle_benefit: 0.0,
             min_two_phase_benefit: 0.0,
             min_occluder_benefit: 0.0,
+            min_late_occluder_share: 0.0,
             low_benefit_frames: u32::MAX,
             reprobe_every: 0,
         }
@@ -259,6 +270,9 @@ pub struct GpuCuller {
     two_phase_run: u32,
     /// Whether the world's CPU occluder stage pays beside two phases ([`GpuGating::min_occluder_benefit`]).
     occluder_gate: OccluderStageGate,
+    /// When the late phase runs in one step for its occluder step's drawing too little lately
+    /// ([`GpuGating::min_late_occluder_share`]).
+    late_occluder_gate: BenefitGate,
 }
 
 impl GpuCuller {
@@ -314,6 +328,7 @@ impl GpuCuller {
             two_phase_gate: BenefitGate::default(),
             two_phase_run: 0,
             occluder_gate: OccluderStageGate::default(),
+            late_occluder_gate: BenefitGate::default(),
         }
     }
 
@@ -373,12 +388,15 @@ impl GpuCuller {
         self.camera.draws(&self.scene, self.last_gate.skip_triangles)
     }
 
-    /// The buffers of the last frame's late phase, where it ran in two ([`GpuCullSettings::two_phase`]): a
-    /// renderer of its own draws them after [`GpuCuller::draw_buffers`] (the early phase), into the same depth.
-    /// `None` after a frame of one phase.
-    pub fn late_draw_buffers(&self) -> Option<DrawBuffers<'_>> {
-        let state = self.two_phase.as_ref().filter(|_| self.last_two_phase)?;
-        state.late.draws(&self.scene, self.last_gate.skip_triangles)
+    /// The buffers of the last frame's late phase, where it ran in two ([`GpuCullSettings::two_phase`]), in the
+    /// order drawn: its occluder step's, where it ran, then the rest's. A renderer of its own draws them after
+    /// [`GpuCuller::draw_buffers`] (the early phase), into the same depth. Empty after a frame of one phase.
+    pub fn late_draw_buffers(&self) -> Vec<DrawBuffers<'_>> {
+        let Some(state) = self.two_phase.as_ref().filter(|_| self.last_two_phase) else {
+            return Vec::new();
+        };
+        let steps = [state.split.then_some(&state.late_occluders), Some(&state.late)];
+        steps.into_iter().flatten().filter_map(|view| view.draws(&self.scene, self.last_gate.skip_triangles)).collect()
     }
 
     /// The view for `camera` with `settings`, the HZB as it is sized now and `visible_count` instances.
@@ -481,6 +499,9 @@ impl GpuCuller {
             && draw_camera == camera
             && self.begin_two_phase(context);
         self.two_phase_run = if two_phase { self.two_phase_run + 1 } else { 0 };
+        if let Some(state) = self.two_phase.as_mut().filter(|_| two_phase) {
+            state.split = !self.late_occluder_gate.skip_this_frame();
+        }
         // The cluster pass splits the phases: it always runs.
         gate.skip_clusters &= !two_phase;
         let late = self.read_back == ReadBack::Late && batches.len() == 1 && !two_phase;
@@ -507,6 +528,11 @@ impl GpuCuller {
             let g = &self.gating;
             let (hidden, tested) = (phases.late.clusters_hzb as usize, phases.late.clusters_in as usize);
             self.two_phase_gate.record(hidden, tested, g.min_two_phase_benefit, g.low_benefit_frames, g.reprobe_every);
+            if let Some(step) = phases.late_occluders {
+                let (drawn, all) = (step.triangles_out as usize, total.counters.triangles_out as usize);
+                let (share, low, reprobe) = (g.min_late_occluder_share, g.low_benefit_frames, g.reprobe_every);
+                self.late_occluder_gate.record(drawn, all, share, low, reprobe);
+            }
         }
         Ok(total)
     }
@@ -528,6 +554,7 @@ impl GpuCuller {
             self.shadows.reset_gates();
             self.two_phase_gate = BenefitGate::default();
             self.occluder_gate = OccluderStageGate::default();
+            self.late_occluder_gate = BenefitGate::default();
         }
     }
 
@@ -592,6 +619,7 @@ impl GpuCuller {
             view.flags |= VIEW_PHASE_EARLY;
             view.frame = state.frame;
             state.late.fit(context, visible.len(), frame_candidates);
+            state.late_occluders.fit(context, visible.len(), frame_candidates);
             view = state.against_merged(view, &self.hzb);
         }
         self.last_view = view;
@@ -639,7 +667,11 @@ impl GpuCuller {
             self.record_late_phase(context, &mut encoder, state, late, visible, gate, reborrow(&mut renderer));
             self.last_late_view = Some(late_view);
         }
-        let timed = if two_phase { TIMED_PASSES } else { ONE_PHASE_PASSES };
+        let timed = match state {
+            Some(state) if state.split => TIMED_PASSES,
+            Some(_) => TWO_PHASE_PASSES,
+            None => ONE_PHASE_PASSES,
+        };
         if let Some(timer) = timer {
             timer.resolve(&mut encoder, timed);
         }
@@ -688,7 +720,8 @@ impl GpuCuller {
     /// Records two-phase occlusion after the early phase's draw from `camera` (by `renderer`, into its depth,
     /// where given): the merge of its depth with the CPU pyramid, the late phase's culling of `visible` with
     /// `late_view` and its draw over the early image, then the final depth merged again and the marks it hides
-    /// taken (timed as passes 4 to 9).
+    /// taken (timed as passes 4 to 9); where [`TwoPhase::split`], the occluder step before the late phase's
+    /// culling (passes 10 to 13).
     #[allow(clippy::too_many_arguments)]
     fn record_late_phase(
         &self,
@@ -701,23 +734,27 @@ impl GpuCuller {
         renderer: Option<&mut dyn OwnRenderer>,
     ) {
         let timer = self.timer.as_ref();
-        let depth = renderer.as_deref().map_or(self.targets.depth_texture(), |renderer| renderer.depth());
+        // Every draw of the frame goes to one depth, which each merge reads.
+        let depth = renderer.as_deref().map_or(self.targets.depth_texture(), |renderer| renderer.depth()).clone();
+        let depth = &depth;
         state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(4)));
+        let mut renderer = renderer;
+        if state.split {
+            // The large clusters first, so that what they hide of the rest is culled (passes 10 to 13).
+            let view =
+                GpuView { flags: (late_view.flags & !VIEW_PHASE_LATE) | VIEW_PHASE_LATE_OCCLUDERS, ..*late_view };
+            let step = &state.late_occluders;
+            context.queue.write_buffer(&step.view, 0, bytemuck::bytes_of(&view));
+            step.record(context, encoder, &self.scene, &self.passes, state.against(), visible, gate, (timer, 10));
+            let draws = step.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");
+            self.record_phase_draw(context, encoder, camera, draws, reborrow(&mut renderer), 12);
+            state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(13)));
+        }
         context.queue.write_buffer(&state.late.view, 0, bytemuck::bytes_of(late_view));
         let against = state.against();
         state.late.record(context, encoder, &self.scene, &self.passes, against, visible, gate, (timer, 5));
         let draws = state.late.draws(&self.scene, gate.skip_triangles).expect("fit in run_batch");
-        let depth = match renderer {
-            Some(renderer) => {
-                renderer.draw(context, encoder, draws, false);
-                renderer.depth()
-            }
-            None => {
-                let source = DrawSource::Culled(draws);
-                self.record_draw(context, encoder, camera.depth, source, false, timer.map(|t| t.render(7)));
-                self.targets.depth_texture()
-            }
-        };
+        self.record_phase_draw(context, encoder, camera, draws, renderer, 7);
         // The frame's final depth, merged again, takes the marks of what it hides (next frame's early phase
         // tests against this pyramid too).
         state.record_merge(context, encoder, depth, (&self.hzb, with_cpu), camera, timer.map(|t| t.compute(8)));
@@ -728,20 +765,39 @@ impl GpuCuller {
         state.late.record_marks(context, encoder, &self.scene, marking, &state.final_view, instances, timestamps);
     }
 
+    /// Records the draw of a late phase's `draws` over the early image from `camera`, by `renderer` where
+    /// given or into the culler's targets timed as pass `timed`.
+    fn record_phase_draw(
+        &self,
+        context: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        camera: &Camera,
+        draws: DrawBuffers<'_>,
+        renderer: Option<&mut dyn OwnRenderer>,
+        timed: u32,
+    ) {
+        match renderer {
+            Some(renderer) => renderer.draw(context, encoder, draws, false),
+            None => {
+                let timestamps = self.timer.as_ref().map(|t| t.render(timed));
+                self.record_draw(context, encoder, camera.depth, DrawSource::Culled(draws), false, timestamps);
+            }
+        }
+    }
+
     /// The last submitted frame's counters, waiting for the GPU: the camera's, and where the frame ran in two
     /// phases, both phases' added up and each on its own.
     fn read_counters(&self, context: &GpuContext) -> Result<(GpuCounters, Option<PhaseCounters>), GpuError> {
-        let read = |view: &ViewCull| -> Result<GpuCounters, GpuError> {
-            let bytes = context.read_buffer(&view.counters, COUNTER_BYTES)?;
-            Ok(GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes)))
-        };
+        let read = |view: &ViewCull| self.read_view_counters(context, view);
         let early = read(&self.camera)?;
         match self.two_phase.as_ref().filter(|_| self.last_two_phase) {
             None => Ok((early, None)),
             Some(state) => {
-                let late = read(&state.late)?;
+                let late_occluders = if state.split { Some(read(&state.late_occluders)?) } else { None };
+                let rest = read(&state.late)?;
+                let late = late_occluders.map_or(rest, |step| step.plus(&rest));
                 let total = GpuCounters { instances: self.last_instances, ..early.plus(&late) };
-                Ok((total, Some(PhaseCounters { early, late })))
+                Ok((total, Some(PhaseCounters { early, late, late_occluders })))
             }
         }
     }
@@ -797,11 +853,23 @@ impl GpuCuller {
         match (phases, self.two_phase.as_ref()) {
             (Some(phases), Some(state)) => {
                 let early = self.survivors_of(context, &self.camera, phases.early)?;
-                let late = self.survivors_of(context, &state.late, phases.late)?;
+                // The late phase's own counters: `phases.late` includes the occluder step's.
+                let mut late =
+                    self.survivors_of(context, &state.late, self.read_view_counters(context, &state.late)?)?;
+                if let Some(counters) = phases.late_occluders {
+                    let step = self.survivors_of(context, &state.late_occluders, counters)?;
+                    late = ([step.0, late.0].concat(), [step.1, late.1].concat());
+                }
                 Ok(([early.0, late.0].concat(), [early.1, late.1].concat()))
             }
             _ => self.survivors_of(context, &self.camera, counters),
         }
+    }
+
+    /// The counters of `view`'s last frame, waiting for the GPU.
+    fn read_view_counters(&self, context: &GpuContext, view: &ViewCull) -> Result<GpuCounters, GpuError> {
+        let bytes = context.read_buffer(&view.counters, COUNTER_BYTES)?;
+        Ok(GpuCounters::from_slots(self.last_instances, bytemuck::cast_slice(&bytes)))
     }
 
     /// [`GpuCuller::read_survivors`] of one view whose last frame counted `counters`.

@@ -38,6 +38,11 @@ pub const VIEW_SECOND_HZB: u32 = 512;
 /// against the pyramid of the frame's final depth, and those it hides lose their mark, so that the next frame
 /// does not draw them early. Nothing is counted or kept.
 pub const VIEW_PHASE_FINAL: u32 = 1024;
+/// View flag: the first step of two-phase occlusion's late phase. Every cluster not drawn early is tested as
+/// the late phase tests it, and of those kept only the ones likely to hide others (a footprint of at least
+/// [`LATE_OCCLUDER_AREA`] of the view, or reaching the near plane) are marked visible and drawn; the depth
+/// is merged again before the late phase tests the rest. Only what it keeps is counted.
+pub const VIEW_PHASE_LATE_OCCLUDERS: u32 = 2048;
 
 /// Set in [`super::scene::GpuInstance::flags`] when the transform is invertible and does not mirror: the cone
 /// test, run in mesh space with the camera brought there, is then valid (which side of a plane a point lies on
@@ -94,6 +99,9 @@ pub const DEPTH_MARGIN: f32 = 1e-5;
 pub const DEPTH_ULPS: f32 = 4.8e-7;
 /// Small-cluster test (lossy): a bounding sphere under this many pixels across is culled.
 pub const SMALL_CLUSTER_PIXELS: f32 = 1.0;
+/// The share of the view a cluster's screen-space box must cover for [`VIEW_PHASE_LATE_OCCLUDERS`] to draw it
+/// first.
+pub const LATE_OCCLUDER_AREA: f32 = 1.0 / 1024.0;
 /// Pixels a vertex may move when the rasterizer snaps it to its sub-pixel grid (1/256 on common hardware):
 /// the triangle pass's screen-space tests keep everything within this margin.
 pub const SNAP: f32 = 1.0 / 128.0;
@@ -230,6 +238,7 @@ pub fn wgsl_prelude() -> String {
         ("VIEW_PHASE_LATE", VIEW_PHASE_LATE),
         ("VIEW_SECOND_HZB", VIEW_SECOND_HZB),
         ("VIEW_PHASE_FINAL", VIEW_PHASE_FINAL),
+        ("VIEW_PHASE_LATE_OCCLUDERS", VIEW_PHASE_LATE_OCCLUDERS),
         ("INSTANCE_CONE_SAFE", INSTANCE_CONE_SAFE),
         ("MAX_HZB_LEVELS", MAX_HZB_LEVELS as u32),
         ("MAX_CASCADES", MAX_CASCADES as u32),
@@ -260,6 +269,7 @@ pub fn wgsl_prelude() -> String {
         ("DEPTH_MARGIN", DEPTH_MARGIN),
         ("DEPTH_ULPS", DEPTH_ULPS),
         ("SMALL_CLUSTER_PIXELS", SMALL_CLUSTER_PIXELS),
+        ("LATE_OCCLUDER_AREA", LATE_OCCLUDER_AREA),
         ("SNAP", SNAP),
     ];
     let mut wgsl = String::from("// Generated from the engine's gpu::interface: the constants Rust and WGSL share.\n");

@@ -153,6 +153,15 @@ pub struct GpuPassTimes {
     pub final_merge: Duration,
     /// See `merge`: the pass taking the marks of the clusters the final depth hides.
     pub final_marks: Duration,
+    /// The late phase's occluder step, where it ran ([`super::interface::VIEW_PHASE_LATE_OCCLUDERS`]; zero
+    /// otherwise): its cluster pass.
+    pub occluder_clusters: Duration,
+    /// See `occluder_clusters`: its triangle pass.
+    pub occluder_triangles: Duration,
+    /// See `occluder_clusters`: its draw.
+    pub occluder_draw: Duration,
+    /// See `occluder_clusters`: the depth merged again after its draw (its reduction untimed).
+    pub occluder_merge: Duration,
 }
 
 impl GpuPassTimes {
@@ -173,6 +182,10 @@ impl GpuPassTimes {
             late_draw: sum(|t| t.late_draw),
             final_merge: sum(|t| t.final_merge),
             final_marks: sum(|t| t.final_marks),
+            occluder_clusters: sum(|t| t.occluder_clusters),
+            occluder_triangles: sum(|t| t.occluder_triangles),
+            occluder_draw: sum(|t| t.occluder_draw),
+            occluder_merge: sum(|t| t.occluder_merge),
         })
     }
 }
@@ -201,6 +214,16 @@ impl std::fmt::Display for GpuPassTimes {
                 us(self.final_marks)
             )?;
         }
+        if self.occluder_merge > Duration::ZERO {
+            write!(
+                f,
+                "; occluder step: clusters {:.1} us, triangles {:.1} us, draw {:.1} us, merge {:.1} us",
+                us(self.occluder_clusters),
+                us(self.occluder_triangles),
+                us(self.occluder_draw),
+                us(self.occluder_merge)
+            )?;
+        }
         Ok(())
     }
 }
@@ -214,8 +237,11 @@ pub(crate) struct PassTimer {
 }
 
 /// Passes timed, two timestamps each: the HZB build, clusters, triangles, draw, then two-phase occlusion's
-/// merge and late clusters, triangles and draw.
-pub(crate) const TIMED_PASSES: u32 = 10;
+/// merge, late clusters, triangles and draw, final merge and marks, and the late phase's occluder step's
+/// clusters, triangles, draw and merge.
+pub(crate) const TIMED_PASSES: u32 = 14;
+/// The passes of a frame of two phases without the occluder step: the first ten.
+pub(crate) const TWO_PHASE_PASSES: u32 = 10;
 /// The passes of a frame of one phase: the first four.
 pub(crate) const ONE_PHASE_PASSES: u32 = 4;
 
@@ -280,6 +306,10 @@ impl PassTimer {
             late_draw: span(7),
             final_merge: span(8),
             final_marks: span(9),
+            occluder_clusters: span(10),
+            occluder_triangles: span(11),
+            occluder_draw: span(12),
+            occluder_merge: span(13),
         })
     }
 }
@@ -317,8 +347,12 @@ pub struct PhaseCounters {
     /// The early phase: the clusters visible last frame, tested against the CPU's HZB and drawn.
     pub early: GpuCounters,
     /// The late phase: every cluster tested against the merged HZB; `clusters_out` and what follows count
-    /// only those drawn late, `clusters_drawn_early` those it kept that the early phase had drawn.
+    /// only those drawn late, `clusters_drawn_early` those it kept that the early phase had drawn. Where the
+    /// occluder step ran, its counters are included.
     pub late: GpuCounters,
+    /// The late phase's occluder step ([`super::interface::VIEW_PHASE_LATE_OCCLUDERS`]), where it ran: the
+    /// clusters it drew first (each counted in, and out) and their triangles.
+    pub late_occluders: Option<GpuCounters>,
 }
 
 impl GpuFrameOutput {
@@ -336,6 +370,10 @@ impl GpuFrameOutput {
             late_draw: a.late_draw + b.late_draw,
             final_merge: a.final_merge + b.final_merge,
             final_marks: a.final_marks + b.final_marks,
+            occluder_clusters: a.occluder_clusters + b.occluder_clusters,
+            occluder_triangles: a.occluder_triangles + b.occluder_triangles,
+            occluder_draw: a.occluder_draw + b.occluder_draw,
+            occluder_merge: a.occluder_merge + b.occluder_merge,
         });
         GpuFrameOutput {
             counters,

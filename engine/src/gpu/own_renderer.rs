@@ -1,8 +1,8 @@
 //! A renderer of the app's own that draws each frame's survivors into its own targets while the culler records
 //! the frame ([`super::GpuCuller::run_into`], [`super::GpuCuller::run_world_into`]). With two-phase occlusion
 //! the renderer draws the early phase, the culler merges the renderer's depth with the CPU pyramid and culls
-//! the late phase against it, and the renderer draws the late phase over the early one, all in the frame's
-//! one submission.
+//! the late phase against it, and the renderer draws the late phase over the early one (its occluder step
+//! first, where it runs, with the depth merged again in between), all in the frame's one submission.
 
 use super::indirect::DrawBuffers;
 use super::{GpuContext, GpuError};
@@ -15,13 +15,14 @@ use super::{GpuContext, GpuError};
 /// [`DepthConvention`](crate::camera::DepthConvention).
 pub trait OwnRenderer {
     /// The depth texture the draws write. Where the frame runs in two phases, the culler reads it after the
-    /// early phase's draw, so it must be `Depth32Float` or `Depth32FloatStencil8`, one sample, of the
+    /// early phase's draw (and after each later one), so it must be `Depth32Float` or `Depth32FloatStencil8`, one sample, of the
     /// culler's target size ([`super::GpuCuller::resize`]), with [`wgpu::TextureUsages::TEXTURE_BINDING`].
     fn depth(&self) -> &wgpu::Texture;
 
     /// Records the draw of `buffers` into `encoder`: clearing the targets first where `clear` (the frame's
     /// first draw), else drawing over what earlier draws of the frame left. A frame of one phase calls it once
-    /// (once per batch where its candidates need several), a frame of two phases once for each phase.
+    /// (once per batch where its candidates need several), a frame of two phases once for each phase and once
+    /// more for the late phase's occluder step where it runs ([`super::GpuGating::min_late_occluder_share`]).
     fn draw(&mut self, context: &GpuContext, encoder: &mut wgpu::CommandEncoder, buffers: DrawBuffers<'_>, clear: bool);
 }
 

@@ -9,7 +9,13 @@
 //!    centre (each bounds what lies behind it there), reduced level by level.
 //! 3. **Late phase**: every candidate cluster tested against the merged pyramid and the CPU's (copied after it
 //!    in its buffer); the ones kept are marked visible for the next frame, and those the early phase did not
-//!    draw go through the triangle pass and are drawn over the early image.
+//!    draw go through the triangle pass and are drawn over the early image. Where much comes into view at once,
+//!    an occluder step goes first ([`super::interface::VIEW_PHASE_LATE_OCCLUDERS`]): of the clusters the late
+//!    phase keeps, the large ones are drawn and the depth merged again, so that what they hide of the rest is
+//!    culled rather than drawn through the early depth's holes ([`super::GpuGating::min_late_occluder_share`]
+//!    skips it where it draws too little).
+//! 4. **Final marks**: the frame's final depth is merged again, and the clusters the late phase kept that it
+//!    hides lose their marks, so that the next frame does not draw them early.
 //!
 //! Conservative whatever last frame saw: every candidate the early phase did not draw is tested by the late
 //! phase against depth drawn this frame, from this frame's camera, and against the CPU's conservative buffer.
@@ -44,6 +50,10 @@ struct GpuMerge {
 pub(crate) struct TwoPhase {
     /// The late phase's view, counters and per-frame buffers.
     pub late: ViewCull,
+    /// The same for the late phase's occluder step ([`super::interface::VIEW_PHASE_LATE_OCCLUDERS`]).
+    pub late_occluders: ViewCull,
+    /// This frame's late phase runs the occluder step first.
+    pub split: bool,
     /// The view of the pass that takes the marks of clusters the frame's final depth hides.
     pub final_view: wgpu::Buffer,
     /// The merged pyramid, a level-0 texel per pixel of the render target; the CPU's is copied after it in its
@@ -75,6 +85,8 @@ impl TwoPhase {
         });
         Self {
             late: ViewCull::new(context, "late view"),
+            late_occluders: ViewCull::new(context, "late occluders view"),
+            split: false,
             final_view: view_buffer(context, "final view"),
             hzb: Hzb::with_room(context, target.0, target.1, cpu.texels()),
             merge: context.compute_pipeline("hzb merge", cullet_shaders::HZB_MERGE),
