@@ -795,7 +795,9 @@ impl GpuCuller {
             Some(state) => {
                 let late_occluders = if state.split { Some(read(&state.late_occluders)?) } else { None };
                 let rest = read(&state.late)?;
-                let late = late_occluders.map_or(rest, |step| step.plus(&rest));
+                // Both steps cull the same instances.
+                let late =
+                    late_occluders.map_or(rest, |step| GpuCounters { instances: rest.instances, ..step.plus(&rest) });
                 let total = GpuCounters { instances: self.last_instances, ..early.plus(&late) };
                 Ok((total, Some(PhaseCounters { early, late, late_occluders })))
             }
@@ -854,8 +856,9 @@ impl GpuCuller {
             (Some(phases), Some(state)) => {
                 let early = self.survivors_of(context, &self.camera, phases.early)?;
                 // The late phase's own counters: `phases.late` includes the occluder step's.
-                let mut late =
-                    self.survivors_of(context, &state.late, self.read_view_counters(context, &state.late)?)?;
+                let rest = phases.late_occluders.map_or(phases.late, |step| phases.late.less(&step));
+                let rest = GpuCounters { instances: phases.late.instances, ..rest };
+                let mut late = self.survivors_of(context, &state.late, rest)?;
                 if let Some(counters) = phases.late_occluders {
                     let step = self.survivors_of(context, &state.late_occluders, counters)?;
                     late = ([step.0, late.0].concat(), [step.1, late.1].concat());

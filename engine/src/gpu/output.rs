@@ -106,6 +106,13 @@ impl GpuCounters {
         GpuCounters::from_array(std::array::from_fn(|i| a[i] + b[i]))
     }
 
+    /// These counters less `part`, which they include (a view's share of counters added up with
+    /// [`GpuCounters::plus`]).
+    pub(crate) fn less(&self, part: &GpuCounters) -> GpuCounters {
+        let (a, b) = (self.to_array(), part.to_array());
+        GpuCounters::from_array(std::array::from_fn(|i| a[i] - b[i]))
+    }
+
     /// How many clusters `verdict` accounts for.
     pub fn clusters(&self, verdict: ClusterVerdict) -> u32 {
         match verdict {

@@ -15,8 +15,9 @@ use super::{GpuContext, GpuError};
 /// [`DepthConvention`](crate::camera::DepthConvention).
 pub trait OwnRenderer {
     /// The depth texture the draws write. Where the frame runs in two phases, the culler reads it after the
-    /// early phase's draw (and after each later one), so it must be `Depth32Float` or `Depth32FloatStencil8`, one sample, of the
-    /// culler's target size ([`super::GpuCuller::resize`]), with [`wgpu::TextureUsages::TEXTURE_BINDING`].
+    /// early phase's draw (and after each later one), so it must be `Depth32Float` or `Depth32FloatStencil8`,
+    /// one sample, of the culler's target size ([`super::GpuCuller::resize`]), with
+    /// [`wgpu::TextureUsages::TEXTURE_BINDING`].
     fn depth(&self) -> &wgpu::Texture;
 
     /// Records the draw of `buffers` into `encoder`: clearing the targets first where `clear` (the frame's
