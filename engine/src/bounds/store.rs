@@ -38,6 +38,13 @@ const TIGHTEN_GROUPS_PER_TASK: usize = 16;
 /// Pieces [`BoundsStore::update_many`] cuts its objects into, at most: each supergroup's writer looks at each.
 const MAX_UPDATE_PIECES: usize = 64;
 
+/// Objects one [`UpdatePiece`] of `objects` updated together should hold: few enough pieces that each
+/// supergroup's writer looks through all of them cheaply ([`BoundsStore::apply_pieces`]), each large enough to
+/// be worth a task.
+pub(crate) fn piece_len(objects: usize) -> usize {
+    objects.div_ceil(MAX_UPDATE_PIECES).max(UPDATES_PER_TASK)
+}
+
 /// Updates computed apart from the store ([`BoundsStore::compute_piece`]) by one task, to be applied with the
 /// other tasks' in order ([`BoundsStore::apply_pieces`]).
 #[derive(Debug, Default)]
@@ -660,8 +667,7 @@ impl BoundsStore {
     /// written in parallel, each thread a range of slots (the arrays' writes miss the caches of a large
     /// store); only what depends on their order is recorded in order.
     pub fn update_many(&mut self, objects: &[(Entity, LocalBounds, Affine3A)]) -> Vec<Result<usize, BoundsError>> {
-        // Few enough pieces that each supergroup's writer looks through all of them cheaply.
-        let per_piece = objects.len().div_ceil(MAX_UPDATE_PIECES).max(UPDATES_PER_TASK);
+        let per_piece = piece_len(objects.len());
         let pieces: Vec<UpdatePiece> = parallel::region(|region| {
             let piece =
                 |chunk: &[(Entity, LocalBounds, Affine3A)]| region.task(|| self.compute_piece(chunk.iter().copied()));

@@ -1,11 +1,14 @@
 //! The `bevy_ecs` systems and observers that keep the [`BoundsStore`] in step with the entities' components.
 
-use crate::bounds::{BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static, UpdatePiece};
+use crate::bounds::{
+    self, BoundsError, BoundsRejected, BoundsStore, LocalBounds, ObjectTransform, Static, UpdatePiece,
+};
 use crate::occluders::Occluder;
 use crate::parallel::{self, Stage};
 use bevy_ecs::change_detection::Tick;
 use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
+use glam::Affine3A;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -90,13 +93,13 @@ struct TableRows<'w> {
     this_run: Tick,
 }
 
-/// Rows of a table one task of the bounds stage walks: looks at their change ticks, and computes the bounds of
-/// those that changed.
+/// Rows of a table one task of the bounds stage walks, looking at their change ticks.
 const WALK_ROWS: usize = 1024;
 
 /// The updates of every object of `objects` whose [`LocalBounds`] or [`ObjectTransform`] changed since the
-/// stage last ran, computed in parallel over ranges of table rows, in the order of the query; and the earlier
-/// rejection of each that had one.
+/// stage last ran, in the order of the query: found in parallel over ranges of table rows, then computed in
+/// parallel over pieces of about equal size ([`bounds::store::piece_len`]); and the earlier rejection of each
+/// that had one.
 fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdatePiece>, EntityHashMap<BoundsRejected>) {
     let Ok(tables) = objects.contiguous_iter() else {
         // Not stored in tables (not the case of the engine's components): one walk on this thread.
@@ -121,32 +124,41 @@ fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdateP
             ranges.push(TableRows { entities, locals, transforms, changed, rejected, rows, last_run, this_run });
         }
     }
-    let walked: Vec<(UpdatePiece, Vec<(Entity, BoundsRejected)>)> = parallel::region(|region| {
-        let walk = |table: TableRows| {
-            region.task(|| {
-                let newer = |row: &usize| {
-                    table.changed.iter().any(|ticks| ticks[*row].is_newer_than(table.last_run, table.this_run))
-                };
-                let rows: Vec<usize> = table.rows.clone().filter(newer).collect();
-                let objects = rows.iter().map(|&row| (table.entities[row], table.locals[row], table.transforms[row].0));
-                let previous: Vec<(Entity, BoundsRejected)> = match table.rejected {
-                    Some(rejected) => rows.iter().map(|&row| (table.entities[row], rejected[row].clone())).collect(),
-                    None => Vec::new(),
-                };
-                (store.compute_piece(objects), previous)
-            })
-        };
-        ranges.into_par_iter().map(walk).collect()
+    // The walk looks at every movable row's ticks; the bounds are computed afterwards, in pieces sized by how
+    // many changed, so that no task computes many more than the others (moving objects are rarely spread
+    // evenly over the rows).
+    let walked: Vec<ChangedRows> =
+        parallel::region(|region| ranges.into_par_iter().map(|table| region.task(|| table.changed())).collect());
+    let per_piece = bounds::store::piece_len(walked.iter().map(|rows| rows.objects.len()).sum());
+    let chunks: Vec<&[(Entity, LocalBounds, Affine3A)]> =
+        walked.iter().flat_map(|rows| rows.objects.chunks(per_piece)).collect();
+    let pieces = parallel::region(|region| {
+        chunks.into_par_iter().map(|chunk| region.task(|| store.compute_piece(chunk.iter().copied()))).collect()
     });
-    let mut previous = EntityHashMap::default();
-    let pieces = walked
-        .into_iter()
-        .map(|(piece, rejected)| {
-            previous.extend(rejected);
-            piece
-        })
-        .collect();
+    let previous = walked.into_iter().flat_map(|rows| rows.rejected).collect();
     (pieces, previous)
+}
+
+/// The objects of some rows of a table whose bounds changed, in row order, and the earlier rejection of each
+/// that had one.
+struct ChangedRows {
+    objects: Vec<(Entity, LocalBounds, Affine3A)>,
+    rejected: Vec<(Entity, BoundsRejected)>,
+}
+
+impl TableRows<'_> {
+    /// This range's rows whose local bounds or transform changed between the stage's last run and this one.
+    fn changed(&self) -> ChangedRows {
+        let newer =
+            |row: &usize| self.changed.iter().any(|ticks| ticks[*row].is_newer_than(self.last_run, self.this_run));
+        let rows: Vec<usize> = self.rows.clone().filter(newer).collect();
+        let objects = rows.iter().map(|&row| (self.entities[row], self.locals[row], self.transforms[row].0)).collect();
+        let rejected = match self.rejected {
+            Some(rejected) => rows.iter().map(|&row| (self.entities[row], rejected[row].clone())).collect(),
+            None => Vec::new(),
+        };
+        ChangedRows { objects, rejected }
+    }
 }
 
 /// Observer: stores an object as soon as it has both [`LocalBounds`] and [`ObjectTransform`], and re-stores it
