@@ -136,6 +136,11 @@ pub struct OccluderInstance<'a> {
 
 /// Candidates ordered per round of selection: enough to fill most budgets in one round.
 const ROUND: usize = 1024;
+/// Ranked candidates whose occluders are fetched at once, then looked at in order: more than one task's, and
+/// not many more than a budget takes.
+const FETCH_BATCH: usize = 256;
+/// Occluders one task fetches.
+const FETCH_PER_TASK: usize = 32;
 /// Relative room for f32 rounding when telling whether the eye may be inside an occluder's sphere: the squared
 /// distance and radius are each within a few ulps of their exact values.
 const INSIDE_SPHERE_SLACK: f32 = 1.0 + 1e-4;
@@ -160,8 +165,9 @@ const BOUND_SLACK: f32 = 1.0 + 1e-5;
 
 /// Picks the occluders to rasterize: among store slots marked as occluders ([`BoundsStore::occluders`])
 /// that the frustum kept and whose box does not contain the camera, best-first while their triangles fit in
-/// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform. Returns the chosen slots with
-/// their occluders, best first.
+/// `triangle_budget`. `occluder_of` gives a slot's occluder mesh and transform; it is called from rayon's
+/// threads, for a batch of the best candidates at a time, and for some that are not chosen. Returns the chosen
+/// slots with their occluders, best first.
 ///
 /// Candidates are found with a bitwise AND and ranked from the store's arrays, first only those of the groups
 /// whose bounds rank best (the others are ranked only where those cannot settle the choice, which is the same
@@ -174,7 +180,7 @@ pub fn select_occluders<'a>(
     frustum_visible: &VisibleSet,
     camera_position: Vec3,
     triangle_budget: usize,
-    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
     select_ranked(store, frustum_visible, Viewpoint::Position(camera_position), triangle_budget, occluder_of)
 }
@@ -187,7 +193,7 @@ pub fn select_occluders_for_view<'a>(
     visible: &VisibleSet,
     view: &ScreenView,
     triangle_budget: usize,
-    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
     let viewpoint = if view.is_orthographic() { Viewpoint::Direction } else { Viewpoint::Position(view.origin) };
     select_ranked(store, visible, viewpoint, triangle_budget, occluder_of)
@@ -214,7 +220,7 @@ fn select_ranked<'a>(
     visible: &VisibleSet,
     viewpoint: Viewpoint,
     triangle_budget: usize,
-    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+    occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync,
 ) -> Vec<(u32, OccluderInstance<'a>)> {
     let wanted = FIRST_CANDIDATES.max(triangle_budget / 4);
     let (mut best, threshold) = rank_best_groups(store, visible, viewpoint, wanted);
@@ -335,7 +341,7 @@ fn choose<'a>(
     ranked: &mut [(f32, u32)],
     threshold: Option<f32>,
     triangle_budget: usize,
-    occluder_of: &impl Fn(usize) -> Option<OccluderInstance<'a>>,
+    occluder_of: &(impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync),
 ) -> Option<Vec<(u32, OccluderInstance<'a>)>> {
     // Equal ranks in slot order, so that the choice does not depend on which candidates were ranked.
     let best_first = |a: &(f32, u32), b: &(f32, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
@@ -355,21 +361,23 @@ fn choose<'a>(
         head.sort_unstable_by(best_first);
         let before = chosen.len();
         let mut smallest = usize::MAX;
-        for &(rank, slot) in head.iter() {
-            if threshold.is_some_and(|threshold| rank < threshold) {
-                return None;
-            }
-            let Some(instance) = occluder_of(slot as usize) else { continue };
-            let triangles = instance.occluder.triangle_count();
-            smallest = smallest.min(triangles);
-            if triangles <= remaining {
-                remaining -= triangles;
-                smallest_chosen = smallest_chosen.min(triangles);
-                chosen.push((slot, instance));
-                // With less room than the smallest occluder chosen, looking on (each look fetches an occluder,
-                // a cache miss in a large world) could fill at most that little.
-                if remaining == 0 || remaining < smallest_chosen {
-                    break;
+        'round: for batch in head.chunks(FETCH_BATCH) {
+            for (&(rank, slot), instance) in batch.iter().zip(fetch_occluders(batch, occluder_of)) {
+                if threshold.is_some_and(|threshold| rank < threshold) {
+                    return None;
+                }
+                let Some(instance) = instance else { continue };
+                let triangles = instance.occluder.triangle_count();
+                smallest = smallest.min(triangles);
+                if triangles <= remaining {
+                    remaining -= triangles;
+                    smallest_chosen = smallest_chosen.min(triangles);
+                    chosen.push((slot, instance));
+                    // With less room than the smallest occluder chosen, looking on (each look fetches an
+                    // occluder, a cache miss in a large world) could fill at most that little.
+                    if remaining == 0 || remaining < smallest_chosen {
+                        break 'round;
+                    }
                 }
             }
         }
@@ -381,6 +389,20 @@ fn choose<'a>(
         rest = tail;
     }
     Some(chosen)
+}
+
+/// The occluder of each of `ranked`'s slots, in order. Each fetch is a few cache misses in a large world, and
+/// a selection looks at hundreds: more than [`FETCH_PER_TASK`] are fetched in parallel.
+fn fetch_occluders<'a>(
+    ranked: &[(f32, u32)],
+    occluder_of: &(impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync),
+) -> Vec<Option<OccluderInstance<'a>>> {
+    let fetch = |index: usize| occluder_of(ranked[index].1 as usize);
+    if ranked.len() <= FETCH_PER_TASK {
+        (0..ranked.len()).map(fetch).collect()
+    } else {
+        parallel::map_range(ranked.len(), FETCH_PER_TASK, fetch)
+    }
 }
 
 /// Appends the rank (larger is better) of each occluder candidate set in `bits` (slots from `base`) to `ranked`,
@@ -475,8 +497,8 @@ mod tests {
         assert_eq!(chosen, [1, 2]);
     }
 
-    /// Above `RANK_IN_PARALLEL_ABOVE` words the ranking runs in parallel: the choice is still the best ranked
-    /// occluders, as a sort of every candidate gives them.
+    /// Above `RANK_IN_PARALLEL_ABOVE` words the ranking runs in parallel, and 2000 chosen take eight batches of
+    /// fetched occluders: the choice is still the best ranked occluders, as a sort of every candidate gives them.
     #[test]
     fn a_store_ranked_in_parallel_chooses_as_a_full_sort_does() {
         let count = RANK_IN_PARALLEL_ABOVE * 64 + 1000;

@@ -112,7 +112,7 @@ impl LightOcclusion {
         views: &mut [LightViewVisible],
         settings: &LightOcclusionSettings,
         adaptive: &AdaptiveSettings,
-        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync,
     ) -> LightOcclusionStats {
         let start = Instant::now();
         let _stage = Stage::LightOcclusion.enter();

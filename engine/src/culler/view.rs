@@ -192,7 +192,7 @@ impl ViewCuller {
         &mut self,
         store: &BoundsStore,
         frame: &ViewFrame,
-        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync,
     ) -> &ViewStats {
         self.cull_frustum(store, frame, &[], &mut Vec::new());
         self.cull_occlusion(store, occluder_of);
@@ -283,7 +283,7 @@ impl ViewCuller {
     pub fn cull_occlusion<'a>(
         &mut self,
         store: &BoundsStore,
-        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>>,
+        occluder_of: impl Fn(usize) -> Option<OccluderInstance<'a>> + Sync,
     ) {
         let start = Instant::now();
         let _stage = Stage::Raster.enter();
