@@ -5,10 +5,11 @@ use super::setup::{PendingOccluder, TexelRect};
 use crate::depth::{DepthBuffer, farther, reduce_rows};
 
 /// Rows of the depth buffer rasterized by one rayon task; each band is a contiguous slice, so tasks never share
-/// a texel and need no locks.
-pub(super) const BAND_ROWS: usize = 8;
-/// Each of `bands` bands' rows in level 0 (`band_rows` rows a band) and in the [`FUSED_LEVELS`] levels above
-/// it, which level `k` holds `band_rows >> k` of (ceil-halving sizes give every band its share, the last band
+/// a texel and need no locks. Few rows a band: a view's occluders crowd a few bands about the horizon, and the
+/// slowest band bounds the raster's time on any number of cores.
+pub(super) const BAND_ROWS: usize = 4;
+/// Each of `bands` bands' rows in level 0 (`band_rows` rows a band) and in the levels above it that each band
+/// still has a row of (at most [`FUSED_LEVELS`]), which level `k` holds `band_rows >> k` of (ceil-halving sizes give every band its share, the last band
 /// a shorter one), and those levels' widths. A band rasterizes its rows of level 0, then reduces them into the
 /// others while they are in its core's cache ([`reduce_band`]).
 pub(super) fn band_levels(
@@ -16,7 +17,7 @@ pub(super) fn band_levels(
     band_rows: usize,
     bands: usize,
 ) -> (Vec<Vec<&mut [f32]>>, Vec<usize>) {
-    let fused = FUSED_LEVELS.min(levels.len() - 1);
+    let fused = FUSED_LEVELS.min(levels.len() - 1).min(band_rows.trailing_zeros() as usize);
     let level_widths: Vec<usize> = levels[..=fused].iter().map(|level| level.width() as usize).collect();
     let mut rows: Vec<Vec<&mut [f32]>> = (0..bands).map(|_| Vec::with_capacity(fused + 1)).collect();
     for (k, level) in levels[..=fused].iter_mut().enumerate() {
@@ -89,8 +90,8 @@ pub(super) fn all_nearer(depths: &[f32], nearest: f32) -> bool {
     depths.chunks(32).all(|group| group.iter().map(|&depth| (depth <= nearest) as u32).sum::<u32>() == 0)
 }
 
-/// Pyramid levels above level 0 that each band reduces its own rows into (`BAND_ROWS >> FUSED_LEVELS` >= 1, and
-/// so for the masked raster's bands).
+/// Pyramid levels above level 0 that each band reduces its own rows into, at most: fewer where a band has too
+/// few rows ([`band_levels`]); the levels above are reduced once every band is done.
 pub(super) const FUSED_LEVELS: usize = 3;
 
 /// Columns of a band summarised by one farthest depth, which [`Band::hides`] reads.

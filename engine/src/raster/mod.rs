@@ -132,7 +132,7 @@ pub struct RasterStats {
 /// Rasterizes `occluders` into level 0 of `pyramid` (resized to the view and cleared first), in parallel over
 /// bands of rows, and builds the pyramid's other levels from it.
 ///
-/// Each band clears its rows just before rasterizing them and reduces them into the next three levels right
+/// Each band clears its rows just before rasterizing them and reduces them into the next levels right
 /// after, while they are in its core's cache; the few rows above are reduced once every band is done.
 pub fn rasterize(
     view: &ScreenView,
