@@ -139,6 +139,8 @@ const ROUND: usize = 1024;
 /// Ranked candidates whose occluders are fetched at once, then looked at in order: more than one task's, and
 /// not many more than a budget takes.
 const FETCH_BATCH: usize = 256;
+/// Candidates one task sorts when a round is ordered ([`sort_best_first`]).
+const SORT_PER_TASK: usize = 128;
 /// Occluders one task fetches.
 const FETCH_PER_TASK: usize = 32;
 /// Relative room for f32 rounding when telling whether the eye may be inside an occluder's sphere: the squared
@@ -157,6 +159,8 @@ type BoundedGroups = (Vec<(f32, u32)>, [u32; 256]);
 /// Bitset words whose groups one task bounds when choosing which groups to rank: each task's counts per
 /// exponent are summed on one thread afterwards, so tasks are fewer than when ranking.
 const BOUND_WORDS_PER_TASK: usize = 1024;
+/// Groups with candidates whose best candidates one task ranks, at most, when ranking the best groups.
+const RANK_GROUPS_PER_TASK: usize = 64;
 /// Candidates ranked first, from the groups that can rank best (see [`select_occluders`]): two rounds.
 const FIRST_CANDIDATES: usize = 2 * ROUND;
 /// Relative room for f32 rounding in a group's bound on its occluders' ranks: each of the distances and the
@@ -315,8 +319,12 @@ fn rank_best_groups(
     let ranked = if visible.len() < RANK_IN_PARALLEL_ABOVE {
         bounded.iter().flat_map(|(groups, _)| rank_chunk(groups)).collect()
     } else {
+        // The best groups crowd the chunks nearest the eye: ranked in pieces of a chunk, so that no task ranks
+        // a large share of them.
+        let pieces: Vec<&[(f32, u32)]> =
+            bounded.iter().flat_map(|(groups, _)| groups.chunks(RANK_GROUPS_PER_TASK)).collect();
         let ranked: Vec<Vec<(f32, u32)>> = parallel::region(|region| {
-            bounded.par_iter().map(|(groups, _)| region.task(|| rank_chunk(groups))).collect()
+            pieces.into_par_iter().map(|groups| region.task(|| rank_chunk(groups))).collect()
         });
         ranked.concat()
     };
@@ -358,7 +366,7 @@ fn choose<'a>(
             rest.select_nth_unstable_by(round, best_first);
         }
         let (head, tail) = rest.split_at_mut(round);
-        head.sort_unstable_by(best_first);
+        sort_best_first(head, best_first);
         let before = chosen.len();
         let mut smallest = usize::MAX;
         'round: for batch in head.chunks(FETCH_BATCH) {
@@ -389,6 +397,26 @@ fn choose<'a>(
         rest = tail;
     }
     Some(chosen)
+}
+
+/// Sorts `ranked` by `best_first`: above [`SORT_PER_TASK`] candidates, its pieces are sorted in parallel and
+/// then merged.
+fn sort_best_first(
+    ranked: &mut [(f32, u32)],
+    best_first: impl Fn(&(f32, u32), &(f32, u32)) -> std::cmp::Ordering + Sync,
+) {
+    if ranked.len() <= SORT_PER_TASK {
+        ranked.sort_unstable_by(best_first);
+        return;
+    }
+    parallel::region(|region| {
+        ranked.par_chunks_mut(SORT_PER_TASK).for_each(|piece| region.task(|| piece.sort_unstable_by(&best_first)));
+    });
+    let merged: Vec<(f32, u32)> =
+        itertools::kmerge_by(ranked.chunks(SORT_PER_TASK), |a: &&(f32, u32), b: &&(f32, u32)| best_first(a, b).is_lt())
+            .copied()
+            .collect();
+    ranked.copy_from_slice(&merged);
 }
 
 /// The occluder of each of `ranked`'s slots, in order. Each fetch is a few cache misses in a large world, and
