@@ -30,10 +30,10 @@ pub const SOA_PADDING: usize = 64;
 const PARALLEL_WRITES_FROM: usize = 1024;
 
 /// Objects whose world bounds one task of [`BoundsStore::update_many`] computes, at least.
-const UPDATES_PER_TASK: usize = 256;
+const UPDATES_PER_TASK: usize = 128;
 
 /// Loose groups one task of [`BoundsStore::tighten_some_groups`] tightens.
-const TIGHTEN_GROUPS_PER_TASK: usize = 16;
+const TIGHTEN_GROUPS_PER_TASK: usize = 4;
 
 /// Pieces [`BoundsStore::update_many`] cuts its objects into, at most: each supergroup's writer looks at each.
 const MAX_UPDATE_PIECES: usize = 64;
@@ -741,6 +741,9 @@ impl BoundsStore {
         self.generation += total as u64;
         let list_moves = self.lists_moves(total);
         let written = self.write_pieces(&pieces, list_moves);
+        if let Some(listed) = self.moved.as_mut().filter(|_| list_moves) {
+            listed.reserve(written.iter().map(|(moved, _)| moved.len()).sum());
+        }
         for (moved, loose) in written {
             if let Some(listed) = self.moved.as_mut().filter(|_| list_moves) {
                 listed.extend(moved);

@@ -98,8 +98,8 @@ const WALK_ROWS: usize = 1024;
 
 /// The updates of every object of `objects` whose [`LocalBounds`] or [`ObjectTransform`] changed since the
 /// stage last ran, in the order of the query: found in parallel over ranges of table rows, then computed in
-/// parallel over pieces of about equal size ([`bounds::store::piece_len`]); and the earlier rejection of each
-/// that had one.
+/// parallel over pieces of each range's changed objects, none larger than [`bounds::store::piece_len`]; and
+/// the earlier rejection of each that had one.
 fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdatePiece>, EntityHashMap<BoundsRejected>) {
     let Ok(tables) = objects.contiguous_iter() else {
         // Not stored in tables (not the case of the engine's components): one walk on this thread.
