@@ -7,8 +7,10 @@ use crate::bounds::BoundsStore;
 use crate::bounds::ObjectTransform;
 use crate::camera::CameraPath;
 use crate::culler::{AdaptiveSettings, CullScene, Culled, Culler, OcclusionSettings};
+use crate::parallel;
 use crate::pipeline::{self, CullStage, CullStats, PipelineSettings};
 use bevy_ecs::prelude::*;
+use rayon::prelude::*;
 use std::time::Duration;
 
 /// Seconds simulated by the current frame.
@@ -16,12 +18,34 @@ use std::time::Duration;
 pub struct FrameDelta(pub f32);
 
 /// Moves objects with a [`Velocity`] by one [`FrameDelta`]; only their transforms change, so only their bounds
-/// are recomputed.
+/// are recomputed. In parallel over runs of table rows (a 1e7-object city moves 200 000 cars a frame).
 pub fn move_objects(delta: Res<FrameDelta>, mut movers: Query<(&Velocity, &mut ObjectTransform)>) {
-    for (velocity, mut transform) in &mut movers {
+    let step = |velocity: &Velocity, transform: &mut ObjectTransform| {
         transform.0.translation += glam::Vec3A::from(velocity.0 * delta.0);
+    };
+    let Ok(tables) = movers.contiguous_iter_mut() else {
+        // Not stored in tables (not the case of these components): one walk on this thread.
+        for (velocity, mut transform) in &mut movers {
+            step(velocity, &mut transform);
+        }
+        return;
+    };
+    let mut runs = Vec::new();
+    for (velocities, transforms) in tables {
+        // Every mover's transform changes: all marked changed at once.
+        let (transforms, _) = bevy_ecs::change_detection::ContiguousMut::split(transforms);
+        runs.extend(velocities.chunks(MOVES_PER_TASK).zip(transforms.chunks_mut(MOVES_PER_TASK)));
     }
+    parallel::region(|region| {
+        runs.into_par_iter().for_each(|(velocities, transforms)| {
+            region
+                .task(|| velocities.iter().zip(transforms).for_each(|(velocity, transform)| step(velocity, transform)))
+        })
+    });
 }
+
+/// Movers one task of [`move_objects`] moves.
+const MOVES_PER_TASK: usize = 4096;
 
 /// A world being flown through: `frames` frames spread evenly over the camera path's duration.
 pub struct Flight {
