@@ -9,9 +9,9 @@ use crate::depth::{DepthBuffer, farther, reduce_rows};
 /// slowest band bounds the raster's time on any number of cores.
 pub(super) const BAND_ROWS: usize = 4;
 /// Each of `bands` bands' rows in level 0 (`band_rows` rows a band) and in the levels above it that each band
-/// still has a row of (at most [`FUSED_LEVELS`]), which level `k` holds `band_rows >> k` of (ceil-halving sizes give every band its share, the last band
-/// a shorter one), and those levels' widths. A band rasterizes its rows of level 0, then reduces them into the
-/// others while they are in its core's cache ([`reduce_band`]).
+/// still has a row of (at most [`FUSED_LEVELS`]), which level `k` holds `band_rows >> k` of (ceil-halving sizes
+/// give every band its share, the last band a shorter one), and those levels' widths. A band rasterizes its
+/// rows of level 0, then reduces them into the others while they are in its core's cache ([`reduce_band`]).
 pub(super) fn band_levels(
     levels: &mut [DepthBuffer],
     band_rows: usize,
