@@ -127,37 +127,39 @@ fn changed_pieces(store: &BoundsStore, objects: &MovableObjects) -> (Vec<UpdateP
     // The walk looks at every movable row's ticks; the bounds are computed afterwards, in pieces sized by how
     // many changed, so that no task computes many more than the others (moving objects are rarely spread
     // evenly over the rows).
-    let walked: Vec<ChangedRows> =
-        parallel::region(|region| ranges.into_par_iter().map(|table| region.task(|| table.changed())).collect());
-    let per_piece = bounds::store::piece_len(walked.iter().map(|rows| rows.objects.len()).sum());
-    let chunks: Vec<&[(Entity, LocalBounds, Affine3A)]> =
-        walked.iter().flat_map(|rows| rows.objects.chunks(per_piece)).collect();
-    let pieces = parallel::region(|region| {
-        chunks.into_par_iter().map(|chunk| region.task(|| store.compute_piece(chunk.iter().copied()))).collect()
+    let walked: Vec<(&TableRows, Vec<usize>)> = parallel::region(|region| {
+        ranges.par_iter().map(|table| region.task(|| (table, table.changed_rows()))).collect()
     });
-    let previous = walked.into_iter().flat_map(|rows| rows.rejected).collect();
+    let per_piece = bounds::store::piece_len(walked.iter().map(|(_, rows)| rows.len()).sum());
+    let chunks: Vec<(&TableRows, &[usize])> =
+        walked.iter().flat_map(|(table, rows)| rows.chunks(per_piece).map(move |chunk| (*table, chunk))).collect();
+    let pieces = parallel::region(|region| {
+        let piece = |(table, rows): (&TableRows, &[usize])| region.task(|| store.compute_piece(table.objects(rows)));
+        chunks.into_par_iter().map(piece).collect()
+    });
+    let previous = walked.iter().flat_map(|(table, rows)| table.rejections(rows)).collect();
     (pieces, previous)
-}
-
-/// The objects of some rows of a table whose bounds changed, in row order, and the earlier rejection of each
-/// that had one.
-struct ChangedRows {
-    objects: Vec<(Entity, LocalBounds, Affine3A)>,
-    rejected: Vec<(Entity, BoundsRejected)>,
 }
 
 impl TableRows<'_> {
     /// This range's rows whose local bounds or transform changed between the stage's last run and this one.
-    fn changed(&self) -> ChangedRows {
+    fn changed_rows(&self) -> Vec<usize> {
         let newer =
             |row: &usize| self.changed.iter().any(|ticks| ticks[*row].is_newer_than(self.last_run, self.this_run));
-        let rows: Vec<usize> = self.rows.clone().filter(newer).collect();
-        let objects = rows.iter().map(|&row| (self.entities[row], self.locals[row], self.transforms[row].0)).collect();
-        let rejected = match self.rejected {
+        self.rows.clone().filter(newer).collect()
+    }
+
+    /// The entity, local bounds and transform of each of `rows`, in order.
+    fn objects(&self, rows: &[usize]) -> impl Iterator<Item = (Entity, LocalBounds, Affine3A)> {
+        rows.iter().map(|&row| (self.entities[row], self.locals[row], self.transforms[row].0))
+    }
+
+    /// The earlier rejection of each of `rows` that had one.
+    fn rejections(&self, rows: &[usize]) -> Vec<(Entity, BoundsRejected)> {
+        match self.rejected {
             Some(rejected) => rows.iter().map(|&row| (self.entities[row], rejected[row].clone())).collect(),
             None => Vec::new(),
-        };
-        ChangedRows { objects, rejected }
+        }
     }
 }
 
